@@ -1,0 +1,66 @@
+"""prismstereo: metric stereo depth from one camera with a bi-prism, as differentiable torch layers.
+
+The public API (conventions: :mod:`prismstereo.conventions`):
+
+* rig: :class:`BiPrismRig`, :class:`RigParameters`, :func:`thesis_setup1`, :func:`thesis_setup2`
+* exact optics: :func:`trace_pixels`, :func:`project_points`, :func:`refract`, :func:`points_at_depth`
+* virtual cameras (thesis ch. 3): :func:`virtual_camera`, :func:`virtual_cameras`
+* errors: :class:`PrismStereoError` and its family
+"""
+
+from prismstereo.errors import OptionError, PrismStereoError, RigError, ShapeError
+from prismstereo.geometry.optics import (
+    Projection,
+    RayBundle,
+    Refraction,
+    apex_ray,
+    half_of_pixels,
+    pixel_directions,
+    points_at_depth,
+    project_points,
+    refract,
+    trace_directions,
+    trace_pixels,
+)
+from prismstereo.geometry.rig import BiPrismRig, RigParameters, thesis_setup1, thesis_setup2
+from prismstereo.geometry.virtual_camera import (
+    VirtualCamera,
+    VirtualCameraPair,
+    closest_point_to_rays,
+    pinhole_reprojection_error,
+    ray_midpoint,
+    virtual_camera,
+    virtual_cameras,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "__version__",
+    "PrismStereoError",
+    "RigError",
+    "ShapeError",
+    "OptionError",
+    "BiPrismRig",
+    "RigParameters",
+    "thesis_setup1",
+    "thesis_setup2",
+    "Projection",
+    "RayBundle",
+    "Refraction",
+    "apex_ray",
+    "half_of_pixels",
+    "pixel_directions",
+    "points_at_depth",
+    "project_points",
+    "refract",
+    "trace_directions",
+    "trace_pixels",
+    "VirtualCamera",
+    "VirtualCameraPair",
+    "closest_point_to_rays",
+    "pinhole_reprojection_error",
+    "ray_midpoint",
+    "virtual_camera",
+    "virtual_cameras",
+]

@@ -1,0 +1,99 @@
+"""Exceptions of prismstereo and the checks that raise them at public entry points.
+
+Every error a user can trigger through bad input derives from :class:`PrismStereoError` (and from
+``ValueError`` or ``TypeError`` where that is the natural base), so callers can catch the whole family
+with one ``except PrismStereoError``. Library code never uses ``assert`` on user input.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import torch
+
+__all__ = [
+    "PrismStereoError",
+    "RigError",
+    "ShapeError",
+    "OptionError",
+    "check_shape",
+    "check_option",
+    "check_floating",
+]
+
+
+class PrismStereoError(Exception):
+    """Base class of every error raised by prismstereo on bad input."""
+
+
+class RigError(PrismStereoError, ValueError):
+    """An invalid rig: bad field values, a malformed rig file, or a geometry that cannot image."""
+
+
+class ShapeError(PrismStereoError, ValueError):
+    """A tensor argument has the wrong shape."""
+
+
+class OptionError(PrismStereoError, ValueError):
+    """An option string (a ``Literal[...]`` argument) is not one of the valid choices."""
+
+
+def check_shape(x: Any, shape: Sequence[str | int], name: str = "tensor") -> None:
+    """Check that ``x`` is a tensor whose trailing dims match ``shape``.
+
+    ``shape`` is a list of dims, Kornia style: ``"*"`` (only first) stands for any number of leading dims,
+    an ``int`` must match exactly and any other string (``"B"``, ``"N"``) matches any size.
+
+    Args:
+        x: the argument to check.
+        shape: e.g. ``["*", 2]`` or ``["B", "C", "H", "W"]``.
+        name: the argument's name, used in the message.
+
+    Raises:
+        ShapeError: if ``x`` is not a tensor or its shape does not match.
+
+    Example:
+        >>> check_shape(torch.zeros(4, 5, 2), ["*", 2], "uv")
+    """
+    if not isinstance(x, torch.Tensor):
+        raise ShapeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+    dims = list(shape)
+    wildcard = bool(dims) and dims[0] == "*"
+    fixed = dims[1:] if wildcard else dims
+    ok = x.dim() >= len(fixed) if wildcard else x.dim() == len(fixed)
+    if ok:
+        for want, got in zip(fixed, x.shape[x.dim() - len(fixed):]):
+            if isinstance(want, int) and want != got:
+                ok = False
+                break
+    if not ok:
+        expected = "(" + ", ".join(str(d) for d in dims) + ")"
+        raise ShapeError(f"{name} must have shape {expected}, got {tuple(x.shape)}")
+
+
+def check_option(value: Any, choices: Iterable[str], name: str) -> str:
+    """Return ``value`` if it is one of ``choices``, else raise an :class:`OptionError` listing them.
+
+    Example:
+        >>> check_option("left", ("left", "right"), "half")
+        'left'
+    """
+    choices = tuple(choices)
+    if value not in choices:
+        raise OptionError(f"Unknown {name} {value!r}. Choose from: {', '.join(map(repr, choices))}")
+    return value
+
+
+def check_floating(x: torch.Tensor, name: str = "tensor") -> None:
+    """Raise a :class:`PrismStereoError` (``TypeError``) unless ``x`` is a floating-point tensor.
+
+    Example:
+        >>> check_floating(torch.zeros(3), "points")
+    """
+    if not torch.is_floating_point(x):
+        raise _DTypeError(f"{name} must be a floating-point tensor, got dtype {x.dtype}")
+
+
+class _DTypeError(PrismStereoError, TypeError):
+    """A tensor argument has a non-floating dtype."""

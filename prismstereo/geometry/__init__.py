@@ -1,0 +1,54 @@
+"""Rig, exact prism optics and virtual cameras (thesis chapter 3)."""
+
+from prismstereo.geometry.optics import (
+    Half,
+    Projection,
+    RayBundle,
+    Refraction,
+    apex_ray,
+    check_rig_images,
+    half_of_pixels,
+    pixel_directions,
+    points_at_depth,
+    project_points,
+    refract,
+    trace_directions,
+    trace_pixels,
+)
+from prismstereo.geometry.rig import BiPrismRig, RigParameters, thesis_setup1, thesis_setup2
+from prismstereo.geometry.virtual_camera import (
+    VirtualCamera,
+    VirtualCameraPair,
+    closest_point_to_rays,
+    pinhole_reprojection_error,
+    ray_midpoint,
+    virtual_camera,
+    virtual_cameras,
+)
+
+__all__ = [
+    "BiPrismRig",
+    "RigParameters",
+    "thesis_setup1",
+    "thesis_setup2",
+    "Half",
+    "Projection",
+    "RayBundle",
+    "Refraction",
+    "apex_ray",
+    "check_rig_images",
+    "half_of_pixels",
+    "pixel_directions",
+    "points_at_depth",
+    "project_points",
+    "refract",
+    "trace_directions",
+    "trace_pixels",
+    "VirtualCamera",
+    "VirtualCameraPair",
+    "closest_point_to_rays",
+    "pinhole_reprojection_error",
+    "ray_midpoint",
+    "virtual_camera",
+    "virtual_cameras",
+]

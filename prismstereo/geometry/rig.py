@@ -1,0 +1,396 @@
+"""The physical setup: a pinhole camera with a bi-prism in front of it.
+
+Frames and units (see :mod:`prismstereo.conventions`): camera frame x right, y down, z forward, origin at
+the real camera's optical centre; lengths in mm; angles in radians internally, ``*_deg`` in user-facing
+fields. Pixels (u, v) = (column, row) with pixel centres at integer coordinates.
+
+The prism (thesis ch. 3, fig. 3.4; eq. 3.3 in our frame): the apex line is parallel to y at x = d
+(``prism_offset_x_mm``) and z = T_o (``apex_distance_mm``); the two faces are z = T_o + |x - d| tan(alpha);
+the back plane z = T_o + T (``prism_thickness_mm``) is parallel to the image plane. The prism is therefore
+T thick at the apex and ends where the faces meet the back plane, |x - d| = T / tan(alpha): its back plane is
+2 T / tan(alpha) wide. An optional tilt rotates the whole prism about the apex point (d, 0, T_o).
+
+:class:`BiPrismRig` holds the numbers (frozen, JSON round trip, validated); :class:`RigParameters` holds the
+same numbers as tensors, which is what the differentiable optics consume (so every rig parameter can be
+optimised, e.g. for self-calibration).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import torch
+
+from prismstereo.errors import RigError
+
+__all__ = ["BiPrismRig", "RigParameters", "thesis_setup1", "thesis_setup2"]
+
+_REQUIRED = (
+    "alpha_deg",
+    "refractive_index",
+    "focal_length_mm",
+    "prism_thickness_mm",
+    "apex_distance_mm",
+    "pixel_size_mm",
+    "image_width",
+    "image_height",
+)
+_OPTIONAL = ("principal_point", "prism_offset_x_mm", "prism_tilt_deg")
+
+
+class RigParameters(NamedTuple):
+    """A rig's parameters as tensors: the input of every differentiable optics function.
+
+    All tensor fields are 0-d tensors of one dtype and device (``tilt`` has shape (3,)); any of them may
+    require grad. ``width``/``height`` are plain ints (the sensor size is discrete).
+
+    Attributes:
+        alpha: prism corner angle (rad).
+        n: refractive index of the glass.
+        f: focal length (mm).
+        T: prism thickness, apex to back plane (mm).
+        T_o: optical centre to apex distance (mm).
+        pixel_size: square pixel pitch (mm).
+        cx: principal point column (px).
+        cy: principal point row (px).
+        d: x offset of the apex line (mm).
+        tilt: (3,) prism rotation about the apex point (rad): about x, y, z, applied as R_z R_y R_x.
+        width: image width (px).
+        height: image height (px).
+    """
+
+    alpha: torch.Tensor
+    n: torch.Tensor
+    f: torch.Tensor
+    T: torch.Tensor
+    T_o: torch.Tensor
+    pixel_size: torch.Tensor
+    cx: torch.Tensor
+    cy: torch.Tensor
+    d: torch.Tensor
+    tilt: torch.Tensor
+    width: int
+    height: int
+
+    def to(self, like: torch.Tensor) -> RigParameters:
+        """Return the parameters on ``like``'s device and dtype (autograd is preserved).
+
+        Example:
+            >>> p = thesis_setup1().parameters().to(torch.zeros(1, dtype=torch.float64))
+            >>> p.alpha.dtype
+            torch.float64
+        """
+        fields = {
+            k: (v.to(device=like.device, dtype=like.dtype) if isinstance(v, torch.Tensor) else v)
+            for k, v in self._asdict().items()
+        }
+        return RigParameters(**fields)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class BiPrismRig:
+    """A camera with a bi-prism in front of it (thesis Table 3.1 / Table 4.2 parameters).
+
+    The JSON field names are a contract shared with other tools; see the module docstring for the
+    geometry. Construction validates every field and checks that both half-images actually see through
+    the prism (rays neither miss it nor are totally internally reflected over a whole half).
+
+    Args:
+        alpha_deg: prism corner angle alpha in degrees, in (0, 90).
+        refractive_index: glass index n > 1.
+        focal_length_mm: focal length f > 0.
+        prism_thickness_mm: T > 0, apex to back plane.
+        apex_distance_mm: T_o > 0, optical centre to apex.
+        pixel_size_mm: square pixel pitch > 0.
+        image_width: sensor columns (> 1).
+        image_height: sensor rows (> 0).
+        principal_point: (cx, cy) in px, default the image centre ((W - 1) / 2, (H - 1) / 2); must lie on
+            the sensor.
+        prism_offset_x_mm: d, x translation of the prism (thesis sec. 5.5), default 0.
+        prism_tilt_deg: rotation of the prism about its apex point (d, 0, T_o), degrees about x, y, z
+            (applied as R_z R_y R_x); default (0, 0, 0). Each angle must be in (-45, 45).
+
+    Raises:
+        RigError: on any invalid value (the message names the field).
+
+    Example:
+        >>> rig = BiPrismRig(alpha_deg=6.4, refractive_index=1.48, focal_length_mm=25.0,
+        ...                  prism_thickness_mm=5.6, apex_distance_mm=170.0, pixel_size_mm=0.00465,
+        ...                  image_width=1024, image_height=768)
+        >>> rig.principal_point
+        (511.5, 383.5)
+    """
+
+    alpha_deg: float
+    refractive_index: float
+    focal_length_mm: float
+    prism_thickness_mm: float
+    apex_distance_mm: float
+    pixel_size_mm: float
+    image_width: int
+    image_height: int
+    principal_point: tuple[float, float] | None = None
+    prism_offset_x_mm: float = 0.0
+    prism_tilt_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for name in ("alpha_deg", "refractive_index", "focal_length_mm", "prism_thickness_mm",
+                     "apex_distance_mm", "pixel_size_mm", "prism_offset_x_mm"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise RigError(f"{name} must be a finite number, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        for name in ("image_width", "image_height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) and not (
+                isinstance(value, float) and value.is_integer()
+            ):
+                raise RigError(f"{name} must be an integer number of pixels, got {value!r}")
+            object.__setattr__(self, name, int(value))
+        for name in ("focal_length_mm", "prism_thickness_mm", "apex_distance_mm", "pixel_size_mm"):
+            if getattr(self, name) <= 0:
+                raise RigError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.image_width < 2 or self.image_height < 1:
+            raise RigError(f"image size must be at least 2x1 px, got {self.image_width}x{self.image_height}")
+        if not 0.0 < self.alpha_deg < 90.0:
+            raise RigError(f"alpha_deg must be in (0, 90) degrees, got {self.alpha_deg}")
+        if self.refractive_index <= 1.0:
+            raise RigError(f"refractive_index must be > 1 (glass in air), got {self.refractive_index}")
+        pp = self.principal_point
+        if pp is None:
+            pp = ((self.image_width - 1) / 2.0, (self.image_height - 1) / 2.0)
+        pp = _float_tuple(pp, 2, "principal_point")
+        cx, cy = pp
+        if not (-0.5 <= cx <= self.image_width - 0.5 and -0.5 <= cy <= self.image_height - 0.5):
+            raise RigError(
+                f"principal_point {pp} is off the sensor (valid: u in [-0.5, {self.image_width - 0.5}], "
+                f"v in [-0.5, {self.image_height - 0.5}])"
+            )
+        object.__setattr__(self, "principal_point", pp)
+        tilt = _float_tuple(self.prism_tilt_deg, 3, "prism_tilt_deg")
+        if any(abs(t) >= 45.0 for t in tilt):
+            raise RigError(f"prism_tilt_deg angles must be in (-45, 45) degrees, got {tilt}")
+        object.__setattr__(self, "prism_tilt_deg", tilt)
+        # The geometric check needs the ray tracer; imported here to keep the module graph acyclic.
+        from prismstereo.geometry.optics import check_rig_images
+
+        check_rig_images(self)
+
+    # ----------------------------------------------------------------------------- derived values
+    @property
+    def alpha_rad(self) -> float:
+        """Prism corner angle alpha in radians."""
+        return math.radians(self.alpha_deg)
+
+    @property
+    def cx(self) -> float:
+        """Principal point column (px)."""
+        return self.principal_point[0]  # type: ignore[index]
+
+    @property
+    def cy(self) -> float:
+        """Principal point row (px)."""
+        return self.principal_point[1]  # type: ignore[index]
+
+    @property
+    def focal_length_px(self) -> float:
+        """Focal length in pixels, f / pixel_size."""
+        return self.focal_length_mm / self.pixel_size_mm
+
+    @property
+    def prism_width_mm(self) -> float:
+        """Width of the prism's back plane, 2 T / tan(alpha) (mm)."""
+        return 2.0 * self.prism_thickness_mm / math.tan(self.alpha_rad)
+
+    @property
+    def apex_column(self) -> float:
+        """Image column u where the apex point (d, 0, T_o) projects: cx + f d / (T_o pixel_size).
+
+        Columns u < apex_column form the left (reference) half-image when the prism is not tilted.
+        """
+        return self.cx + self.focal_length_px * self.prism_offset_x_mm / self.apex_distance_mm
+
+    # ----------------------------------------------------------------------------- tensors
+    def parameters(
+        self,
+        like: torch.Tensor | None = None,
+        *,
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+        requires_grad: bool = False,
+    ) -> RigParameters:
+        """Return the rig as :class:`RigParameters` (angles converted to radians).
+
+        Args:
+            like: take dtype and device from this tensor (overridden by ``dtype``/``device``).
+            dtype: tensor dtype, default ``like.dtype`` or float32.
+            device: tensor device, default ``like.device`` or CPU.
+            requires_grad: make every floating field a leaf requiring grad.
+
+        Example:
+            >>> p = thesis_setup1().parameters(dtype=torch.float64, requires_grad=True)
+            >>> p.alpha.requires_grad, p.tilt.shape
+            (True, torch.Size([3]))
+        """
+        if dtype is None:
+            dtype = like.dtype if like is not None else torch.get_default_dtype()
+        if device is None:
+            device = like.device if like is not None else None
+
+        def t(value: Any) -> torch.Tensor:
+            return torch.tensor(value, dtype=dtype, device=device, requires_grad=requires_grad)
+
+        return RigParameters(
+            alpha=t(self.alpha_rad),
+            n=t(self.refractive_index),
+            f=t(self.focal_length_mm),
+            T=t(self.prism_thickness_mm),
+            T_o=t(self.apex_distance_mm),
+            pixel_size=t(self.pixel_size_mm),
+            cx=t(self.cx),
+            cy=t(self.cy),
+            d=t(self.prism_offset_x_mm),
+            tilt=t([math.radians(a) for a in self.prism_tilt_deg]),
+            width=self.image_width,
+            height=self.image_height,
+        )
+
+    def replace(self, **changes: Any) -> BiPrismRig:
+        """Return a validated copy with some fields changed.
+
+        Example:
+            >>> thesis_setup1().replace(prism_offset_x_mm=2.0).prism_offset_x_mm
+            2.0
+        """
+        return dataclasses.replace(self, **changes)
+
+    # ----------------------------------------------------------------------------- JSON
+    def to_dict(self) -> dict[str, Any]:
+        """The rig as a JSON-ready dict with the contract's field names (all fields written)."""
+        out = dataclasses.asdict(self)
+        out["principal_point"] = list(self.principal_point)  # type: ignore[arg-type]
+        out["prism_tilt_deg"] = list(self.prism_tilt_deg)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> BiPrismRig:
+        """Build a rig from a dict with the JSON field names.
+
+        Raises:
+            RigError: on missing or unknown fields, or invalid values.
+
+        Example:
+            >>> BiPrismRig.from_dict(thesis_setup1().to_dict()) == thesis_setup1()
+            True
+        """
+        if not isinstance(data, dict):
+            raise RigError(f"a rig must be a JSON object, got {type(data).__name__}")
+        missing = [k for k in _REQUIRED if k not in data]
+        if missing:
+            raise RigError(f"rig is missing required field(s): {', '.join(missing)}")
+        unknown = sorted(set(data) - set(_REQUIRED) - set(_OPTIONAL))
+        if unknown:
+            raise RigError(
+                f"unknown rig field(s): {', '.join(unknown)}. Valid fields: {', '.join(_REQUIRED + _OPTIONAL)}"
+            )
+        kwargs = dict(data)
+        if kwargs.get("principal_point") is not None:
+            kwargs["principal_point"] = _float_tuple(kwargs["principal_point"], 2, "principal_point")
+        if "prism_tilt_deg" in kwargs:
+            kwargs["prism_tilt_deg"] = _float_tuple(kwargs["prism_tilt_deg"], 3, "prism_tilt_deg")
+        return cls(**kwargs)
+
+    def to_json(self, path: str | Path | None = None) -> str:
+        """Serialise to JSON; also write it to ``path`` if given. Returns the JSON text.
+
+        Example:
+            >>> '"alpha_deg": 6.4' in thesis_setup1().to_json()
+            True
+        """
+        text = json.dumps(self.to_dict(), indent=2) + "\n"
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    @classmethod
+    def from_json(cls, source: str | Path) -> BiPrismRig:
+        """Load a rig from a JSON file path (or a JSON string starting with ``{``).
+
+        Raises:
+            RigError: if the file is missing, is not valid JSON, or holds an invalid rig.
+
+        Example:
+            >>> BiPrismRig.from_json(thesis_setup2().to_json()).alpha_deg
+            21.8
+        """
+        text = str(source)
+        if not text.lstrip().startswith("{"):
+            path = Path(source)
+            if not path.is_file():
+                raise RigError(f"rig file not found: {path}")
+            text = path.read_text()
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise RigError(f"rig file is not valid JSON: {exc}") from exc
+        return cls.from_dict(data)
+
+
+def _float_tuple(value: Any, length: int, name: str) -> tuple[float, ...]:
+    try:
+        items = tuple(float(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise RigError(f"{name} must be a list of {length} numbers, got {value!r}") from exc
+    if len(items) != length or not all(math.isfinite(v) for v in items):
+        raise RigError(f"{name} must be a list of {length} finite numbers, got {value!r}")
+    return items
+
+
+def thesis_setup1() -> BiPrismRig:
+    """The thesis' main setup (Table 3.1): alpha 6.4 deg, n 1.48, f 25 mm, T 5.6 mm, T_o 170 mm.
+
+    Sensor 1024 x 768 px of 4.65 um (4.7616 mm wide, the sensor width of thesis fig. 5.4). The back plane
+    is 2 T / tan(alpha) = 99.8 mm wide, matching the thesis' 100 mm prism (b in eq. 5.16).
+
+    Example:
+        >>> round(thesis_setup1().prism_width_mm, 1)
+        99.8
+    """
+    return BiPrismRig(
+        alpha_deg=6.4,
+        refractive_index=1.48,
+        focal_length_mm=25.0,
+        prism_thickness_mm=5.6,
+        apex_distance_mm=170.0,
+        pixel_size_mm=0.00465,
+        image_width=1024,
+        image_height=768,
+    )
+
+
+def thesis_setup2() -> BiPrismRig:
+    """The thesis' second setup (Table 4.2): alpha 21.8 deg, f 8 mm, with a consistent thickness.
+
+    The thesis lists T = 5.6 mm for this prism too, but a 21.8 deg prism whose back plane is 100 mm wide
+    (b = 100 mm, thesis sec. 5.2) is T = 50 tan(21.8 deg) = 20.0 mm thick; with T = 5.6 mm it would be only
+    2 * 5.6 / tan(21.8 deg) = 28.0 mm wide. We use T = 50 tan(alpha) so the prism is the thesis' 100 mm part.
+
+    Example:
+        >>> round(thesis_setup2().prism_thickness_mm, 3)
+        20.0
+    """
+    alpha = 21.8
+    return BiPrismRig(
+        alpha_deg=alpha,
+        refractive_index=1.48,
+        focal_length_mm=8.0,
+        prism_thickness_mm=50.0 * math.tan(math.radians(alpha)),
+        apex_distance_mm=170.0,
+        pixel_size_mm=0.00465,
+        image_width=1024,
+        image_height=768,
+    )
