@@ -213,7 +213,7 @@ def _trace(p: RigParameters, directions: torch.Tensor, half: str) -> RayBundle:
     if half == "auto":
         use_left = natural_left
     else:
-        use_left = torch.full_like(natural_left, half == "left")
+        use_left = torch.ones_like(natural_left) if half == "left" else torch.zeros_like(natural_left)
     ul = use_left.unsqueeze(-1)
     t1 = torch.where(use_left, t_l, t_r)
     n1 = torch.where(ul, pl.n_left, pl.n_right)
@@ -231,10 +231,10 @@ def _trace(p: RigParameters, directions: torch.Tensor, half: str) -> RayBundle:
     exits_back = (den_o >= 0) | (t_o >= t_b)
     entry_on_surface = _dot(n_other, p1 - pl.apex) >= 0  # the forced face is the one really hit
     entry_within = _dot(pl.n_back, p1 - pl.back) <= 0  # enters before the face meets the back plane
-    valid = (
-        (den_l > tiny) & (den_r > tiny) & (t1 > 0) & (den_b > 0) & inside.valid & out.valid
-        & exits_back & entry_within & (entry_on_surface | (half == "auto"))
-    )
+    valid = (den_l > tiny) & (den_r > tiny) & (t1 > 0) & (den_b > 0) & inside.valid & out.valid
+    valid = valid & exits_back & entry_within
+    if half != "auto":
+        valid = valid & entry_on_surface
     return RayBundle(p2, out.directions, valid, use_left)
 
 

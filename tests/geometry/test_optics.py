@@ -1,0 +1,445 @@
+import math
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from kornia.geometry.camera import PinholeCamera
+
+from prismstereo import (
+    BiPrismRig,
+    OptionError,
+    PrismStereoError,
+    RigError,
+    ShapeError,
+    apex_ray,
+    half_of_pixels,
+    pixel_directions,
+    points_at_depth,
+    project_points,
+    refract,
+    thesis_setup1,
+    thesis_setup2,
+    trace_directions,
+    trace_pixels,
+)
+from tests.conftest import ROUND_TRIP_TOL, random_pixels
+
+F64 = torch.float64
+
+
+# ----------------------------------------------------------------------------- independent reference
+def reference_trace(rig: BiPrismRig, uv: torch.Tensor):
+    """Untilted prism, by the thesis' closed forms: entry point of eq. 3.4 (generalised to an offset d) and
+    refraction by conservation of the tangential direction component (n_1 t_1 = n_2 t_2), not the vector
+    Snell formula under test. Returns (origins, directions, entry points, inside directions)."""
+    n, ta, d = rig.refractive_index, math.tan(rig.alpha_rad), rig.prism_offset_x_mm
+    x = (uv[..., 0] - rig.cx) * rig.pixel_size_mm
+    y = (uv[..., 1] - rig.cy) * rig.pixel_size_mm
+    f = rig.focal_length_mm
+    s = (uv[..., 0] >= rig.apex_column).to(uv.dtype) * 2 - 1  # face z = T_o + s (x - d) tan(alpha)
+    g = (rig.apex_distance_mm - s * d * ta) / (f - s * x * ta)  # eq. 3.4 with the offset
+    p1 = torch.stack([g * x, g * y, g * f], dim=-1)
+    ray = p1 / p1.norm(dim=-1, keepdim=True)
+    m = torch.stack([-s * ta, torch.zeros_like(s), torch.ones_like(s)], dim=-1)
+    m = m / m.norm(dim=-1, keepdim=True)  # face normal pointing into the glass
+    tangential = ray - (ray * m).sum(-1, keepdim=True) * m
+    t_in = tangential / n
+    d1 = t_in + torch.sqrt(1 - t_in.square().sum(-1, keepdim=True)) * m
+    back = rig.apex_distance_mm + rig.prism_thickness_mm
+    p2 = p1 + d1 * ((back - p1[..., 2:]) / d1[..., 2:])
+    xy = n * d1[..., :2]
+    d2 = torch.cat([xy, torch.sqrt((1 - xy.square().sum(-1, keepdim=True)).clamp_min(0))], dim=-1)
+    return p2, d2, p1, d1
+
+
+@pytest.mark.parametrize("make", [thesis_setup1, thesis_setup2, lambda: thesis_setup1().replace(prism_offset_x_mm=3.0)])
+def test_trace_matches_closed_form_reference(make):
+    rig = make()
+    uv = random_pixels(rig, 4000, F64)
+    uv = uv[(uv[:, 0] - rig.apex_column).abs() > 1e-6]
+    rays = trace_pixels(rig, uv)
+    p2, d2, _, _ = reference_trace(rig, uv)
+    v = rays.valid
+    assert v.float().mean() > 0.8
+    torch.testing.assert_close(rays.origins[v], p2[v], atol=1e-10, rtol=0)
+    torch.testing.assert_close(rays.directions[v], d2[v], atol=1e-12, rtol=0)
+    assert torch.equal(rays.left, uv[:, 0] < rig.apex_column)
+
+
+# ----------------------------------------------------------------------------- refract
+def test_refract_snell_law():
+    gen = torch.Generator().manual_seed(1)
+    inc = torch.randn(500, 3, generator=gen, dtype=F64)
+    inc[:, 2] = inc[:, 2].abs() + 0.5
+    inc = inc / inc.norm(dim=-1, keepdim=True)
+    normal = torch.tensor([0.1, -0.2, -1.0], dtype=F64)
+    normal = normal / normal.norm()
+    for eta in (1 / 1.5, 1.5):
+        out = refract(inc, normal, eta)
+        sin_i = torch.linalg.cross(inc, normal.expand_as(inc)).norm(dim=-1)
+        sin_t = torch.linalg.cross(out.directions, normal.expand_as(inc)).norm(dim=-1)
+        v = out.valid
+        torch.testing.assert_close(sin_t[v], eta * sin_i[v])
+        torch.testing.assert_close(out.directions.norm(dim=-1)[v], torch.ones_like(sin_i[v]))
+        # coplanar with incident ray and normal
+        triple = (torch.linalg.cross(inc, normal.expand_as(inc)) * out.directions).sum(-1)
+        assert triple[v].abs().max() < 1e-12
+        # keeps going forward through the surface
+        assert ((out.directions @ normal)[v] < 0).all()
+        assert torch.equal(v, eta * sin_i < 1)
+    assert not refract(inc, normal, 1.5).valid.all()  # some are totally internally reflected
+
+
+def test_refract_tir_gradients_are_finite():
+    inc = torch.tensor([[0.8, 0.0, 0.6], [0.1, 0.0, 0.995]], dtype=F64, requires_grad=True)
+    out = refract(inc / inc.norm(dim=-1, keepdim=True), torch.tensor([0.0, 0.0, -1.0], dtype=F64), 1.5)
+    assert out.valid.tolist() == [False, True]
+    out.directions.sum().backward()
+    assert torch.isfinite(inc.grad).all()
+
+
+# ----------------------------------------------------------------------------- pixel directions
+def test_pixel_directions_match_kornia(dtype):
+    rig = thesis_setup1().replace(principal_point=(500.0, 370.0))
+    uv = random_pixels(rig, 100, dtype)
+    ours = pixel_directions(rig, uv)
+    fpx = rig.focal_length_px
+    k = torch.tensor([[fpx, 0, 500.0, 0], [0, fpx, 370.0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=dtype)
+    cam = PinholeCamera(k[None], torch.eye(4, dtype=dtype)[None], torch.tensor([768.0]), torch.tensor([1024.0]))
+    theirs = cam.unproject(uv, torch.ones(100, 1, dtype=dtype))
+    theirs = theirs / theirs.norm(dim=-1, keepdim=True)
+    torch.testing.assert_close(ours, theirs)
+    torch.testing.assert_close(
+        pixel_directions(rig, torch.tensor([500.0, 370.0], dtype=dtype)), torch.tensor([0.0, 0.0, 1.0], dtype=dtype)
+    )
+
+
+# ----------------------------------------------------------------------------- trace
+def test_trace_shapes_and_dtype(rig, dtype):
+    uv = random_pixels(rig, 24, dtype).reshape(2, 3, 4, 2)
+    rays = trace_pixels(rig, uv)
+    assert rays.origins.shape == (2, 3, 4, 3) and rays.directions.shape == (2, 3, 4, 3)
+    assert rays.valid.shape == (2, 3, 4) and rays.left.shape == (2, 3, 4)
+    assert rays.origins.dtype == dtype and rays.valid.dtype == torch.bool
+    single = trace_pixels(rig, uv[0, 0, 0])
+    assert single.origins.shape == (3,) and single.valid.shape == ()
+
+
+def test_trace_halves_follow_apex_column():
+    for rig in (thesis_setup1(), thesis_setup1().replace(prism_offset_x_mm=-2.0)):
+        uv = random_pixels(rig, 2000, F64)
+        assert torch.equal(half_of_pixels(rig, uv), uv[:, 0] < rig.apex_column)
+
+
+def test_trace_exits_on_back_plane_with_unit_directions(rig):
+    uv = random_pixels(rig, 500, F64)
+    rays = trace_pixels(rig, uv)
+    torch.testing.assert_close(rays.directions.norm(dim=-1), torch.ones(500, dtype=F64))
+    if rig.prism_tilt_deg == (0.0, 0.0, 0.0):
+        back = rig.apex_distance_mm + rig.prism_thickness_mm
+        torch.testing.assert_close(rays.origins[:, 2], torch.full((500,), back, dtype=F64))
+
+
+def test_trace_forced_half_flags_wrong_face():
+    rig = thesis_setup1()
+    uv = torch.tensor([[100.0, 300.0], [900.0, 300.0]], dtype=F64)
+    assert trace_pixels(rig, uv, half="left").valid.tolist() == [True, False]
+    assert trace_pixels(rig, uv, half="right").valid.tolist() == [False, True]
+    d = pixel_directions(rig, uv)
+    assert trace_directions(rig, d).left.tolist() == [True, False]
+
+
+def test_trace_bad_arguments():
+    rig = thesis_setup1()
+    with pytest.raises(ShapeError, match=r"uv must have shape \(\*, 2\)"):
+        trace_pixels(rig, torch.zeros(4, 3))
+    with pytest.raises(PrismStereoError, match="floating-point"):
+        trace_pixels(rig, torch.zeros(4, 2, dtype=torch.int64))
+    with pytest.raises(OptionError, match="Unknown half 'centre'. Choose from: 'auto', 'left', 'right'"):
+        trace_pixels(rig, torch.zeros(4, 2), half="centre")
+    with pytest.raises(RigError, match="rig must be a BiPrismRig or RigParameters"):
+        trace_pixels({"alpha_deg": 6.4}, torch.zeros(4, 2))
+    with pytest.raises(ShapeError, match="directions must have shape"):
+        trace_directions(rig, torch.zeros(2, 2))
+
+
+# ----------------------------------------------------------------------------- central ray: eq. 5.2-5.5, 5.27-5.33
+def phi2(alpha: float, n: float) -> float:
+    """Thesis eq. 5.5."""
+    return math.asin(n * math.sin(alpha - math.asin(math.sin(alpha) / n)))
+
+
+@pytest.mark.parametrize("make,expected", [(thesis_setup1, 0.05376), (thesis_setup2, 0.18834)])
+def test_apex_ray_angle_is_phi2(make, expected):
+    rig = make()
+    for half, sign in (("left", 1.0), ("right", -1.0)):
+        ray = apex_ray(rig, half)
+        beta = math.atan2(ray.directions[0].item(), ray.directions[2].item())
+        assert beta == pytest.approx(sign * phi2(rig.alpha_rad, rig.refractive_index), abs=1e-12)
+        assert round(sign * beta, 5) == expected  # thesis Table 5.3
+        assert bool(ray.valid)
+
+
+@pytest.mark.parametrize("d", [-4.0, 2.5, 6.0])
+def test_apex_ray_with_offset_follows_eq_5_27_to_5_33(d):
+    rig = thesis_setup1().replace(prism_offset_x_mm=d)
+    a, n, t, t_o = rig.alpha_rad, rig.refractive_index, rig.prism_thickness_mm, rig.apex_distance_mm
+    w0 = math.atan(d / t_o)  # eq. 5.27
+    mu1, mu2 = a - w0, a + w0  # eq. 5.28-5.29
+    mu3p = a - math.asin(math.sin(mu1) / n)  # eq. 5.30
+    mu4p = math.asin(math.sin(mu2) / n) - a  # eq. 5.31
+    # The thesis names halves after its mirrored image: its mu_3 / h_r ray is our left half's.
+    expected = {"left": (math.asin(n * math.sin(mu3p)), d + t * math.tan(mu3p)),  # eq. 5.33 (h_r)
+                "right": (math.asin(n * math.sin(mu4p)), d + t * math.tan(mu4p))}  # eq. 5.32 (h_l)
+    for half, (beta, h) in expected.items():
+        ray = apex_ray(rig, half)
+        assert math.atan2(ray.directions[0].item(), ray.directions[2].item()) == pytest.approx(beta, abs=1e-12)
+        assert ray.origins[0].item() == pytest.approx(h, abs=1e-10)
+
+
+def test_thin_prism_limit():
+    # deviation -> (n - 1) alpha as alpha -> 0 (relative error O(alpha^2))
+    for alpha_deg in (0.5, 0.05, 0.005):
+        rig = thesis_setup1().replace(alpha_deg=alpha_deg)
+        a = rig.alpha_rad
+        uv = torch.tensor([[500.0, 383.5], [505.0, 380.0], [520.0, 390.0], [530.0, 383.5]], dtype=F64)
+        incoming = pixel_directions(rig, uv)
+        rays = trace_pixels(rig, uv)
+        deviation = torch.acos((incoming * rays.directions).sum(-1).clamp(max=1.0))
+        rel = (deviation / ((rig.refractive_index - 1) * a) - 1).abs().max().item()
+        assert rel < 2e-3 * max(alpha_deg, 0.05)
+
+
+# ----------------------------------------------------------------------------- validity masks
+def test_total_internal_reflection_mask():
+    rig = thesis_setup2().replace(alpha_deg=55.0, refractive_index=2.0, prism_thickness_mm=300.0)
+    uv = random_pixels(rig, 3000, F64)
+    uv = uv[(uv[:, 0] - rig.apex_column).abs() > 0.5]
+    rays = trace_pixels(rig, uv)
+    _, _, p1, d1 = reference_trace(rig, uv)
+    tir = rig.refractive_index * d1[:, :2].norm(dim=-1) > 1  # critical angle at the back plane
+    within = (p1[:, 0] - rig.prism_offset_x_mm).abs() < rig.prism_thickness_mm / math.tan(rig.alpha_rad)
+    assert tir.any() and (~tir & within).any()
+    assert torch.equal(rays.valid, ~tir & within)
+    assert torch.isfinite(rays.directions).all()
+
+
+def test_miss_mask_narrow_prism():
+    rig = thesis_setup1().replace(prism_thickness_mm=0.5)  # back plane 8.9 mm wide
+    uv = random_pixels(rig, 3000, F64)
+    rays = trace_pixels(rig, uv)
+    _, _, p1, _ = reference_trace(rig, uv)
+    half_width = rig.prism_thickness_mm / math.tan(rig.alpha_rad)
+    margin = (p1[:, 0].abs() - half_width).abs() > 1e-9
+    inside = p1[:, 0].abs() <= half_width
+    assert inside.any() and (~inside).any()
+    assert torch.equal(rays.valid[margin], inside[margin])
+
+
+def test_ray_leaving_through_other_face_is_invalid():
+    # a steep prism: rays entering near the apex cross under it and hit the other face from inside
+    rig = thesis_setup1().replace(alpha_deg=80.0, refractive_index=1.5, prism_thickness_mm=50.0)
+    u = torch.linspace(300.0, 723.0, 424, dtype=F64)
+    uv = torch.stack([u, torch.full_like(u, 383.5)], dim=-1)
+    uv = uv[(uv[:, 0] - rig.apex_column).abs() > 1e-3]
+    rays = trace_pixels(rig, uv)
+    _, _, p1, d1 = reference_trace(rig, uv)
+    ta, t_o = math.tan(rig.alpha_rad), rig.apex_distance_mm
+    back = t_o + rig.prism_thickness_mm
+    s_other = torch.where(p1[:, 0] < 0, 1.0, -1.0).to(F64)  # the other face: z = T_o + s x tan(alpha)
+    t = (t_o + s_other * p1[:, 0] * ta - p1[:, 2]) / (d1[:, 2] - s_other * d1[:, 0] * ta)
+    hit = p1 + t.unsqueeze(-1) * d1
+    hits_other = (t > 1e-9) & (hit[:, 2] < back) & (torch.sign(hit[:, 0]) == s_other)
+    within = p1[:, 0].abs() <= rig.prism_thickness_mm / ta
+    tir = rig.refractive_index * d1[:, :2].norm(dim=-1) > 1
+    assert hits_other.any() and (~hits_other & within & ~tir).any()
+    assert torch.equal(rays.valid, ~hits_other & within & ~tir)
+
+
+# ----------------------------------------------------------------------------- points at depth
+def test_points_at_depth():
+    rig = thesis_setup1()
+    rays = trace_pixels(rig, random_pixels(rig, 50, F64))
+    pts = points_at_depth(rays, 700.0)
+    assert pts.shape == (50, 3)
+    assert torch.equal(pts[:, 2], torch.full((50,), 700.0, dtype=F64))
+    rel = pts - rays.origins
+    cross = torch.linalg.cross(rel, rays.directions)
+    assert cross.norm(dim=-1).max() < 1e-9
+
+
+# ----------------------------------------------------------------------------- project_points
+def test_project_points_round_trip(rig, dtype):
+    uv = random_pixels(rig, 3000, dtype, seed=2)
+    rays = trace_pixels(rig, uv)
+    for depth in (rays.origins[:, 2] + 0.5, 250.0, 1000.0, 5000.0):  # 0.5 mm beyond the (tilted) back plane
+        pts = points_at_depth(rays, depth)
+        for half, mask in (("left", rays.left), ("right", ~rays.left)):
+            m = mask & rays.valid
+            proj = project_points(rig, pts[m], half)
+            assert proj.uv.dtype == dtype
+            err = (proj.uv - uv[m]).norm(dim=-1)
+            assert err.max().item() < ROUND_TRIP_TOL[dtype], (half, depth)
+            assert proj.valid.all(), (half, depth)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    alpha=st.floats(2.0, 25.0),
+    n=st.floats(1.4, 1.8),
+    f=st.floats(8.0, 35.0),
+    t_o=st.floats(60.0, 300.0),
+    d=st.floats(-3.0, 3.0),
+    tilt=st.tuples(st.floats(-2.0, 2.0), st.floats(-2.0, 2.0), st.floats(-2.0, 2.0)),
+    depth=st.floats(1.0, 5000.0),
+    seed=st.integers(0, 2**16),
+)
+def test_project_points_round_trip_random_rigs(alpha, n, f, t_o, d, tilt, depth, seed):
+    try:
+        rig = thesis_setup1().replace(
+            alpha_deg=alpha, refractive_index=n, focal_length_mm=f, apex_distance_mm=t_o,
+            prism_thickness_mm=50.0 * math.tan(math.radians(alpha)), prism_offset_x_mm=d, prism_tilt_deg=tilt,
+        )
+    except RigError:
+        assume(False)
+    uv = random_pixels(rig, 64, F64, seed=seed)
+    rays = trace_pixels(rig, uv)
+    assume(bool(rays.valid.any()))
+    z = torch.maximum(rays.origins[:, 2] + 1.0, torch.tensor(depth, dtype=F64))
+    pts = points_at_depth(rays, z)
+    for half, mask in (("left", rays.left), ("right", ~rays.left)):
+        m = mask & rays.valid
+        if m.any():
+            proj = project_points(rig, pts[m], half)
+            assert (proj.uv - uv[m]).norm(dim=-1).max().item() < 1e-6
+            assert proj.valid.all()
+
+
+def test_project_points_batch_dims(dtype):
+    rig = thesis_setup1()
+    gen = torch.Generator().manual_seed(3)
+    pts = torch.rand(2, 3, 5, 3, generator=gen, dtype=dtype) * torch.tensor([40.0, 40.0, 800.0], dtype=dtype)
+    pts = pts + torch.tensor([-20.0, -20.0, 400.0], dtype=dtype)
+    proj = project_points(rig, pts, "left")
+    assert proj.uv.shape == (2, 3, 5, 2) and proj.valid.shape == (2, 3, 5)
+    flat = project_points(rig, pts.reshape(-1, 3), "left")
+    torch.testing.assert_close(proj.uv.reshape(-1, 2), flat.uv)
+
+
+def test_project_points_invalid_points():
+    rig = thesis_setup1()
+    pts = torch.tensor(
+        [
+            [0.0, 0.0, 100.0],  # between camera and prism
+            [0.0, 0.0, 175.0],  # inside the glass (before the back plane at 175.6)
+            [-600.0, 0.0, 600.0],  # far outside the field of view
+            [0.0, 0.0, 600.0],  # on the axis: seen by both halves
+        ],
+        dtype=F64,
+    )
+    left = project_points(rig, pts, "left")
+    right = project_points(rig, pts, "right")
+    assert left.valid.tolist() == [False, False, False, True]
+    assert right.valid.tolist() == [False, False, False, True]
+    assert torch.isfinite(left.uv).all() and torch.isfinite(right.uv).all()
+    # the on-axis point: left half sees it at u < apex column, right half at u > apex column
+    assert left.uv[3, 0] < rig.apex_column < right.uv[3, 0]
+    torch.testing.assert_close(left.uv[3, 0] + right.uv[3, 0], torch.tensor(2 * rig.cx, dtype=F64))
+
+
+def test_project_points_bad_arguments():
+    rig = thesis_setup1()
+    with pytest.raises(ShapeError, match=r"points must have shape \(\*, 3\)"):
+        project_points(rig, torch.zeros(4, 2), "left")
+    with pytest.raises(OptionError, match="Unknown half 'auto'. Choose from: 'left', 'right'"):
+        project_points(rig, torch.zeros(4, 3), "auto")
+    with pytest.raises(RigError, match="iterations must be a positive int"):
+        project_points(rig, torch.zeros(4, 3), "left", iterations=0)
+    with pytest.raises(PrismStereoError, match="floating-point"):
+        project_points(rig, torch.zeros(4, 3, dtype=torch.int32), "left")
+
+
+# ----------------------------------------------------------------------------- gradients
+PARAM_NAMES = ("alpha", "n", "f", "T", "T_o", "d", "tilt")
+
+
+def _params_fn(rig, fn):
+    base = rig.parameters(dtype=F64)
+
+    def wrapped(*values):
+        p = base._replace(**dict(zip(PARAM_NAMES, values)))
+        return fn(p)
+
+    inputs = tuple(getattr(base, k).clone().requires_grad_(True) for k in PARAM_NAMES)
+    return wrapped, inputs
+
+
+@pytest.mark.parametrize("make", [thesis_setup1, lambda: thesis_setup1().replace(prism_offset_x_mm=1.0, prism_tilt_deg=(0.5, -0.5, 0.3))])
+def test_gradcheck_trace_wrt_rig(make):
+    rig = make()
+    uv = torch.tensor([[100.0, 200.0], [700.0, 600.0], [480.0, 390.0]], dtype=F64)
+    fn, inputs = _params_fn(rig, lambda p: torch.cat(list(trace_pixels(p, uv)[:2]), -1))
+    assert torch.autograd.gradcheck(fn, inputs)
+
+
+def test_gradcheck_trace_wrt_pixels():
+    rig = thesis_setup1()
+    uv = torch.tensor([[100.0, 200.0], [700.0, 600.0]], dtype=F64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x: torch.cat(list(trace_pixels(rig, x)[:2]), -1), (uv,))
+
+
+@pytest.mark.parametrize("make", [thesis_setup1, lambda: thesis_setup1().replace(prism_offset_x_mm=1.0, prism_tilt_deg=(0.5, -0.5, 0.3))])
+def test_gradcheck_project_wrt_rig(make):
+    rig = make()
+    pts = torch.tensor([[10.0, 5.0, 600.0], [-40.0, -20.0, 900.0]], dtype=F64)
+    for half in ("left", "right"):
+        fn, inputs = _params_fn(rig, lambda p, h=half: project_points(p, pts, h).uv)
+        assert torch.autograd.gradcheck(fn, inputs)
+
+
+def test_gradcheck_project_wrt_points():
+    rig = thesis_setup2()
+    pts = torch.tensor([[10.0, 5.0, 600.0], [-40.0, -20.0, 300.0]], dtype=F64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x: project_points(rig, x, "left").uv, (pts,))
+
+
+def test_gradients_finite_on_invalid_rays():
+    rig = thesis_setup2().replace(alpha_deg=55.0, refractive_index=2.0, prism_thickness_mm=300.0)
+    p = rig.parameters(dtype=F64, requires_grad=True)
+    rays = trace_pixels(p, random_pixels(rig, 500, F64))
+    assert not rays.valid.all()
+    (rays.origins.sum() + rays.directions.sum()).backward()
+    assert all(torch.isfinite(t.grad).all() for t in p if isinstance(t, torch.Tensor))
+
+
+# ----------------------------------------------------------------------------- ONNX
+class _Optics(torch.nn.Module):
+    def __init__(self, rig: BiPrismRig) -> None:
+        super().__init__()
+        self.p = rig.parameters(dtype=torch.float32)
+
+    def forward(self, uv: torch.Tensor, points: torch.Tensor):
+        rays = trace_pixels(self.p, uv)
+        proj = project_points(self.p, points, "left")
+        return rays.origins, rays.directions, proj.uv, proj.valid
+
+
+def test_onnx_export_matches_torch(tmp_path):
+    rig = thesis_setup1().replace(prism_offset_x_mm=0.5)
+    model = _Optics(rig)
+    uv = random_pixels(rig, 64, torch.float32)
+    pts = points_at_depth(trace_pixels(rig, uv[:32] * torch.tensor([0.45, 1.0])), 700.0)
+    path = tmp_path / "optics.onnx"
+    with pytest.warns(Warning):  # the legacy exporter warns about deprecation and traced checks
+        torch.onnx.export(model, (uv, pts), str(path), dynamo=False, opset_version=17,
+                          input_names=["uv", "points"], output_names=["origins", "directions", "uv_out", "valid"])
+    session = ort.InferenceSession(str(path))
+    out = session.run(None, {"uv": uv.numpy(), "points": pts.numpy()})
+    ref = [t.detach().numpy() for t in model(uv, pts)]
+    np.testing.assert_allclose(out[0], ref[0], atol=1e-4)
+    np.testing.assert_allclose(out[1], ref[1], atol=1e-6)
+    np.testing.assert_allclose(out[2], ref[2], atol=2e-3)
+    assert (out[3] == ref[3]).all() and ref[3].all()

@@ -1,0 +1,187 @@
+import json
+import math
+
+import pytest
+import torch
+
+from prismstereo import BiPrismRig, RigError, RigParameters, thesis_setup1, thesis_setup2
+
+CONTRACT_FIELDS = [
+    "alpha_deg",
+    "refractive_index",
+    "focal_length_mm",
+    "prism_thickness_mm",
+    "apex_distance_mm",
+    "pixel_size_mm",
+    "image_width",
+    "image_height",
+    "principal_point",
+    "prism_offset_x_mm",
+]
+
+
+def setup1_dict(**changes):
+    data = {
+        "alpha_deg": 6.4,
+        "refractive_index": 1.48,
+        "focal_length_mm": 25.0,
+        "prism_thickness_mm": 5.6,
+        "apex_distance_mm": 170.0,
+        "pixel_size_mm": 0.00465,
+        "image_width": 1024,
+        "image_height": 768,
+    }
+    data.update(changes)
+    return data
+
+
+def test_setup1_values():
+    rig = thesis_setup1()
+    assert (rig.alpha_deg, rig.refractive_index, rig.focal_length_mm) == (6.4, 1.48, 25.0)
+    assert (rig.prism_thickness_mm, rig.apex_distance_mm, rig.pixel_size_mm) == (5.6, 170.0, 0.00465)
+    assert (rig.image_width, rig.image_height) == (1024, 768)
+    assert rig.principal_point == (511.5, 383.5)
+    assert rig.prism_offset_x_mm == 0.0 and rig.prism_tilt_deg == (0.0, 0.0, 0.0)
+    assert rig.apex_column == 511.5
+    # sensor width 4.7616 mm (thesis fig. 5.4) and a ~100 mm prism (b of eq. 5.16)
+    assert rig.image_width * rig.pixel_size_mm == pytest.approx(4.7616)
+    assert rig.prism_width_mm == pytest.approx(99.85, abs=0.01)
+
+
+def test_setup2_consistent_thickness():
+    rig = thesis_setup2()
+    assert rig.alpha_deg == 21.8 and rig.focal_length_mm == 8.0
+    assert rig.prism_thickness_mm == pytest.approx(50.0 * math.tan(math.radians(21.8)))
+    assert rig.prism_thickness_mm == pytest.approx(20.0, abs=0.01)
+    assert rig.prism_width_mm == pytest.approx(100.0)
+    # the thesis' T = 5.6 mm would make this prism only 28 mm wide
+    assert 2 * 5.6 / math.tan(math.radians(21.8)) == pytest.approx(28.0, abs=0.01)
+
+
+def test_json_field_names_are_the_contract():
+    data = json.loads(thesis_setup1().to_json())
+    assert list(data)[: len(CONTRACT_FIELDS)] == CONTRACT_FIELDS
+    assert data["principal_point"] == [511.5, 383.5]
+
+
+def test_json_round_trip_file(tmp_path):
+    rig = thesis_setup2().replace(prism_offset_x_mm=1.25, prism_tilt_deg=(0.5, -1.0, 0.25))
+    path = tmp_path / "rig.json"
+    rig.to_json(path)
+    assert BiPrismRig.from_json(path) == rig
+    assert BiPrismRig.from_json(str(path)) == rig
+    assert BiPrismRig.from_json(rig.to_json()) == rig
+
+
+def test_json_optional_fields_default():
+    rig = BiPrismRig.from_dict(setup1_dict())
+    assert rig == thesis_setup1()
+    rig = BiPrismRig.from_dict(setup1_dict(principal_point=None))
+    assert rig.principal_point == (511.5, 383.5)
+    rig = BiPrismRig.from_dict(setup1_dict(principal_point=[500, 380], prism_offset_x_mm=2))
+    assert rig.principal_point == (500.0, 380.0) and rig.prism_offset_x_mm == 2.0
+
+
+def test_frozen():
+    rig = thesis_setup1()
+    with pytest.raises(AttributeError):
+        rig.alpha_deg = 7.0  # type: ignore[misc]
+
+
+def test_keyword_only():
+    with pytest.raises(TypeError):
+        BiPrismRig(6.4, 1.48, 25.0, 5.6, 170.0, 0.00465, 1024, 768)  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(
+    "changes,match",
+    [
+        ({"focal_length_mm": 0.0}, "focal_length_mm must be positive"),
+        ({"prism_thickness_mm": -1.0}, "prism_thickness_mm must be positive"),
+        ({"apex_distance_mm": 0.0}, "apex_distance_mm must be positive"),
+        ({"pixel_size_mm": -0.001}, "pixel_size_mm must be positive"),
+        ({"refractive_index": 1.0}, r"refractive_index must be > 1"),
+        ({"refractive_index": 0.8}, r"refractive_index must be > 1"),
+        ({"alpha_deg": 0.0}, r"alpha_deg must be in \(0, 90\)"),
+        ({"alpha_deg": 90.0}, r"alpha_deg must be in \(0, 90\)"),
+        ({"alpha_deg": -3.0}, r"alpha_deg must be in \(0, 90\)"),
+        ({"alpha_deg": float("nan")}, "alpha_deg must be a finite number"),
+        ({"focal_length_mm": float("inf")}, "focal_length_mm must be a finite number"),
+        ({"refractive_index": "glass"}, "refractive_index must be a finite number"),
+        ({"image_width": 0}, "image size must be at least"),
+        ({"image_height": 10.5}, "image_height must be an integer"),
+        ({"image_width": True}, "image_width must be an integer"),
+        ({"principal_point": [2000.0, 100.0]}, "principal_point .* is off the sensor"),
+        ({"principal_point": [100.0, -1.0]}, "principal_point .* is off the sensor"),
+        ({"principal_point": [100.0]}, "principal_point must be a list of 2"),
+        ({"principal_point": "centre"}, "principal_point must be a list of 2"),
+        ({"prism_tilt_deg": [50.0, 0.0, 0.0]}, r"prism_tilt_deg angles must be in \(-45, 45\)"),
+        ({"prism_tilt_deg": [1.0, 2.0]}, "prism_tilt_deg must be a list of 3"),
+    ],
+)
+def test_invalid_values(changes, match):
+    with pytest.raises(RigError, match=match):
+        BiPrismRig.from_dict(setup1_dict(**changes))
+
+
+def test_geometry_whole_half_misses_prism():
+    # apex 40 mm to the right: every ray hits the left face, the right half-image sees nothing
+    with pytest.raises(RigError, match="no pixel of the right half-image sees through the prism"):
+        thesis_setup1().replace(prism_offset_x_mm=40.0)
+
+
+def test_geometry_whole_half_total_internal_reflection():
+    # alpha 75 deg, n 2: inside the glass the rays meet the back plane beyond the critical angle
+    with pytest.raises(RigError, match="no pixel of the left half-image .* totally internally reflected"):
+        thesis_setup1().replace(alpha_deg=75.0, refractive_index=2.0)
+
+
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ("{not json", "not valid JSON"),
+        ("[1, 2]", "must be a JSON object"),
+        (json.dumps({"alpha_deg": 6.4}), "missing required field"),
+        (json.dumps(setup1_dict(colour="red")), r"unknown rig field\(s\): colour"),
+    ],
+)
+def test_bad_rig_files(tmp_path, text, match):
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    with pytest.raises(RigError, match=match):
+        BiPrismRig.from_json(path)
+
+
+def test_missing_rig_file(tmp_path):
+    with pytest.raises(RigError, match="rig file not found"):
+        BiPrismRig.from_json(tmp_path / "nope.json")
+
+
+def test_parameters(dtype):
+    p = thesis_setup1().replace(prism_offset_x_mm=2.0, prism_tilt_deg=(1.0, 0.0, 0.0)).parameters(dtype=dtype)
+    assert isinstance(p, RigParameters)
+    assert p.alpha.dtype == dtype and p.alpha.shape == ()
+    assert p.alpha.item() == pytest.approx(math.radians(6.4))
+    assert p.tilt.shape == (3,) and p.tilt[0].item() == pytest.approx(math.radians(1.0))
+    assert p.d.item() == 2.0 and (p.width, p.height) == (1024, 768)
+    q = p.to(torch.zeros(1, dtype=torch.float64))
+    assert q.n.dtype == torch.float64 and q.width == 1024
+
+
+def test_parameters_requires_grad():
+    p = thesis_setup1().parameters(dtype=torch.float64, requires_grad=True)
+    assert all(t.requires_grad for t in p if isinstance(t, torch.Tensor))
+    # .to keeps the autograd graph
+    q = p.to(torch.zeros(1, dtype=torch.float32))
+    q.alpha.backward()
+    assert p.alpha.grad is not None and p.alpha.grad.item() == 1.0
+
+
+def test_replace_validates():
+    with pytest.raises(RigError):
+        thesis_setup1().replace(refractive_index=0.5)
+
+
+def test_apex_column_moves_with_offset():
+    rig = thesis_setup1().replace(prism_offset_x_mm=3.0)
+    assert rig.apex_column == pytest.approx(511.5 + 25.0 / 0.00465 * 3.0 / 170.0)
