@@ -68,12 +68,14 @@ class RayBundle(NamedTuple):
         valid: (*,) bool, False for rays that miss the prism, leave through a face, or suffer total
             internal reflection.
         left: (*,) bool, True for rays through the left face (the left, reference half-image).
+        entries: (*, 3) points where the camera rays enter the prism's face (thesis P', eq. 3.4).
     """
 
     origins: torch.Tensor
     directions: torch.Tensor
     valid: torch.Tensor
     left: torch.Tensor
+    entries: torch.Tensor
 
 
 class Projection(NamedTuple):
@@ -235,7 +237,7 @@ def _trace(p: RigParameters, directions: torch.Tensor, half: str) -> RayBundle:
     valid = valid & exits_back & entry_within
     if half != "auto":
         valid = valid & entry_on_surface
-    return RayBundle(p2, out.directions, valid, use_left)
+    return RayBundle(p2, out.directions, valid, use_left, p1)
 
 
 def trace_directions(
@@ -250,7 +252,7 @@ def trace_directions(
             past the apex), with ``valid`` False where the ray would really hit the other face.
 
     Returns:
-        RayBundle with origins/directions (*, 3), valid/left (*,).
+        RayBundle with origins/directions/entries (*, 3), valid/left (*,).
 
     Example:
         >>> d = torch.tensor([[0.01, 0.0, 1.0]]); d = d / d.norm(dim=-1, keepdim=True)
@@ -274,7 +276,7 @@ def trace_pixels(
         half: see :func:`trace_directions`.
 
     Returns:
-        RayBundle(origins (*, 3), directions (*, 3), valid (*,), left (*,)), dtype of ``uv``.
+        RayBundle(origins (*, 3), directions (*, 3), valid (*,), left (*,), entries (*, 3)), dtype of ``uv``.
 
     Example:
         >>> rays = trace_pixels(thesis_setup1(), torch.tensor([[100.0, 300.0], [900.0, 300.0]]))

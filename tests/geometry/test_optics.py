@@ -61,9 +61,10 @@ def test_trace_matches_closed_form_reference(make):
     uv = random_pixels(rig, 4000, F64)
     uv = uv[(uv[:, 0] - rig.apex_column).abs() > 1e-6]
     rays = trace_pixels(rig, uv)
-    p2, d2, _, _ = reference_trace(rig, uv)
+    p2, d2, p1, _ = reference_trace(rig, uv)
     v = rays.valid
     assert v.float().mean() > 0.8
+    torch.testing.assert_close(rays.entries, p1, atol=1e-10, rtol=0)
     torch.testing.assert_close(rays.origins[v], p2[v], atol=1e-10, rtol=0)
     torch.testing.assert_close(rays.directions[v], d2[v], atol=1e-12, rtol=0)
     assert torch.equal(rays.left, uv[:, 0] < rig.apex_column)
@@ -122,7 +123,7 @@ def test_trace_shapes_and_dtype(rig, dtype):
     uv = random_pixels(rig, 24, dtype).reshape(2, 3, 4, 2)
     rays = trace_pixels(rig, uv)
     assert rays.origins.shape == (2, 3, 4, 3) and rays.directions.shape == (2, 3, 4, 3)
-    assert rays.valid.shape == (2, 3, 4) and rays.left.shape == (2, 3, 4)
+    assert rays.valid.shape == (2, 3, 4) and rays.left.shape == (2, 3, 4) and rays.entries.shape == (2, 3, 4, 3)
     assert rays.origins.dtype == dtype and rays.valid.dtype == torch.bool
     single = trace_pixels(rig, uv[0, 0, 0])
     assert single.origins.shape == (3,) and single.valid.shape == ()
