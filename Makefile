@@ -19,13 +19,14 @@ demo: $(STAMP)
 	$(VENV)/bin/prismstereo demo
 
 test: $(STAMP)
+	$(VENV)/bin/ruff check prismstereo tests benchmarks
 	$(PY) -m pytest -q
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check prismstereo tests benchmarks export
 
 bench: $(STAMP)
-	$(PY) benchmarks/run_all.py
+	for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
 clean:
 	rm -rf $(VENV) demo_output .pytest_cache

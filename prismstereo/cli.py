@@ -47,7 +47,8 @@ def _format_camera(vc: VirtualCamera, pixel_size: float) -> str:
             f"    focal length (mm)       {float(vc.focal_length_mm):.4f}"
             f"  (fx {float(k.fx[0]) * pixel_size:.4f}, fy {float(k.fy[0]) * pixel_size:.4f})",
             f"    principal point (px)    ({float(k.cx[0]):.3f}, {float(k.cy[0]):.3f})",
-            f"    non-centrality (mm)     max {float(vc.noncentrality_max_mm):.4f}, rms {float(vc.noncentrality_rms_mm):.4f}",
+            f"    non-centrality (mm)     max {float(vc.noncentrality_max_mm):.4f},"
+            f" rms {float(vc.noncentrality_rms_mm):.4f}",
             f"    pinhole error (px)      mean {float(vc.reprojection_error_mean_px):.3f},"
             f" max {float(vc.reprojection_error_max_px):.3f}  (250-1500 mm)",
         ]

@@ -63,7 +63,7 @@ def check_shape(x: Any, shape: Sequence[str | int], name: str = "tensor") -> Non
     fixed = dims[1:] if wildcard else dims
     ok = x.dim() >= len(fixed) if wildcard else x.dim() == len(fixed)
     if ok:
-        for want, got in zip(fixed, x.shape[x.dim() - len(fixed):]):
+        for want, got in zip(fixed, x.shape[x.dim() - len(fixed):], strict=True):
             if isinstance(want, int) and want != got:
                 ok = False
                 break

@@ -392,7 +392,7 @@ def _newton_step(
 
 
 def project_points(
-    rig: BiPrismRig | RigParameters, points: torch.Tensor, half: Half, iterations: int = 8
+    rig: BiPrismRig | RigParameters, points: torch.Tensor, half: Half, iterations: int = 5
 ) -> Projection:
     """Project 3D points through one half of the prism to sensor pixels (the inverse of tracing).
 
@@ -406,7 +406,9 @@ def project_points(
         rig: the rig (:class:`BiPrismRig` or :class:`RigParameters`).
         points: (*, 3) points in the camera frame (mm), float32 or float64.
         half: 'left' (reference) or 'right'.
-        iterations: Newton iterations before the final step (>= 1).
+        iterations: Newton iterations before the final step (>= 1). Measured on the thesis setups and a
+            tilted, offset prism: 3 reach 1e-11 px in float64 from the pinhole start (up to ~30 px off for
+            setup 2); the default 5 leaves margin. Non-converged points come back with ``valid`` False.
 
     Returns:
         Projection(uv (*, 2), valid (*,)).

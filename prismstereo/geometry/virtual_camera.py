@@ -181,9 +181,9 @@ def _camera(fx, fy, cx, cy, rotation, centre, rig: BiPrismRig) -> PinholeCamera:
     e = torch.eye(4, dtype=dt)
     e[:3, :3] = rotation.T
     e[:3, 3] = -rotation.T @ centre
-    return PinholeCamera(
-        k[None], e[None], torch.tensor([float(rig.image_height)], dtype=dt), torch.tensor([float(rig.image_width)], dtype=dt)
-    )
+    height = torch.tensor([float(rig.image_height)], dtype=dt)
+    width = torch.tensor([float(rig.image_width)], dtype=dt)
+    return PinholeCamera(k[None], e[None], height, width)
 
 
 def _samples(rig: BiPrismRig, half: Half, step: int, depth_range_mm: tuple[float, float], depths: int):
@@ -245,10 +245,11 @@ def _two_point(rig: BiPrismRig, half: Half, pixels: torch.Tensor | None, focal_p
     check_shape(pixels, [2, 2], "pixels")
     check_shape(focal_pixel, [2], "focal_pixel")
     pixels, focal_pixel = pixels.to(torch.float64), focal_pixel.to(torch.float64)
-    rays = trace_pixels(rig, torch.cat([pixels, focal_pixel[None]]))
+    chosen = torch.cat([pixels, focal_pixel[None]])
+    rays = trace_pixels(rig, chosen)
     in_half = rays.left if half == "left" else ~rays.left
     if not bool((rays.valid & in_half).all()):
-        raise RigError(f"two-point pixels {torch.cat([pixels, focal_pixel[None]]).tolist()} must all see through the {half} face")
+        raise RigError(f"two-point pixels {chosen.tolist()} must all see through the {half} face")
     # Step 1 (eq. 3.1-3.10 + Appendix C): centre = midpoint of the back-extended rays of P_a and P_b.
     centre = ray_midpoint(rays.origins[0], rays.directions[0], rays.origins[1], rays.directions[1])
     # Step 2 (eq. 3.11-3.12): orientation from the apex (central) ray.

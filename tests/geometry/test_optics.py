@@ -371,14 +371,18 @@ def _params_fn(rig, fn):
     base = rig.parameters(dtype=F64)
 
     def wrapped(*values):
-        p = base._replace(**dict(zip(PARAM_NAMES, values)))
+        p = base._replace(**dict(zip(PARAM_NAMES, values, strict=True)))
         return fn(p)
 
     inputs = tuple(getattr(base, k).clone().requires_grad_(True) for k in PARAM_NAMES)
     return wrapped, inputs
 
 
-@pytest.mark.parametrize("make", [thesis_setup1, lambda: thesis_setup1().replace(prism_offset_x_mm=1.0, prism_tilt_deg=(0.5, -0.5, 0.3))])
+def misaligned_rig():
+    return thesis_setup1().replace(prism_offset_x_mm=1.0, prism_tilt_deg=(0.5, -0.5, 0.3))
+
+
+@pytest.mark.parametrize("make", [thesis_setup1, misaligned_rig])
 def test_gradcheck_trace_wrt_rig(make):
     rig = make()
     uv = torch.tensor([[100.0, 200.0], [700.0, 600.0], [480.0, 390.0]], dtype=F64)
@@ -392,7 +396,7 @@ def test_gradcheck_trace_wrt_pixels():
     assert torch.autograd.gradcheck(lambda x: torch.cat(list(trace_pixels(rig, x)[:2]), -1), (uv,))
 
 
-@pytest.mark.parametrize("make", [thesis_setup1, lambda: thesis_setup1().replace(prism_offset_x_mm=1.0, prism_tilt_deg=(0.5, -0.5, 0.3))])
+@pytest.mark.parametrize("make", [thesis_setup1, misaligned_rig])
 def test_gradcheck_project_wrt_rig(make):
     rig = make()
     pts = torch.tensor([[10.0, 5.0, 600.0], [-40.0, -20.0, 900.0]], dtype=F64)
