@@ -42,6 +42,7 @@ __all__ = [
     "project_points",
     "half_of_pixels",
     "check_rig_images",
+    "euler_rotation",
 ]
 
 _TRACE_HALVES = ("auto", "left", "right")
@@ -175,6 +176,25 @@ class _Planes(NamedTuple):
     n_left: torch.Tensor  # (3,)
     n_right: torch.Tensor  # (3,)
     n_back: torch.Tensor  # (3,)
+
+
+def euler_rotation(angles: torch.Tensor) -> torch.Tensor:
+    """Rotation matrix R = R_z R_y R_x from angles (rad) about x, y, z (the rig's ``prism_tilt_deg`` order).
+
+    Args:
+        angles: (3,) tensor.
+
+    Returns:
+        (3, 3) rotation, differentiable.
+
+    Example:
+        >>> euler_rotation(torch.tensor([0.0, 0.0, 0.0]))
+        tensor([[1., 0., 0.],
+                [0., 1., 0.],
+                [0., 0., 1.]])
+    """
+    check_shape(angles, [3], "angles")
+    return _rotation(angles)
 
 
 def _rotation(tilt: torch.Tensor) -> torch.Tensor:

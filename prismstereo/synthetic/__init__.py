@@ -1,0 +1,58 @@
+"""Synthetic bi-prism captures with exact ground truth: textures, scenes and the renderer."""
+
+from prismstereo.synthetic.render import Capture, ImageFormation, render, render_radiance
+from prismstereo.synthetic.scenes import (
+    HeightField,
+    Hit,
+    Plane,
+    Scene,
+    Sphere,
+    Surface,
+    checkerboard_target,
+    circle_grid_target,
+    fronto_parallel_plane,
+    height_field_scene,
+    middlebury_scene,
+    slanted_plane,
+    sphere_scene,
+    step_scene,
+)
+from prismstereo.synthetic.textures import (
+    CheckerTexture,
+    CircleGridTexture,
+    ConstantTexture,
+    ImageTexture,
+    NoiseTexture,
+    SceneError,
+    Texture,
+    feature_size_for_depth,
+)
+
+__all__ = [
+    "Capture",
+    "ImageFormation",
+    "render",
+    "render_radiance",
+    "HeightField",
+    "Hit",
+    "Plane",
+    "Scene",
+    "Sphere",
+    "Surface",
+    "checkerboard_target",
+    "circle_grid_target",
+    "fronto_parallel_plane",
+    "height_field_scene",
+    "middlebury_scene",
+    "slanted_plane",
+    "sphere_scene",
+    "step_scene",
+    "CheckerTexture",
+    "CircleGridTexture",
+    "ConstantTexture",
+    "ImageTexture",
+    "NoiseTexture",
+    "SceneError",
+    "Texture",
+    "feature_size_for_depth",
+]

@@ -1,0 +1,533 @@
+"""Scenes for the synthetic renderer: textured surfaces with exact ray intersection.
+
+All geometry is in the camera frame (mm), see :mod:`prismstereo.conventions`. A :class:`Scene` is a list of
+surfaces (nearest hit wins, so occlusion is exact) and a background intensity for rays that hit nothing.
+Every surface defines surface coordinates (s, t) in mm at which its texture is sampled.
+
+Surfaces: :class:`Plane` (optionally bounded: targets, half-planes for steps), :class:`Sphere`,
+:class:`HeightField` (a depth map over a rectangle of x-y: real photographs with their depth).
+Factories build the scenes of the test plan: :func:`fronto_parallel_plane`, :func:`slanted_plane`,
+:func:`step_scene`, :func:`sphere_scene`, :func:`height_field_scene`, :func:`middlebury_scene`,
+:func:`checkerboard_target`, :func:`circle_grid_target`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from prismstereo.geometry.optics import euler_rotation
+from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.synthetic.textures import (
+    CheckerTexture,
+    CircleGridTexture,
+    ImageTexture,
+    NoiseTexture,
+    SceneError,
+    Texture,
+    feature_size_for_depth,
+)
+
+__all__ = [
+    "Hit",
+    "Surface",
+    "Plane",
+    "Sphere",
+    "HeightField",
+    "Scene",
+    "fronto_parallel_plane",
+    "slanted_plane",
+    "step_scene",
+    "sphere_scene",
+    "height_field_scene",
+    "middlebury_scene",
+    "checkerboard_target",
+    "circle_grid_target",
+]
+
+F64 = torch.float64
+
+
+class Hit(NamedTuple):
+    """Ray-surface intersections of N rays.
+
+    Attributes:
+        t: (N,) distance along the (unit) ray, ``inf`` where the ray misses.
+        points: (N, 3) hit points (meaningless where t is inf).
+        coords: (N, 2) surface coordinates (mm) for texturing.
+    """
+
+    t: torch.Tensor
+    points: torch.Tensor
+    coords: torch.Tensor
+
+
+def _vec(value: Sequence[float], name: str) -> torch.Tensor:
+    t = torch.as_tensor(value, dtype=F64).flatten()
+    if t.numel() != 3 or not torch.isfinite(t).all():
+        raise SceneError(f"{name} must be 3 finite numbers, got {value!r}")
+    return t
+
+
+def _check_texture(texture: Texture) -> Texture:
+    if not isinstance(texture, Texture):
+        raise SceneError(f"texture must have .channels and .sample(coords), got {type(texture).__name__}")
+    return texture
+
+
+class Surface:
+    """Base class: a textured surface with ``intersect(origins, directions) -> Hit`` and a nearest depth."""
+
+    texture: Texture
+
+    def intersect(self, origins: torch.Tensor, directions: torch.Tensor) -> Hit:  # pragma: no cover
+        raise NotImplementedError
+
+    def nearest_depth(self) -> float:  # pragma: no cover
+        """The smallest Z the renderer checks against the prism's back plane."""
+        raise NotImplementedError
+
+
+class Plane(Surface):
+    """A plane through ``point`` with unit ``normal``, optionally bounded in its own coordinates.
+
+    Surface coordinates: s = (p - point) . u_axis, t = (p - point) . v_axis with v_axis = normal x u_axis;
+    u_axis defaults to the camera x axis made orthogonal to the normal. ``bounds_mm`` = (s_min, s_max,
+    t_min, t_max) (infinite by default) crops the plane. Hit points are projected back onto the plane, so a
+    fronto-parallel plane's hits have Z exactly equal to its depth.
+
+    Example:
+        >>> plane = Plane((0.0, 0.0, 500.0), (0.0, 0.0, 1.0), NoiseTexture(0.3))
+        >>> plane.intersect(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)).t
+        tensor([500.], dtype=torch.float64)
+    """
+
+    def __init__(
+        self,
+        point: Sequence[float],
+        normal: Sequence[float],
+        texture: Texture,
+        u_axis: Sequence[float] | None = None,
+        bounds_mm: tuple[float, float, float, float] | None = None,
+    ) -> None:
+        self.point = _vec(point, "point")
+        n = _vec(normal, "normal")
+        if n.norm() < 1e-12:
+            raise SceneError("normal must be non-zero")
+        self.normal = n / n.norm()
+        u = _vec(u_axis, "u_axis") if u_axis is not None else torch.tensor([1.0, 0.0, 0.0], dtype=F64)
+        u = u - (u @ self.normal) * self.normal
+        if u.norm() < 1e-9:
+            raise SceneError("u_axis must not be parallel to the normal")
+        self.u_axis = u / u.norm()
+        self.v_axis = torch.linalg.cross(self.normal, self.u_axis)
+        if bounds_mm is not None and not (bounds_mm[0] < bounds_mm[1] and bounds_mm[2] < bounds_mm[3]):
+            raise SceneError(f"bounds_mm must be (s_min, s_max, t_min, t_max) with min < max, got {bounds_mm}")
+        self.bounds_mm = bounds_mm
+        self.texture = _check_texture(texture)
+
+    def nearest_depth(self) -> float:
+        return float(self.point[2])
+
+    def intersect(self, origins: torch.Tensor, directions: torch.Tensor) -> Hit:
+        n, p0 = self.normal.to(origins), self.point.to(origins)
+        den = directions @ n
+        safe = torch.where(den.abs() > 1e-12, den, torch.ones_like(den))
+        t = ((p0 - origins) @ n) / safe
+        pts = origins + t.unsqueeze(-1) * directions
+        pts = pts - ((pts - p0) @ n).unsqueeze(-1) * n  # back onto the plane (exact Z for fronto-parallel)
+        rel = pts - p0
+        coords = torch.stack([rel @ self.u_axis.to(origins), rel @ self.v_axis.to(origins)], dim=-1)
+        ok = (den.abs() > 1e-12) & (t > 0)
+        if self.bounds_mm is not None:
+            s0, s1, t0, t1 = self.bounds_mm
+            ok = ok & (coords[:, 0] >= s0) & (coords[:, 0] <= s1) & (coords[:, 1] >= t0) & (coords[:, 1] <= t1)
+        return Hit(torch.where(ok, t, torch.full_like(t, math.inf)), pts, coords)
+
+
+class Sphere(Surface):
+    """A sphere; surface coordinates are arc lengths (mm): s = r atan2(x, -z) around y, t = r asin(y / r).
+
+    Example:
+        >>> ball = Sphere((0.0, 0.0, 500.0), 50.0, NoiseTexture(0.3))
+        >>> ball.intersect(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)).t
+        tensor([450.], dtype=torch.float64)
+    """
+
+    def __init__(self, centre: Sequence[float], radius_mm: float, texture: Texture) -> None:
+        self.centre = _vec(centre, "centre")
+        if not radius_mm > 0:
+            raise SceneError(f"radius_mm must be positive, got {radius_mm}")
+        self.radius = float(radius_mm)
+        self.texture = _check_texture(texture)
+
+    def nearest_depth(self) -> float:
+        return float(self.centre[2]) - self.radius
+
+    def intersect(self, origins: torch.Tensor, directions: torch.Tensor) -> Hit:
+        rel = origins - self.centre.to(origins)
+        b = (rel * directions).sum(-1)
+        c = rel.square().sum(-1) - self.radius**2
+        disc = b * b - c
+        t = -b - torch.sqrt(disc.clamp_min(0.0))
+        ok = (disc >= 0) & (t > 0)
+        pts = origins + t.unsqueeze(-1) * directions
+        local = pts - self.centre.to(origins)
+        coords = torch.stack(
+            [self.radius * torch.atan2(local[:, 0], -local[:, 2]),
+             self.radius * torch.asin((local[:, 1] / self.radius).clamp(-1.0, 1.0))], dim=-1
+        )
+        return Hit(torch.where(ok, t, torch.full_like(t, math.inf)), pts, coords)
+
+
+class HeightField(Surface):
+    """A surface Z = depth(x, y) over the rectangle [x0, x1] x [y0, y1] of the camera frame.
+
+    ``depth`` (h, w) in mm is sampled bilinearly with texel (i, j) centred at
+    (x0 + (j + 0.5) (x1 - x0) / w, y0 + (i + 0.5) (y1 - y0) / h). Surface coordinates are (x - x0, y - y0),
+    so an :class:`ImageTexture` of width x1 - x0 lays a picture pixel-aligned over the depth map. Rays are
+    marched in Z with steps shorter than half a texel laterally, then the first crossing is refined by 30
+    bisections; occluding edges are the interpolated (steep) surface between texels, features thinner than
+    a march step can be missed.
+
+    Example:
+        >>> hf = HeightField(torch.full((4, 4), 600.0), NoiseTexture(0.3), (-50.0, 50.0), (-50.0, 50.0))
+        >>> hf.intersect(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)).t
+        tensor([600.], dtype=torch.float64)
+    """
+
+    def __init__(
+        self, depth: torch.Tensor, texture: Texture, x_range: tuple[float, float], y_range: tuple[float, float]
+    ) -> None:
+        if not isinstance(depth, torch.Tensor) or depth.dim() != 2 or min(depth.shape) < 2:
+            raise SceneError("depth must be a (h, w) tensor with h, w >= 2")
+        if not torch.isfinite(depth).all() or depth.min() <= 0:
+            raise SceneError("depth must be finite and positive everywhere (fill holes first)")
+        if not (x_range[0] < x_range[1] and y_range[0] < y_range[1]):
+            raise SceneError(f"x_range and y_range must be increasing, got {x_range}, {y_range}")
+        self.depth = depth.to(F64)
+        self.x_range, self.y_range = (float(x_range[0]), float(x_range[1])), (float(y_range[0]), float(y_range[1]))
+        self.texture = _check_texture(texture)
+        h, w = depth.shape
+        self.texel_mm = min((x_range[1] - x_range[0]) / w, (y_range[1] - y_range[0]) / h)
+        self.z_min, self.z_max = float(self.depth.min()), float(self.depth.max())
+
+    def nearest_depth(self) -> float:
+        return self.z_min
+
+    def _depth_at(self, xy: torch.Tensor) -> torch.Tensor:
+        """Bilinear depth at (M, 2) points, +inf outside the rectangle."""
+        (x0, x1), (y0, y1) = self.x_range, self.y_range
+        gx = 2.0 * (xy[:, 0] - x0) / (x1 - x0) - 1.0
+        gy = 2.0 * (xy[:, 1] - y0) / (y1 - y0) - 1.0
+        z = F.grid_sample(self.depth[None, None].to(xy), torch.stack([gx, gy], -1).view(1, 1, -1, 2),
+                          mode="bilinear", padding_mode="border", align_corners=False).view(-1)
+        inside = (gx >= -1) & (gx <= 1) & (gy >= -1) & (gy <= 1)
+        return torch.where(inside, z, torch.full_like(z, math.inf))
+
+    def intersect(self, origins: torch.Tensor, directions: torch.Tensor) -> Hit:
+        n = origins.shape[0]
+        slope = (directions[:, :2] / directions[:, 2:3]).norm(dim=-1).max().item() if n else 0.0
+        span = self.z_max - self.z_min
+        steps = int(min(4096, max(16, math.ceil(span * slope / (0.5 * self.texel_mm)) + 2)))
+        z_lo = torch.full((n,), self.z_min - 1e-6, dtype=origins.dtype)
+        z_lo = torch.maximum(z_lo, origins[:, 2] + 1e-9)
+        hit_t = torch.full((n,), math.inf, dtype=origins.dtype)
+        lo = z_lo.clone()
+        hi = torch.zeros_like(z_lo)
+        found = torch.zeros(n, dtype=torch.bool)
+        zs = torch.linspace(0.0, 1.0, steps, dtype=origins.dtype)
+        rows = max(1, (1 << 22) // steps)
+        for start in range(0, n, rows):
+            sl = slice(start, start + rows)
+            o, d = origins[sl], directions[sl]
+            z = z_lo[sl, None] + zs[None] * (self.z_max + 1e-6 - z_lo[sl, None])  # (m, K)
+            s = (z - o[:, 2:3]) / d[:, 2:3]
+            xy = o[:, None, :2] + s[..., None] * d[:, None, :2]
+            g = z - self._depth_at(xy.reshape(-1, 2)).view(z.shape)  # >= 0: at or behind the surface
+            behind = g >= 0
+            first = torch.argmax(behind.to(torch.int8), dim=1)
+            any_hit = behind.any(dim=1)
+            k = first.clamp_min(1)
+            lo[sl] = torch.gather(z, 1, (k - 1)[:, None]).squeeze(1)
+            hi[sl] = torch.gather(z, 1, k[:, None]).squeeze(1)
+            found[sl] = any_hit & (first > 0)
+        for _ in range(30):  # bisection on the bracket [lo, hi] of the first crossing
+            mid = 0.5 * (lo + hi)
+            s = (mid - origins[:, 2]) / directions[:, 2]
+            xy = origins[:, :2] + s[:, None] * directions[:, :2]
+            behind = mid - self._depth_at(xy) >= 0
+            hi = torch.where(behind, mid, hi)
+            lo = torch.where(behind, lo, mid)
+        z = hi
+        t = (z - origins[:, 2]) / directions[:, 2]
+        pts = origins + t[:, None] * directions
+        pts = torch.cat([pts[:, :2], z[:, None]], dim=-1)
+        hit_t = torch.where(found, t, hit_t)
+        coords = torch.stack([pts[:, 0] - self.x_range[0], pts[:, 1] - self.y_range[0]], dim=-1)
+        return Hit(hit_t, pts, coords)
+
+
+class Scene:
+    """Surfaces (nearest hit wins) and a background intensity for rays that hit nothing.
+
+    Args:
+        surfaces: one or more :class:`Surface`.
+        background: intensity (or RGB) of rays that hit nothing, in [0, 1].
+        name: a label (used in file names and notebooks).
+
+    Example:
+        >>> scene = fronto_parallel_plane(thesis_setup1(), 525.0)
+        >>> scene.name
+        'plane_525mm'
+    """
+
+    def __init__(self, surfaces: Sequence[Surface], background: float = 0.0, name: str = "scene") -> None:
+        surfaces = tuple(surfaces)
+        if not surfaces or not all(isinstance(s, Surface) for s in surfaces):
+            raise SceneError("a scene needs at least one Surface")
+        if not 0.0 <= background <= 1.0:
+            raise SceneError(f"background must be in [0, 1], got {background}")
+        self.surfaces, self.background, self.name = surfaces, float(background), name
+
+    @property
+    def channels(self) -> int:
+        """1 if every texture is grey, else 3."""
+        return 3 if any(s.texture.channels == 3 for s in self.surfaces) else 1
+
+    def validate(self, rig: BiPrismRig) -> None:
+        """Raise :class:`SceneError` if a surface starts at or before the prism's back plane."""
+        back = rig.apex_distance_mm + rig.prism_thickness_mm
+        for surface in self.surfaces:
+            z = surface.nearest_depth()
+            if z <= back:
+                raise SceneError(
+                    f"{type(surface).__name__} of scene {self.name!r} reaches Z = {z:.1f} mm, not beyond the prism's "
+                    f"back plane at {back:.1f} mm: move it further away"
+                )
+
+    def intersect(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[Hit, torch.Tensor]:
+        """Nearest hit over all surfaces; returns (Hit, index (N,) of the surface hit, -1 for none)."""
+        best = Hit(torch.full(origins.shape[:1], math.inf, dtype=origins.dtype), torch.zeros_like(origins),
+                   torch.zeros(origins.shape[0], 2, dtype=origins.dtype))
+        index = torch.full(origins.shape[:1], -1, dtype=torch.long)
+        for i, surface in enumerate(self.surfaces):
+            hit = surface.intersect(origins, directions)
+            closer = hit.t < best.t
+            best = Hit(torch.where(closer, hit.t, best.t), torch.where(closer[:, None], hit.points, best.points),
+                       torch.where(closer[:, None], hit.coords, best.coords))
+            index = torch.where(closer, torch.full_like(index, i), index)
+        return best, index
+
+    def shade(self, hit: Hit, index: torch.Tensor, channels: int) -> torch.Tensor:
+        """(N, channels) intensities: each surface's texture at its hits, background elsewhere."""
+        out = torch.full((index.shape[0], channels), self.background, dtype=torch.float32)
+        for i, surface in enumerate(self.surfaces):
+            mask = index == i
+            if mask.any():
+                values = surface.texture.sample(hit.coords[mask]).to(torch.float32)
+                out[mask] = values.expand(-1, channels) if values.shape[1] == 1 else values
+        return out
+
+
+# ----------------------------------------------------------------------------------- factories
+def _noise(rig: BiPrismRig, depth_mm: float, seed: int, channels: int, texel_px: float) -> NoiseTexture:
+    return NoiseTexture(feature_size_for_depth(rig, depth_mm, texel_px), seed=seed, channels=channels)
+
+
+def _positive_depth(depth_mm: float, name: str = "depth_mm") -> float:
+    if not math.isfinite(depth_mm) or depth_mm <= 0:
+        raise SceneError(f"{name} must be a positive depth in mm, got {depth_mm}")
+    return float(depth_mm)
+
+
+def fronto_parallel_plane(
+    rig: BiPrismRig, depth_mm: float, seed: int = 0, channels: int = 1, texel_px: float = 3.0
+) -> Scene:
+    """An infinite textured plane Z = depth_mm, noise features ``texel_px`` px wide at that depth.
+
+    Example:
+        >>> fronto_parallel_plane(thesis_setup1(), 525.0).surfaces[0].point
+        tensor([  0.,   0., 525.], dtype=torch.float64)
+    """
+    depth_mm = _positive_depth(depth_mm)
+    plane = Plane((0.0, 0.0, depth_mm), (0.0, 0.0, 1.0), _noise(rig, depth_mm, seed, channels, texel_px))
+    return Scene([plane], name=f"plane_{depth_mm:g}mm")
+
+
+def slanted_plane(
+    rig: BiPrismRig, depth_mm: float, slant_deg: float = 30.0, tilt_deg: float = 0.0, seed: int = 0,
+    channels: int = 1, texel_px: float = 3.0,
+) -> Scene:
+    """A plane through (0, 0, depth_mm) rotated ``slant_deg`` about y (depth grows with x) and ``tilt_deg``
+    about x (depth grows with y).
+
+    Example:
+        >>> slanted_plane(thesis_setup1(), 600.0, slant_deg=20.0).name
+        'slanted_600mm_20deg'
+    """
+    depth_mm = _positive_depth(depth_mm)
+    if not (abs(slant_deg) < 80 and abs(tilt_deg) < 80):
+        raise SceneError(f"slant_deg and tilt_deg must be within +-80 degrees, got {slant_deg}, {tilt_deg}")
+    rot = euler_rotation(torch.tensor([math.radians(tilt_deg), -math.radians(slant_deg), 0.0], dtype=F64))
+    plane = Plane((0.0, 0.0, depth_mm), rot[:, 2].tolist(), _noise(rig, depth_mm, seed, channels, texel_px),
+                  u_axis=rot[:, 0].tolist())
+    return Scene([plane], name=f"slanted_{depth_mm:g}mm_{slant_deg:g}deg")
+
+
+def step_scene(
+    rig: BiPrismRig, near_mm: float, far_mm: float, edge_x_mm: float = 0.0, seed: int = 0, channels: int = 1,
+    texel_px: float = 3.0,
+) -> Scene:
+    """A depth step: a near half-plane (x < edge_x_mm) in front of an infinite far plane (occlusions).
+
+    Example:
+        >>> len(step_scene(thesis_setup1(), 400.0, 600.0).surfaces)
+        2
+    """
+    near_mm, far_mm = _positive_depth(near_mm, "near_mm"), _positive_depth(far_mm, "far_mm")
+    if not near_mm < far_mm:
+        raise SceneError(f"near_mm must be smaller than far_mm, got {near_mm}, {far_mm}")
+    near = Plane((edge_x_mm, 0.0, near_mm), (0.0, 0.0, 1.0), _noise(rig, near_mm, seed, channels, texel_px),
+                 bounds_mm=(-math.inf, 0.0, -math.inf, math.inf))
+    far = Plane((0.0, 0.0, far_mm), (0.0, 0.0, 1.0), _noise(rig, far_mm, seed + 1, channels, texel_px))
+    return Scene([near, far], name=f"step_{near_mm:g}_{far_mm:g}mm")
+
+
+def sphere_scene(
+    rig: BiPrismRig, centre_depth_mm: float, radius_mm: float, background_depth_mm: float, seed: int = 0,
+    channels: int = 1, texel_px: float = 3.0,
+) -> Scene:
+    """A textured sphere on the optical axis in front of a textured plane.
+
+    Example:
+        >>> sphere_scene(thesis_setup1(), 500.0, 40.0, 700.0).name
+        'sphere_500mm_r40mm'
+    """
+    centre_depth_mm = _positive_depth(centre_depth_mm, "centre_depth_mm")
+    background_depth_mm = _positive_depth(background_depth_mm, "background_depth_mm")
+    if not centre_depth_mm + radius_mm < background_depth_mm:
+        raise SceneError("the sphere must lie in front of the background plane")
+    ball = Sphere((0.0, 0.0, centre_depth_mm), radius_mm, _noise(rig, centre_depth_mm, seed, channels, texel_px))
+    back = Plane((0.0, 0.0, background_depth_mm), (0.0, 0.0, 1.0),
+                 _noise(rig, background_depth_mm, seed + 1, channels, texel_px))
+    return Scene([ball, back], name=f"sphere_{centre_depth_mm:g}mm_r{radius_mm:g}mm")
+
+
+def height_field_scene(
+    depth_mm: torch.Tensor, image: torch.Tensor, width_mm: float, centre_xy_mm: tuple[float, float] = (0.0, 0.0),
+    name: str = "heightfield",
+) -> Scene:
+    """A photograph with its depth map, standing in front of the camera (x-y centred at ``centre_xy_mm``).
+
+    Args:
+        depth_mm: (h, w) depth in mm (finite, positive).
+        image: (C, h, w) or (h, w) picture in [0, 1], pixel-aligned with ``depth_mm``.
+        width_mm: physical width of the picture; its height keeps square texels.
+
+    Example:
+        >>> scene = height_field_scene(torch.full((30, 40), 600.0), torch.rand(30, 40), width_mm=200.0)
+        >>> scene.surfaces[0].y_range
+        (-75.0, 75.0)
+    """
+    if not isinstance(image, torch.Tensor) or image.shape[-2:] != depth_mm.shape[-2:]:
+        raise SceneError("image and depth_mm must have the same (h, w)")
+    h, w = depth_mm.shape
+    height_mm = width_mm * h / w
+    cx, cy = centre_xy_mm
+    texture = ImageTexture(image, width_mm, height_mm)
+    field = HeightField(depth_mm, texture, (cx - width_mm / 2, cx + width_mm / 2), (cy - height_mm / 2, cy + height_mm / 2))
+    return Scene([field], name=name)
+
+
+def middlebury_scene(
+    folder: str | Path, near_mm: float = 450.0, far_mm: float = 700.0, width_mm: float | None = None,
+    scale: float | None = None, channels: int = 1,
+) -> Scene:
+    """A Middlebury pair's left photograph placed in front of the prism with its true depth structure.
+
+    Disparity is mapped to depth as a real stereo camera does, 1/Z linear in disparity, with the largest
+    disparity at ``near_mm`` and the smallest at ``far_mm``; pixels without ground truth are filled by
+    inpainting. ``scale`` divides the stored disparity (16 for Tsukuba's .pgm, 8 for Venus' .png by
+    default, from the folder's README). ``width_mm`` defaults to the width that fills the sensor at
+    ``far_mm`` for a 25 mm lens and a 4.76 mm sensor (190 mm at 1 m).
+
+    Example:
+        >>> scene = middlebury_scene("../shared/data/middlebury/Tsukuba")  # doctest: +SKIP
+    """
+    folder = Path(folder)
+    img_path = folder / "img_left.png"
+    disp_path = next((p for p in (folder / "disp_gt.pgm", folder / "disp_gt.png") if p.exists()), None)
+    if not img_path.exists() or disp_path is None:
+        raise SceneError(f"{folder} must hold img_left.png and disp_gt.pgm or disp_gt.png")
+    near_mm, far_mm = _positive_depth(near_mm, "near_mm"), _positive_depth(far_mm, "far_mm")
+    if not near_mm < far_mm:
+        raise SceneError(f"near_mm must be smaller than far_mm, got {near_mm}, {far_mm}")
+    flag = cv2.IMREAD_COLOR if channels == 3 else cv2.IMREAD_GRAYSCALE
+    img = cv2.imread(str(img_path), flag)
+    disp = cv2.imread(str(disp_path), cv2.IMREAD_UNCHANGED).astype(np.float32)
+    if scale is None:
+        scale = 16.0 if disp_path.suffix == ".pgm" else 8.0
+    disp = disp / scale
+    known = disp > 0
+    if known.sum() < 16:
+        raise SceneError(f"{disp_path} has no usable ground truth")
+    d_min, d_max = float(disp[known].min()), float(disp[known].max())
+    inv = 1.0 / far_mm + (disp - d_min) / max(d_max - d_min, 1e-6) * (1.0 / near_mm - 1.0 / far_mm)
+    depth = np.where(known, 1.0 / np.maximum(inv, 1e-9), 0.0).astype(np.float32)
+    depth = cv2.inpaint(depth, (~known).astype(np.uint8), 5, cv2.INPAINT_TELEA)
+    depth = np.clip(depth, near_mm, far_mm)
+    picture = torch.from_numpy(img).float() / 255.0
+    picture = picture.permute(2, 0, 1).flip(0) if picture.dim() == 3 else picture  # BGR -> RGB
+    if width_mm is None:
+        width_mm = far_mm * 4.7616 / 25.0
+    return height_field_scene(torch.from_numpy(depth), picture, width_mm, name=f"middlebury_{folder.name.lower()}")
+
+
+def _target(texture: Texture, size: tuple[float, float], margin: float, centre_mm, rotation_deg) -> Plane:
+    """A bounded plane whose texture origin is the pattern's corner, posed by rotation then translation."""
+    rot = euler_rotation(torch.tensor([math.radians(a) for a in rotation_deg], dtype=F64))
+    centre = _vec(centre_mm, "centre_mm")
+    corner = centre - rot[:, 0] * size[0] / 2 - rot[:, 1] * size[1] / 2
+    return Plane(corner.tolist(), rot[:, 2].tolist(), texture, u_axis=rot[:, 0].tolist(),
+                 bounds_mm=(-margin, size[0] + margin, -margin, size[1] + margin))
+
+
+def checkerboard_target(
+    centre_mm: Sequence[float] = (0.0, 0.0, 600.0), rotation_deg: Sequence[float] = (0.0, 0.0, 0.0),
+    rows: int = 7, cols: int = 10, square_mm: float = 10.0, background: float = 0.5,
+) -> Scene:
+    """A checkerboard (``rows`` x ``cols`` squares, one white square of margin) at any pose.
+
+    The board's axes are the camera's rotated by ``rotation_deg`` (about x, y, z: R_z R_y R_x); inner corner
+    (i, j) sits at corner + (j + 1) square u + (i + 1) square v.
+
+    Example:
+        >>> checkerboard_target(rows=6, cols=9).name
+        'checkerboard_6x9'
+    """
+    texture = CheckerTexture(rows, cols, square_mm)
+    plane = _target(texture, (cols * square_mm, rows * square_mm), square_mm, centre_mm, rotation_deg)
+    return Scene([plane], background=background, name=f"checkerboard_{rows}x{cols}")
+
+
+def circle_grid_target(
+    centre_mm: Sequence[float] = (0.0, 0.0, 600.0), rotation_deg: Sequence[float] = (0.0, 0.0, 0.0),
+    rows: int = 6, cols: int = 9, spacing_mm: float = 12.0, radius_mm: float = 3.5, background: float = 0.5,
+) -> Scene:
+    """A symmetric grid of black circles on a white board at any pose (see :func:`checkerboard_target`).
+
+    Example:
+        >>> circle_grid_target().name
+        'circlegrid_6x9'
+    """
+    texture = CircleGridTexture(rows, cols, spacing_mm, radius_mm)
+    plane = _target(texture, (cols * spacing_mm, rows * spacing_mm), spacing_mm / 2, centre_mm, rotation_deg)
+    return Scene([plane], background=background, name=f"circlegrid_{rows}x{cols}")
