@@ -176,7 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "middlebury near depth; several values render a batch")
     render.add_argument("--out", required=True, help="output .png (one depth) or directory (several)")
     render.add_argument("--seed", type=int, default=0, help="texture and noise seed")
-    render.add_argument("--noise", type=float, default=0.0, help="Gaussian noise sigma in [0, 1] units (1/255: one level)")
+    render.add_argument("--noise", type=float, default=0.0,
+                        help="Gaussian noise sigma in [0, 1] units (1/255: one level)")
     render.add_argument("--supersample", type=int, default=3, help="s x s samples per pixel")
     render.add_argument("--bits", type=int, choices=(8, 16), default=8)
     render.add_argument("--rgb", action="store_true", help="render RGB instead of grey")

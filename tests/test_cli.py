@@ -74,3 +74,54 @@ def test_demo(capsys):
     assert len(lines) == 4
     for line in lines:  # the exact round trip is far below a micro-pixel
         assert float(line.split("max error")[1].split("px")[0]) < 1e-6
+
+
+def _small_rig(tmp_path):
+    rig = thesis_setup1().replace(image_width=128, image_height=96, pixel_size_mm=0.0372, principal_point=None)
+    path = tmp_path / "small.json"
+    rig.to_json(path)
+    return path
+
+
+def test_render_writes_image_and_ground_truth(tmp_path, capsys):
+    import numpy as np
+
+    from prismstereo.io import read_image
+
+    out = tmp_path / "capture.png"
+    code = main(["render", "--rig", str(_small_rig(tmp_path)), "--scene", "plane", "--depth-mm", "525", "--out",
+                 str(out), "--seed", "3", "--noise", "0.004", "--supersample", "2"])
+    assert code == 0 and out.exists()
+    img = read_image(out)
+    assert img.shape == (1, 96, 128)
+    gt = np.load(out.with_suffix(".npz"))
+    assert gt["depth"].shape == (96, 128) and np.nanmax(gt["depth"]) == np.float32(525.0)
+    assert gt["covisible"].dtype == bool and gt["covisible"].any() and gt["match_uv"].shape == (96, 128, 2)
+    assert "plane_525mm" in str(gt["scene"])
+    assert "co-visible" in capsys.readouterr().out
+
+
+def test_render_batch_and_16_bit_rgb(tmp_path):
+    from prismstereo.io import read_image
+
+    out = tmp_path / "batch"
+    code = main(["render", "--rig", str(_small_rig(tmp_path)), "--scene", "step", "--depth-mm", "400", "500",
+                 "--out", str(out), "--bits", "16", "--rgb", "--supersample", "1"])
+    assert code == 0
+    files = sorted(p.name for p in out.iterdir())
+    assert files == ["step_400_600mm.npz", "step_400_600mm.png", "step_500_700mm.npz", "step_500_700mm.png"]
+    img = read_image(out / "step_400_600mm.png")
+    assert img.shape == (3, 96, 128)
+    assert ((img * 65535).round() % 257 != 0).any()  # really 16-bit levels
+
+
+@pytest.mark.parametrize(
+    "extra,message",
+    [(["--scene", "plane", "--depth-mm", "100"], "not beyond the prism's back plane"),
+     (["--scene", "middlebury", "--depth-mm", "450"], "needs --middlebury DIR"),
+     (["--scene", "plane", "--depth-mm", "400", "500"], "--out must be a directory")],
+)
+def test_render_errors(tmp_path, capsys, extra, message):
+    code = main(["render", "--rig", str(_small_rig(tmp_path)), "--out", str(tmp_path / "x.png"), *extra])
+    assert code == 2
+    assert message in capsys.readouterr().err

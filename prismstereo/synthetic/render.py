@@ -111,7 +111,8 @@ def render_radiance(rig: BiPrismRig, scene: Scene, supersample: int = 1, channel
     ray misses the prism are black; samples that hit nothing get the scene's background.
 
     Example:
-        >>> render_radiance(thesis_setup1().replace(image_width=64, image_height=48), fronto_parallel_plane(thesis_setup1(), 525.0)).shape
+        >>> small = thesis_setup1().replace(image_width=64, image_height=48)
+        >>> render_radiance(small, fronto_parallel_plane(small, 525.0)).shape
         torch.Size([1, 48, 64])
     """
     scene.validate(rig)
@@ -160,7 +161,9 @@ def _ground_truth(rig: BiPrismRig, scene: Scene) -> tuple[torch.Tensor, ...]:
     return points, valid, left, covisible, match
 
 
-def _form_image(radiance: torch.Tensor, rig: BiPrismRig, formation: ImageFormation, gen: torch.Generator) -> torch.Tensor:
+def _form_image(
+    radiance: torch.Tensor, rig: BiPrismRig, formation: ImageFormation, gen: torch.Generator
+) -> torch.Tensor:
     img = radiance
     if formation.vignetting > 0:
         d = pixel_directions(rig, _pixel_grid(rig))

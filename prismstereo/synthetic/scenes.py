@@ -105,7 +105,8 @@ class Plane(Surface):
 
     Example:
         >>> plane = Plane((0.0, 0.0, 500.0), (0.0, 0.0, 1.0), NoiseTexture(0.3))
-        >>> plane.intersect(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)).t
+        >>> o, d = torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)
+        >>> plane.intersect(o, d).t
         tensor([500.], dtype=torch.float64)
     """
 
@@ -157,7 +158,8 @@ class Sphere(Surface):
 
     Example:
         >>> ball = Sphere((0.0, 0.0, 500.0), 50.0, NoiseTexture(0.3))
-        >>> ball.intersect(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)).t
+        >>> o, d = torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)
+        >>> ball.intersect(o, d).t
         tensor([450.], dtype=torch.float64)
     """
 
@@ -199,7 +201,8 @@ class HeightField(Surface):
 
     Example:
         >>> hf = HeightField(torch.full((4, 4), 600.0), NoiseTexture(0.3), (-50.0, 50.0), (-50.0, 50.0))
-        >>> hf.intersect(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)).t
+        >>> o, d = torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)
+        >>> hf.intersect(o, d).t
         tensor([600.], dtype=torch.float64)
     """
 
@@ -383,10 +386,14 @@ def slanted_plane(
 
 
 def step_scene(
-    rig: BiPrismRig, near_mm: float, far_mm: float, edge_x_mm: float = 0.0, seed: int = 0, channels: int = 1,
-    texel_px: float = 3.0,
+    rig: BiPrismRig, near_mm: float, far_mm: float, edge_x_mm: float = 0.0, near_side: str = "right", seed: int = 0,
+    channels: int = 1, texel_px: float = 3.0,
 ) -> Scene:
-    """A depth step: a near half-plane (x < edge_x_mm) in front of an infinite far plane (occlusions).
+    """A depth step: a near half-plane in front of an infinite far plane, with occlusions.
+
+    ``near_side`` 'right' puts the near plane at x > edge_x_mm: then far-plane points just left of the
+    edge are seen by the left (reference) half but hidden from the right half by the near plane, the
+    occlusion a left-right check must catch. 'left' (x < edge_x_mm) hides points from the left half only.
 
     Example:
         >>> len(step_scene(thesis_setup1(), 400.0, 600.0).surfaces)
@@ -395,8 +402,11 @@ def step_scene(
     near_mm, far_mm = _positive_depth(near_mm, "near_mm"), _positive_depth(far_mm, "far_mm")
     if not near_mm < far_mm:
         raise SceneError(f"near_mm must be smaller than far_mm, got {near_mm}, {far_mm}")
+    if near_side not in ("left", "right"):
+        raise SceneError(f"Unknown near_side {near_side!r}. Choose from: 'left', 'right'")
+    bounds = (0.0, math.inf, -math.inf, math.inf) if near_side == "right" else (-math.inf, 0.0, -math.inf, math.inf)
     near = Plane((edge_x_mm, 0.0, near_mm), (0.0, 0.0, 1.0), _noise(rig, near_mm, seed, channels, texel_px),
-                 bounds_mm=(-math.inf, 0.0, -math.inf, math.inf))
+                 bounds_mm=bounds)
     far = Plane((0.0, 0.0, far_mm), (0.0, 0.0, 1.0), _noise(rig, far_mm, seed + 1, channels, texel_px))
     return Scene([near, far], name=f"step_{near_mm:g}_{far_mm:g}mm")
 
@@ -443,7 +453,8 @@ def height_field_scene(
     height_mm = width_mm * h / w
     cx, cy = centre_xy_mm
     texture = ImageTexture(image, width_mm, height_mm)
-    field = HeightField(depth_mm, texture, (cx - width_mm / 2, cx + width_mm / 2), (cy - height_mm / 2, cy + height_mm / 2))
+    x_range, y_range = (cx - width_mm / 2, cx + width_mm / 2), (cy - height_mm / 2, cy + height_mm / 2)
+    field = HeightField(depth_mm, texture, x_range, y_range)
     return Scene([field], name=name)
 
 

@@ -110,7 +110,9 @@ class NoiseTexture:
         if channels not in (1, 3):
             raise SceneError(f"channels must be 1 or 3, got {channels}")
         if octaves < 1 or lattice < 8 or not 0 < contrast <= 0.5:
-            raise SceneError(f"need octaves >= 1, lattice >= 8, contrast in (0, 0.5]; got {octaves}, {lattice}, {contrast}")
+            raise SceneError(
+                f"need octaves >= 1, lattice >= 8, contrast in (0, 0.5]; got {octaves}, {lattice}, {contrast}"
+            )
         self.feature_mm, self.seed, self.channels = float(feature_mm), int(seed), channels
         self.octaves, self.contrast, self.lattice = octaves, float(contrast), lattice
         gen = torch.Generator().manual_seed(self.seed)
