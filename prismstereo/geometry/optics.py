@@ -231,7 +231,7 @@ def _trace(p: RigParameters, directions: torch.Tensor, half: str) -> RayBundle:
     tiny = torch.finfo(directions.dtype).tiny
     t_l = _dot(pl.n_left, pl.apex) / torch.where(den_l > 0, den_l, torch.ones_like(den_l))
     t_r = _dot(pl.n_right, pl.apex) / torch.where(den_r > 0, den_r, torch.ones_like(den_r))
-    natural_left = t_l >= t_r
+    natural_left = t_l > t_r  # a ray exactly at the apex (x = d) belongs to the right half
     if half == "auto":
         use_left = natural_left
     else:
@@ -412,7 +412,11 @@ def _newton_step(
 
 
 def project_points(
-    rig: BiPrismRig | RigParameters, points: torch.Tensor, half: Half, iterations: int = 5
+    rig: BiPrismRig | RigParameters,
+    points: torch.Tensor,
+    half: Half,
+    iterations: int = 5,
+    initial_uv: torch.Tensor | None = None,
 ) -> Projection:
     """Project 3D points through one half of the prism to sensor pixels (the inverse of tracing).
 
@@ -429,6 +433,8 @@ def project_points(
         iterations: Newton iterations before the final step (>= 1). Measured on the thesis setups and a
             tilted, offset prism: 3 reach 1e-11 px in float64 from the pinhole start (up to ~30 px off for
             setup 2); the default 5 leaves margin. Non-converged points come back with ``valid`` False.
+        initial_uv: (*, 2) optional starting pixels (e.g. the solution at a neighbouring depth), replacing
+            the virtual-pinhole start where they are not NaN; two or three iterations then suffice.
 
     Returns:
         Projection(uv (*, 2), valid (*,)).
@@ -448,8 +454,13 @@ def project_points(
     h = 1e-4 if f64 else 2e-2
     tol = 1e-6 if f64 else 2e-3
     max_step = 0.25 * p.width
+    if initial_uv is not None:
+        check_shape(initial_uv, ["*", 2], "initial_uv")
     with torch.no_grad():
         uv = _initial_guess(p, points.detach(), half)
+        if initial_uv is not None:
+            start = initial_uv.detach().to(points).expand_as(uv)
+            uv = torch.where(torch.isnan(start), uv, start)
         for _ in range(iterations):
             uv, _, _ = _newton_step(p, points, uv, half, h, max_step)
             uv = torch.stack([uv[..., 0].clamp(-p.width, 2.0 * p.width),

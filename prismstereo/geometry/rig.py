@@ -214,6 +214,16 @@ class BiPrismRig:
         """
         return self.cx + self.focal_length_px * self.prism_offset_x_mm / self.apex_distance_mm
 
+    @property
+    def reference_width(self) -> int:
+        """W_ref: the number of image columns left of the apex column (u < apex_column), clamped to [0, W].
+
+        Example:
+            >>> thesis_setup1().reference_width
+            512
+        """
+        return min(self.image_width, max(0, math.ceil(self.apex_column)))
+
     # ----------------------------------------------------------------------------- tensors
     def parameters(
         self,
