@@ -10,31 +10,19 @@ Run: .venv/bin/python benchmarks/epipolar_sampling.py
 
 from __future__ import annotations
 
-import statistics
-import time
-
 import torch
 import torch.nn.functional as F
+from _timing import median_ms  # benchmarks/_timing.py (scripts run from this folder)
 
 from prismstereo import thesis_setup1, thesis_setup2
 from prismstereo.epipolar import band_residual, depth_hypotheses, exact_sampling_grid, shift_bands
-
-
-def _median_ms(fn, repeats: int = 5) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    return statistics.median(times)
 
 
 def _sampling_cost(h: int, w_ref: int, d: int, bands: int) -> tuple[float, float]:
     gen = torch.Generator().manual_seed(0)
     img = torch.rand(1, 1, h, w_ref, generator=gen)
     grids = torch.rand(d, h, w_ref, 2, generator=gen) * 2 - 1
-    per_hyp = _median_ms(lambda: F.grid_sample(img.expand(d, -1, -1, -1), grids, align_corners=False), 3)
+    per_hyp = median_ms(lambda: F.grid_sample(img.expand(d, -1, -1, -1), grids, align_corners=False), 3)
     wx = w_ref + d // bands + 4
     band_grids = torch.rand(bands, h, wx, 2, generator=gen) * 2 - 1
     shifts = torch.linspace(0, d // bands, d)
@@ -49,7 +37,7 @@ def _sampling_cost(h: int, w_ref: int, d: int, bands: int) -> tuple[float, float
             out[i] = (1 - a) * src[:, k:k + w_ref] + a * src[:, k + 1:k + 1 + w_ref]
         return out
 
-    return per_hyp, _median_ms(banded, 3)
+    return per_hyp, median_ms(banded, 3)
 
 
 def main() -> None:
@@ -60,7 +48,8 @@ def main() -> None:
         exact = exact_sampling_grid(rig, depths, rows=rows)
         step = (exact.uv[1:] - exact.uv[:-1]).norm(dim=-1)[exact.valid[1:] & exact.valid[:-1]].max()
         print(f"{name}: D={d} hypotheses 228-1374 mm, largest step between neighbours {step:.2f} px")
-        print(f"  {'bands':>5s} {'max px':>8s} {'horiz':>7s} {'vert':>7s} {'mean px':>8s} {'grid_sample ms':>15s} {'bands ms':>9s}")
+        header = ("bands", "max px", "horiz", "vert", "mean px", "grid_sample ms", "bands ms")
+        print("  " + " ".join(f"{h:>{w}s}" for h, w in zip(header, (5, 8, 7, 7, 8, 15, 9), strict=True)))
         for bands in (1, 8, 32, 64, 128, 256):
             res = band_residual(exact, shift_bands(rig, depths, bands, rows=rows, exact=exact))
             per_hyp, banded = _sampling_cost(rig.image_height, rig.reference_width, d, bands)

@@ -7,14 +7,13 @@ Run: .venv/bin/python benchmarks/optics_speed.py     (prints a table; median of 
 from __future__ import annotations
 
 import argparse
-import statistics
 import tempfile
-import time
 import warnings
 from pathlib import Path
 
 import onnxruntime as ort
 import torch
+from _timing import median_ms  # benchmarks/_timing.py (scripts run from this folder)
 
 from prismstereo import points_at_depth, project_points, thesis_setup1, trace_pixels
 
@@ -27,16 +26,6 @@ class _Project(torch.nn.Module):
     def forward(self, points: torch.Tensor):
         proj = project_points(self.p, points, "left")
         return proj.uv, proj.valid
-
-
-def _median_ms(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -55,9 +44,9 @@ def main() -> None:
         pts = points_at_depth(rays, 600.0)[left]
         name = str(dtype).removeprefix("torch.")
         with torch.no_grad():
-            ms = _median_ms(lambda uv=uv: trace_pixels(rig, uv), args.repeats)
+            ms = median_ms(lambda uv=uv: trace_pixels(rig, uv), args.repeats)
             rows.append((f"trace_pixels   torch {name}", h * w, ms))
-            ms = _median_ms(lambda pts=pts: project_points(rig, pts, "left"), args.repeats)
+            ms = median_ms(lambda pts=pts: project_points(rig, pts, "left"), args.repeats)
             rows.append((f"project_points torch {name}", len(pts), ms))
         if dtype == torch.float32:
             with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
@@ -69,7 +58,7 @@ def main() -> None:
                 opts.intra_op_num_threads, opts.inter_op_num_threads = 2, 1
                 sess = ort.InferenceSession(path, opts)
                 feed = {"points": pts.numpy()}
-                ms = _median_ms(lambda sess=sess, feed=feed: sess.run(None, feed), args.repeats)
+                ms = median_ms(lambda sess=sess, feed=feed: sess.run(None, feed), args.repeats)
                 rows.append(("project_points onnxruntime float32", len(pts), ms))
     print(f"{'operation':40s} {'items':>9s} {'ms':>9s} {'Mitems/s':>9s}")
     for name, n, ms in rows:

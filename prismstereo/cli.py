@@ -1,11 +1,12 @@
 """The ``prismstereo`` command line. It only parses arguments, calls the library and prints.
 
-Subcommands (this release): ``rig show``, ``rig preset``, ``render``, ``demo``; ``--version``.
+Subcommands (this release): ``rig show``, ``rig preset``, ``render``, ``fov``, ``design``, ``demo``; ``--version``.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -152,6 +153,117 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fov(args: argparse.Namespace) -> int:
+    from prismstereo import analysis as an
+
+    rig = load_rig(args.rig)
+    fov = an.fov_closed_form(rig)
+    z_b = float(fov.left_ray1.back_plane_z)
+    deg = math.degrees
+    cross, far = float(fov.crossing_depth), float(fov.far_depth)
+    lines = [
+        "Field of view (thesis ch. 5; top view, camera frame: x right, z forward, mm)",
+        f"  type                      {fov.fov_type}  (epsilon = phi4/phi2 = {float(fov.epsilon):.4f}, eq. 5.12)",
+        f"  alpha                     {rig.alpha_deg:.3f} deg  (alpha1 {deg(fov.boundary.alpha1):.3f} deg: phi4 = phi2,"
+        f" alpha2 {deg(fov.boundary.alpha2):.3f} deg: phi4 = 0)",
+        f"  phi2  Ray 1 angle         {float(fov.phi2):.5f} rad  ({deg(float(fov.phi2)):.3f} deg, eq. 5.5)",
+        f"  phi4  Ray 2 angle         {float(fov.phi4):+.5f} rad  ({deg(float(fov.phi4)):+.3f} deg, eq. 5.9)",
+        f"  gamma common FOV angle    {float(fov.gamma):.5f} rad  ({deg(float(fov.gamma)):.3f} deg, eq. 5.10)",
+        f"  h     Ray 1 intercept     {float(fov.h):.5f} mm  (eq. 5.16)",
+        f"  v     Ray 2 intercept     {float(fov.v):.5f} mm  (eq. 5.25)",
+        f"  Ray 2 crosses Ray 1 at    {f'Z = {cross:.1f} mm' if math.isfinite(cross) else 'never'}",
+        f"  common FOV closes at      {f'Z = {far:.1f} mm' if math.isfinite(far) else 'never (open FOV)'}",
+    ]
+    if not fov.edge_rays_on_prism:
+        lines.append("  warning: a sensor-edge ray misses the prism; the exact outer border is the prism's edge")
+    lines.append(f"Border rays: x = x0 + (z - {z_b:.3f}) tan(theta), theta > 0 toward +x (eq. 5.17, 5.36-5.37)")
+    for half in ("left", "right"):
+        for k, role in ((1, "inner, apex"), (2, "outer, edge")):
+            ray = getattr(fov, f"{half}_ray{k}")
+            lines.append(f"  {half:<5} half  Ray {k} ({role})   x = {float(ray.intercept):+.5f} + (z - {z_b:.3f})"
+                         f" * {math.tan(float(ray.angle)):+.6f}   (theta {float(ray.angle):+.5f} rad)")
+    depths = [z for z in args.depth_mm if z > z_b]
+    if not depths:
+        raise PrismStereoError(f"--depth-mm values must be beyond the back plane ({z_b:.1f} mm)")
+    cmp = an.compare_fov(rig, depths)
+    lines.append("Common FOV (closed form vs exact ray trace of the principal row)")
+    lines.append("  depth (mm)   width closed (mm)   width exact (mm)   worst border |diff| (mm)   exact x range (mm)")
+    for i, z in enumerate(depths):
+        lo, hi = cmp.exact.common[i].tolist()
+        rng = f"[{lo:+.2f}, {hi:+.2f}]" if bool(cmp.exact.overlap[i]) else "none"
+        lines.append(f"  {z:10.1f}   {float(cmp.closed_form.width[i]):17.3f}   {float(cmp.exact.width[i]):16.3f}"
+                     f"   {float(cmp.difference[i]):24.2e}   {rng}")
+    print("\n".join(lines))
+    if args.plot:
+        from prismstereo.analysis.plots import plot_fov_top_view
+
+        ax = plot_fov_top_view(rig, args.plot_depth_mm)
+        ax.figure.savefig(args.plot, dpi=120)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _cmd_design(args: argparse.Namespace) -> int:
+    from prismstereo import analysis as an
+
+    rig = load_rig(args.rig)
+    varies = [args.vary] if args.vary else list(an.VARY)
+    z, target, px = args.depth_mm, args.target_error_mm, args.disparity_px
+    names = {"f": "focal length f", "alpha": "prism angle alpha", "T_o": "prism distance T_o",
+             "T": "prism thickness T"}
+    eqs = {"f": "6.39", "alpha": "6.42 + 6.46", "T_o": "6.47", "T": "6.46"}
+    lines = [f"Design for a depth error of {target:g} mm at Z = {z:g} mm from a disparity error of {px:g} px "
+             f"({px * rig.pixel_size_mm:g} mm) (thesis sec. 6.3)"]
+    rigs = {"current": rig}
+    for vary in varies:
+        d = an.design(rig, target_error_mm=target, depth_mm=z, vary=vary, disparity_px=px)
+        if vary == varies[0]:
+            lines.append(f"  current rig: error {d.current_error[0]:.3f} mm (eq. 6.36), {d.current_error[1]:.3f} mm"
+                         " (exact model)")
+        u = d.unit
+        lines += [
+            f"  vary {names[vary]}" + ("  (back-plane half-width t_b kept)" if vary in ("alpha", "T") else ""),
+            f"    current {d.current:.4f} {u}; closed form (eq. {eqs[vary]}) {d.closed_form:.4f} {u};"
+            f" exact {d.exact:.4f} {u}",
+            f"    closed form - exact = {d.difference:+.4f} {u} ({d.difference / d.exact:+.2%});"
+            f" the closed-form design's exact error is {d.closed_form_error_exact:.3f} mm",
+        ]
+        if d.pixels is not None:
+            p = d.pixels
+            lines.append(f"    or keep the FOV (theta_vc {p.theta_vc:.4f} rad): sensor {p.width_px:.0f} x "
+                         f"{p.height_px:.0f} px, {p.pixels:.0f} px per half-image (eq. 6.41)")
+        if vary == "T":
+            t = an.required_thickness(rig, z, target, px)
+            lines.append(f"    rejected root T+ = {t.rejected:.1f} mm (> n Z / (n - 1) = "
+                         f"{z * rig.refractive_index / (rig.refractive_index - 1):.1f} mm: past the object)")
+        if d.exact_rig is not None:
+            rigs[f"{vary} = {d.exact:.3f} {u}"] = d.exact_rig
+    back = max(r.apex_distance_mm + r.prism_thickness_mm for r in rigs.values())
+    depths = [v for v in args.curve_depths_mm if v > back] if args.curve_depths_mm else [
+        v for v in (250.0, 500.0, 750.0, 1000.0, 1500.0, 2000.0, 3000.0) if v > back]
+    curves = an.error_curves_of(rigs, depths, px)
+    lines.append("Absolute depth error (mm) against depth: closed form (eq. 6.22) / exact model")
+    lines.append("  " + f"{'depth (mm)':>10}" + "".join(f"  {name:>24}" for name in curves))
+    for i, depth in enumerate(depths):
+        cells = "".join(f"  {float(c.closed_form[i]):>11.3f} / {float(c.exact[i]):>10.3f}" for c in curves.values())
+        lines.append(f"  {depth:10.1f}{cells}")
+    print("\n".join(lines))
+    if args.plot:
+        from prismstereo.analysis.plots import plot_curves
+
+        dense = torch.linspace(depths[0], depths[-1], 30, dtype=torch.float64)
+        series, styles = {}, {}
+        for name, c in an.error_curves_of(rigs, dense, px).items():
+            series[f"{name} (exact)"], styles[f"{name} (exact)"] = (c.depth, c.exact), "-"
+            series[f"{name} (eq. 6.22)"], styles[f"{name} (eq. 6.22)"] = (c.depth, c.closed_form), "--"
+        ax = plot_curves(series, styles=styles, title=f"depth error of a {px:g} px disparity error")
+        ax.axhline(target, color="k", lw=0.8, ls=":")
+        ax.axvline(z, color="k", lw=0.8, ls=":")
+        ax.figure.savefig(args.plot, dpi=120)
+        print(f"wrote {args.plot}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``prismstereo`` command."""
     parser = argparse.ArgumentParser(prog="prismstereo", description="Single-lens bi-prism stereo.")
@@ -191,6 +303,26 @@ def build_parser() -> argparse.ArgumentParser:
                         help="target rotation about x, y, z")
     render.add_argument("--middlebury", default=None, help="folder of a Middlebury pair (scene middlebury)")
     render.set_defaults(func=_cmd_render)
+
+    fov = sub.add_parser("fov", help="field of view: type, angles, border rays, common-FOV width (thesis ch. 5)")
+    fov.add_argument("--rig", default="thesis_setup1", help="rig JSON file or preset name")
+    fov.add_argument("--depth-mm", type=float, nargs="+", default=[500.0, 1000.0, 2000.0, 5000.0],
+                     help="depths at which the common-FOV width is printed")
+    fov.add_argument("--plot", default=None, help="write the top view (both FOVs, common region) to this image")
+    fov.add_argument("--plot-depth-mm", type=float, default=None, help="last depth drawn in the plot")
+    fov.set_defaults(func=_cmd_fov)
+
+    design = sub.add_parser("design", help="parameter needed for a target depth error (thesis sec. 6.3)")
+    design.add_argument("--rig", default="thesis_setup1", help="rig JSON file or preset name")
+    design.add_argument("--target-error-mm", type=float, required=True, help="wanted absolute depth error")
+    design.add_argument("--depth-mm", type=float, required=True, help="depth at which the target must hold")
+    design.add_argument("--vary", choices=("f", "alpha", "T_o", "T"), default=None,
+                        help="the parameter to change (default: each in turn)")
+    design.add_argument("--disparity-px", type=float, default=1.0, help="disparity error in pixels")
+    design.add_argument("--curve-depths-mm", type=float, nargs="+", default=None,
+                        help="depths of the printed error curves")
+    design.add_argument("--plot", default=None, help="write the error-vs-depth curves to this image")
+    design.set_defaults(func=_cmd_design)
 
     demo = sub.add_parser("demo", help="run the main job on a built-in default")
     demo.add_argument("--rig", default="thesis_setup1", help="rig JSON file or preset name")

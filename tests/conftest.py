@@ -39,6 +39,13 @@ def rig(request) -> BiPrismRig:
     return RIGS[request.param]()
 
 
+def scaled_rig(rig: BiPrismRig | None = None, scale: int = 8) -> BiPrismRig:
+    """The rig's field of view on a sensor ``scale`` times coarser (fast tests, same geometry)."""
+    rig = rig or thesis_setup1()
+    return rig.replace(image_width=rig.image_width // scale, image_height=rig.image_height // scale,
+                       pixel_size_mm=rig.pixel_size_mm * scale, principal_point=None)
+
+
 def random_pixels(rig: BiPrismRig, n: int, dtype: torch.dtype, seed: int = 0) -> torch.Tensor:
     """(n, 2) uniformly random pixel coordinates on the sensor (seeded)."""
     gen = torch.Generator().manual_seed(seed)

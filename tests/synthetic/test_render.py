@@ -17,15 +17,9 @@ from prismstereo.synthetic import (
     sphere_scene,
     step_scene,
 )
+from tests.conftest import scaled_rig
 
 F64 = torch.float64
-
-
-def small(rig=None, scale=8):
-    """The rig's field of view on a sensor ``scale`` times coarser (fast tests, same geometry)."""
-    rig = rig or thesis_setup1()
-    return rig.replace(image_width=rig.image_width // scale, image_height=rig.image_height // scale,
-                       pixel_size_mm=rig.pixel_size_mm * scale, principal_point=None)
 
 
 def pixel_grid(rig):
@@ -38,7 +32,7 @@ EXACT = ImageFormation(supersample=1, bits=None)
 
 
 def test_capture_shapes_and_types():
-    rig = small()
+    rig = scaled_rig()
     cap = render(rig, fronto_parallel_plane(rig, 525.0), ImageFormation(supersample=2, channels=3))
     assert isinstance(cap, Capture)
     h, w = rig.image_height, rig.image_width
@@ -51,7 +45,7 @@ def test_capture_shapes_and_types():
 
 @pytest.mark.parametrize("make", [thesis_setup1, thesis_setup2])
 def test_fronto_parallel_depth_is_exact(make):
-    rig = small(make())
+    rig = scaled_rig(make())
     cap = render(rig, fronto_parallel_plane(rig, 612.5), EXACT)
     assert cap.valid.float().mean() > 0.8
     depth = cap.depth[cap.valid]
@@ -61,7 +55,7 @@ def test_fronto_parallel_depth_is_exact(make):
 
 
 def test_ground_truth_points_lie_on_pixel_rays():
-    rig = small()
+    rig = scaled_rig()
     cap = render(rig, sphere_scene(rig, 450.0, 40.0, 650.0), EXACT)
     rays = trace_pixels(rig, pixel_grid(rig))
     pts = cap.points[0].permute(1, 2, 0)
@@ -72,7 +66,7 @@ def test_ground_truth_points_lie_on_pixel_rays():
 
 
 def test_intensity_equals_texture_at_hit_point():
-    rig = small()
+    rig = scaled_rig()
     tex = NoiseTexture(1.0, seed=3)
     scene = Scene([Plane((0.0, 0.0, 500.0), (0.0, 0.0, 1.0), tex)])
     cap = render(rig, scene, EXACT)
@@ -96,7 +90,7 @@ class MirrorTexture:
 
 
 def test_halves_mirror_each_other_on_a_symmetric_rig():
-    rig = small()  # d = 0, principal point at the image centre
+    rig = scaled_rig()  # d = 0, principal point at the image centre
     scene = Scene([Plane((0.0, 0.0, 550.0), (0.0, 0.0, 1.0), MirrorTexture(NoiseTexture(0.8, seed=9)))])
     cap = render(rig, scene, ImageFormation(supersample=2, bits=None))
     torch.testing.assert_close(cap.image, cap.image.flip(-1), atol=1e-6, rtol=0)
@@ -105,7 +99,7 @@ def test_halves_mirror_each_other_on_a_symmetric_rig():
 
 
 def test_covisibility_of_a_step_matches_independent_check():
-    rig = small(scale=4)
+    rig = scaled_rig(scale=4)
     near, far = 400.0, 600.0
     cap = render(rig, step_scene(rig, near, far), EXACT)
     pts = cap.points[0].permute(1, 2, 0)
@@ -128,7 +122,7 @@ def test_covisibility_of_a_step_matches_independent_check():
 
 
 def test_match_uv_is_the_true_correspondence():
-    rig = small(scale=4)
+    rig = scaled_rig(scale=4)
     cap = render(rig, sphere_scene(rig, 450.0, 40.0, 650.0), EXACT)
     cov = cap.covisible[0, 0]
     uv = cap.match_uv[0].permute(1, 2, 0)[cov]
@@ -141,7 +135,7 @@ def test_match_uv_is_the_true_correspondence():
 
 
 def test_supersampling_antialiases():
-    rig = small()
+    rig = scaled_rig()
     scene = Scene([Plane((0.0, 0.0, 500.0), (0.0, 0.0, 1.0), NoiseTexture(0.2, seed=1))])
     one = render_radiance(rig, scene, 1)
     four = render_radiance(rig, scene, 4)
@@ -150,7 +144,7 @@ def test_supersampling_antialiases():
 
 
 def test_image_formation_effects():
-    rig = small()
+    rig = scaled_rig()
     scene = Scene([Plane((0.0, 0.0, 500.0), (0.0, 0.0, 1.0), ConstantTexture(0.5))])
     flat = render(rig, scene, ImageFormation(supersample=1, bits=None)).image
     vig = render(rig, scene, ImageFormation(supersample=1, bits=None, vignetting=1.0)).image
@@ -173,7 +167,7 @@ def test_image_formation_effects():
 
 
 def test_batch_equals_single_renders():
-    rig = small()
+    rig = scaled_rig()
     scenes = [fronto_parallel_plane(rig, 400.0, seed=1), step_scene(rig, 450.0, 700.0, seed=2)]
     batch = render(rig, scenes, EXACT)
     assert batch.image.shape[0] == 2
@@ -195,7 +189,7 @@ def test_formation_errors(kwargs, match):
 
 
 def test_render_errors():
-    rig = small()
+    rig = scaled_rig()
     with pytest.raises(SceneError, match="not beyond the prism's back plane"):
         render(rig, fronto_parallel_plane(rig, 170.0))
     with pytest.raises(SceneError, match="non-empty sequence of Scenes"):
