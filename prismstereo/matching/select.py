@@ -1,0 +1,168 @@
+"""Choosing a hypothesis per pixel: winner-take-all, sub-pixel refinement, local soft-argmin, checks.
+
+All functions take a cost volume (B, D, H, W) (lower is better) and return per-pixel maps (B, 1, H, W)
+in *hypothesis index* units (fractional after refinement); :mod:`prismstereo.depth.convert` turns indices
+into depth.
+
+* Sub-pixel: ``'equiangular'`` (the V fit, for L1-type costs such as SAD and census) or ``'parabola'``
+  (for SSD-like costs such as ZNCC); a parabola on SAD pulls estimates toward integers (pixel locking).
+* :func:`soft_argmin_local`: a differentiable estimate from a softmax over the 2 r + 1 hypotheses around
+  the winner (a full-range soft-argmin is biased by multi-modal costs).
+* :func:`uniqueness` and :func:`left_right_check` reject ambiguous and occluded pixels.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+
+from prismstereo.errors import OptionError, check_option, check_shape
+
+__all__ = ["Subpixel", "winner_take_all", "subpixel_refine", "soft_argmin_local", "uniqueness", "left_right_check"]
+
+Subpixel = Literal["equiangular", "parabola"]
+
+
+def winner_take_all(cost: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Index (B, 1, H, W) long and value (B, 1, H, W) of the lowest cost over D.
+
+    Example:
+        >>> idx, best = winner_take_all(torch.tensor([3.0, 1.0, 2.0]).view(1, 3, 1, 1))
+        >>> int(idx), float(best)
+        (1, 1.0)
+    """
+    check_shape(cost, ["B", "D", "H", "W"], "cost")
+    best, index = cost.min(dim=1, keepdim=True)
+    return index, best
+
+
+def _neighbours(cost: torch.Tensor, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    d = cost.shape[1]
+    c0 = cost.gather(1, index)
+    cm = cost.gather(1, (index - 1).clamp(0, d - 1))
+    cp = cost.gather(1, (index + 1).clamp(0, d - 1))
+    return cm, c0, cp
+
+
+def subpixel_refine(cost: torch.Tensor, index: torch.Tensor, method: Subpixel = "equiangular") -> torch.Tensor:
+    """Refine integer winners to fractional indices by fitting the costs at i-1, i, i+1.
+
+    parabola: delta = (c- - c+) / (2 (c- - 2 c0 + c+)); equiangular: delta = (c- - c+) / (2 max(c- - c0,
+    c+ - c0)). delta is clamped to [-0.5, 0.5]; winners at the first or last hypothesis stay integer.
+
+    Args:
+        cost: (B, D, H, W).
+        index: (B, 1, H, W) long winners (:func:`winner_take_all`).
+        method: 'equiangular' or 'parabola'.
+
+    Returns:
+        (B, 1, H, W) fractional index, dtype of ``cost``.
+
+    Example:
+        >>> c = torch.tensor([2.0, 0.0, 1.0]).view(1, 3, 1, 1)
+        >>> float(subpixel_refine(c, torch.ones(1, 1, 1, 1, dtype=torch.long)))
+        1.25
+    """
+    check_option(method, ("equiangular", "parabola"), "method")
+    cm, c0, cp = _neighbours(cost, index)
+    den = cm - 2 * c0 + cp if method == "parabola" else torch.maximum(cm - c0, cp - c0)
+    delta = (cm - cp) / (2 * den).clamp_min(1e-12)
+    inner = (index > 0) & (index < cost.shape[1] - 1)
+    delta = torch.where(inner, delta.clamp(-0.5, 0.5), torch.zeros_like(delta))
+    return index.to(cost.dtype) + delta
+
+
+def soft_argmin_local(
+    cost: torch.Tensor, index: torch.Tensor | None = None, radius: int = 2, temperature: float = 1.0
+) -> torch.Tensor:
+    """Differentiable index: softmax(-cost / temperature) expectation over winner +- radius.
+
+    The softmax is written out (min, exp, sum, divide), which exports to fast ONNX.
+
+    Args:
+        cost: (B, D, H, W).
+        index: (B, 1, H, W) winners; default :func:`winner_take_all` (no gradient flows through it).
+        radius: half width of the window (>= 1).
+        temperature: softmax temperature in cost units (> 0).
+
+    Returns:
+        (B, 1, H, W) fractional index, differentiable w.r.t. ``cost``.
+
+    Example:
+        >>> c = torch.tensor([4.0, 1.0, 1.0, 4.0]).view(1, 4, 1, 1)
+        >>> float(soft_argmin_local(c, radius=1, temperature=0.5))
+        1.5
+    """
+    check_shape(cost, ["B", "D", "H", "W"], "cost")
+    if radius < 1 or temperature <= 0:
+        raise OptionError(f"need radius >= 1 and temperature > 0, got {radius}, {temperature}")
+    if index is None:
+        index = winner_take_all(cost.detach())[0]
+    d = cost.shape[1]
+    offsets = torch.arange(-radius, radius + 1, device=cost.device).view(1, -1, 1, 1)
+    taps = (index + offsets).clamp(0, d - 1)  # (B, 2r+1, H, W)
+    local = cost.gather(1, taps)
+    inside = (index + offsets >= 0) & (index + offsets <= d - 1)
+    logits = torch.where(inside, -local / temperature, torch.full_like(local, -1e9))
+    logits = logits - logits.max(dim=1, keepdim=True).values.detach()
+    weights = torch.exp(logits)
+    weights = weights / weights.sum(dim=1, keepdim=True)
+    return (weights * taps.to(cost.dtype)).sum(dim=1, keepdim=True)
+
+
+def uniqueness(cost: torch.Tensor, index: torch.Tensor, ratio: float = 0.9) -> tuple[torch.Tensor, torch.Tensor]:
+    """Uniqueness test: the best cost must be below ``ratio`` times the best cost outside winner +- 1.
+
+    Returns:
+        (unique (B, 1, H, W) bool, confidence (B, 1, H, W) in [0, 1] = 1 - best / second best).
+
+    Example:
+        >>> c = torch.tensor([1.0, 0.2, 1.0, 0.3]).view(1, 4, 1, 1)
+        >>> unique, conf = uniqueness(c, torch.ones(1, 1, 1, 1, dtype=torch.long), 0.9)
+        >>> bool(unique), round(float(conf), 3)
+        (True, 0.333)
+    """
+    if not 0 < ratio <= 1:
+        raise OptionError(f"ratio must be in (0, 1], got {ratio}")
+    d = cost.shape[1]
+    hyp = torch.arange(d, device=cost.device).view(1, d, 1, 1)
+    near = (hyp - index).abs() <= 1
+    best = cost.gather(1, index)
+    second = torch.where(near, torch.full_like(cost, float("inf")), cost).min(dim=1, keepdim=True).values
+    second = torch.where(torch.isinf(second), best, second)
+    confidence = (1 - best / second.clamp_min(1e-12)).clamp(0, 1)
+    return best <= ratio * second, confidence
+
+
+def left_right_check(
+    disparity_left: torch.Tensor, disparity_right: torch.Tensor, threshold: float = 1.0
+) -> torch.Tensor:
+    """Left-right consistency of a rectified pair (disparity d: right column = left column - d).
+
+    A left pixel passes when the right disparity at u - d(u) (linear interpolation) agrees with d(u) to
+    ``threshold`` px; pixels whose match falls outside the right image fail.
+
+    Args:
+        disparity_left: (B, 1, H, W) left-view disparity.
+        disparity_right: (B, 1, H, W_r) right-view disparity (of the right image's pixels).
+        threshold: tolerance (px).
+
+    Returns:
+        (B, 1, H, W) bool.
+
+    Example:
+        >>> dl = torch.full((1, 1, 1, 6), 2.0); dr = torch.full((1, 1, 1, 6), 2.0)
+        >>> left_right_check(dl, dr)
+        tensor([[[[False, False,  True,  True,  True,  True]]]])
+    """
+    check_shape(disparity_left, ["B", 1, "H", "W"], "disparity_left")
+    check_shape(disparity_right, ["B", 1, "H", "W"], "disparity_right")
+    w, w_r = disparity_left.shape[-1], disparity_right.shape[-1]
+    x = torch.arange(w, dtype=disparity_left.dtype, device=disparity_left.device) - disparity_left
+    inside = (x >= 0) & (x <= w_r - 1)
+    x0 = torch.floor(x).clamp(0, w_r - 1).long()
+    x1 = (x0 + 1).clamp(max=w_r - 1)
+    a = (x - x0).clamp(0, 1)
+    back = (1 - a) * disparity_right.gather(-1, x0) + a * disparity_right.gather(-1, x1)
+    return inside & ((back - disparity_left).abs() <= threshold)
