@@ -1,6 +1,7 @@
 """Matching layers: split the capture, build cost volumes, select hypotheses."""
 
-from prismstereo.matching.cost import COSTS, Cost, CostVolume, box_filter, census_transform, cost_volume, shifted
+from prismstereo.matching.aggregate import box_filter, sgm_aggregate
+from prismstereo.matching.cost import COSTS, Cost, CostVolume, census_transform, cost_volume, shifted
 from prismstereo.matching.select import (
     Subpixel,
     left_right_check,
@@ -16,6 +17,7 @@ __all__ = [
     "Cost",
     "CostVolume",
     "box_filter",
+    "sgm_aggregate",
     "census_transform",
     "cost_volume",
     "shifted",

@@ -25,8 +25,9 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.matching.aggregate import box_filter
 
-__all__ = ["Cost", "COSTS", "CostVolume", "census_transform", "shifted", "cost_volume", "box_filter"]
+__all__ = ["Cost", "COSTS", "CostVolume", "census_transform", "shifted", "cost_volume"]
 
 Cost = Literal["sad", "zncc", "census"]
 COSTS: tuple[str, ...] = ("sad", "zncc", "census")
@@ -47,21 +48,6 @@ class CostVolume(NamedTuple):
 def _check_window(window: int) -> None:
     if not isinstance(window, int) or window < 1 or window % 2 == 0:
         raise OptionError(f"window must be a positive odd int, got {window!r}")
-
-
-def box_filter(volume: torch.Tensor, window: int) -> torch.Tensor:
-    """Mean over a ``window`` x ``window`` box of every slice of a (B, D, H, W) volume, in one pooling call
-    (borders average the pixels inside the image only).
-
-    Example:
-        >>> box_filter(torch.ones(1, 3, 8, 8), 5).shape
-        torch.Size([1, 3, 8, 8])
-    """
-    check_shape(volume, ["B", "D", "H", "W"], "volume")
-    _check_window(window)
-    if window == 1:
-        return volume
-    return F.avg_pool2d(volume, window, stride=1, padding=window // 2, count_include_pad=False)
 
 
 def census_transform(image: torch.Tensor, window: int = 5) -> torch.Tensor:

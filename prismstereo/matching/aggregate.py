@@ -1,0 +1,81 @@
+"""Cost aggregation: a box filter over the whole volume, and semi-global matching (SGM) scanline passes.
+
+SGM (Hirschmueller 2008) adds, for each scan direction r, the path cost
+L_r(p, d) = C(p, d) + min(L_r(p - r, d), L_r(p - r, d +- 1) + P1, min_k L_r(p - r, k) + P2) - min_k L_r(p - r, k)
+and sums the paths. P1 penalises one-hypothesis changes between neighbours, P2 larger jumps. Each pass
+is vectorised over the batch, the hypotheses and the other image axis; only the scan itself loops.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from prismstereo.errors import OptionError, check_shape
+
+__all__ = ["box_filter", "sgm_aggregate"]
+
+_DIRECTIONS = {
+    2: ((3, False), (3, True)),
+    4: ((3, False), (3, True), (2, False), (2, True)),
+}
+
+
+def box_filter(volume: torch.Tensor, window: int) -> torch.Tensor:
+    """Mean over a ``window`` x ``window`` box of every slice of a (B, D, H, W) volume, in one pooling call
+    (borders average the pixels inside the image only).
+
+    Example:
+        >>> box_filter(torch.ones(1, 3, 8, 8), 5).shape
+        torch.Size([1, 3, 8, 8])
+    """
+    check_shape(volume, ["B", "D", "H", "W"], "volume")
+    if not isinstance(window, int) or window < 1 or window % 2 == 0:
+        raise OptionError(f"window must be a positive odd int, got {window!r}")
+    if window == 1:
+        return volume
+    return F.avg_pool2d(volume, window, stride=1, padding=window // 2, count_include_pad=False)
+
+
+def _scan(cost: torch.Tensor, p1: float, p2: float, dim: int, reverse: bool) -> torch.Tensor:
+    slices = cost.unbind(dim)  # each (B, D, X)
+    order = range(len(slices) - 1, -1, -1) if reverse else range(len(slices))
+    out: list[torch.Tensor] = [cost.new_empty(0)] * len(slices)
+    prev = None
+    for i in order:
+        c = slices[i]
+        if prev is None:
+            cur = c
+        else:
+            m = prev.min(dim=1, keepdim=True).values
+            up = F.pad(prev[:, 1:], (0, 0, 0, 1), value=float("inf"))
+            down = F.pad(prev[:, :-1], (0, 0, 1, 0), value=float("inf"))
+            cur = c + torch.minimum(torch.minimum(prev, torch.minimum(up, down) + p1), m + p2) - m
+        out[i] = cur
+        prev = cur
+    return torch.stack(out, dim=dim)
+
+
+def sgm_aggregate(cost: torch.Tensor, p1: float, p2: float, directions: int = 4) -> torch.Tensor:
+    """Semi-global aggregation of a (B, D, H, W) cost volume along 2 (horizontal) or 4 (plus vertical)
+    scanline directions; returns the sum of the path costs, same shape.
+
+    Args:
+        cost: (B, D, H, W), lower is better, finite.
+        p1: penalty for a change of one hypothesis between neighbours (>= 0).
+        p2: penalty for larger changes (>= p1).
+        directions: 2 or 4.
+
+    Example:
+        >>> sgm_aggregate(torch.rand(1, 8, 10, 12), 0.5, 2.0).shape
+        torch.Size([1, 8, 10, 12])
+    """
+    check_shape(cost, ["B", "D", "H", "W"], "cost")
+    if directions not in _DIRECTIONS:
+        raise OptionError(f"directions must be one of {sorted(_DIRECTIONS)}, got {directions!r}")
+    if not 0 <= p1 <= p2:
+        raise OptionError(f"need 0 <= p1 <= p2, got p1={p1}, p2={p2}")
+    total = torch.zeros_like(cost)
+    for dim, reverse in _DIRECTIONS[directions]:
+        total = total + _scan(cost, p1, p2, dim, reverse)
+    return total
