@@ -51,17 +51,11 @@ from prismstereo.analysis.fov import (
     FOV_TYPES,
     BoundaryAngles,
     FOVClosedForm,
-    FOVComparison,
     FOVExtent,
-    FOVSweep,
     FOVType,
     RayLine,
     boundary_angles,
     common_fov_angle,
-    compare_fov,
-    exact_fov_extent,
-    exact_fov_type,
-    fov_alpha_sweep,
     fov_closed_form,
     fov_coefficient,
     fov_extent,
@@ -71,6 +65,14 @@ from prismstereo.analysis.fov import (
     ray1_intercept,
     ray2_angle,
     ray2_intercept,
+)
+from prismstereo.analysis.fov_exact import (
+    FOVComparison,
+    FOVSweep,
+    compare_fov,
+    exact_fov_extent,
+    exact_fov_type,
+    fov_alpha_sweep,
 )
 
 __all__ = [

@@ -51,7 +51,7 @@ from typing import Literal, NamedTuple
 import torch
 
 from prismstereo.analysis._common import AnalysisError, as_tensor, rig_parameters
-from prismstereo.analysis.fov import exact_fov_extent
+from prismstereo.analysis.fov_exact import exact_fov_extent
 from prismstereo.errors import check_option, check_shape
 from prismstereo.geometry.optics import project_points, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig, RigParameters

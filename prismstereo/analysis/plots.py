@@ -15,12 +15,12 @@ import torch
 from prismstereo.analysis._common import AnalysisError
 from prismstereo.analysis.fov import (
     boundary_angles,
-    exact_fov_extent,
     fov_closed_form,
     fov_extent,
     ray1_angle,
     ray2_angle,
 )
+from prismstereo.analysis.fov_exact import exact_fov_extent
 from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["new_axes", "plot_fov_top_view", "plot_fov_angles", "plot_curves"]
