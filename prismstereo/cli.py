@@ -1,6 +1,7 @@
 """The ``prismstereo`` command line. It only parses arguments, calls the library and prints.
 
-Subcommands (this release): ``rig show``, ``rig preset``, ``render``, ``fov``, ``design``, ``demo``; ``--version``.
+Subcommands (this release): ``rig show``, ``rig preset``, ``render``, ``fov``, ``design``, ``match``, ``demo``;
+``--version``.
 """
 
 from __future__ import annotations
@@ -264,6 +265,29 @@ def _cmd_design(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_match(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from prismstereo.io import read_image
+    from prismstereo.matching.rectified import MatchOptions, match_rectified
+
+    out = Path(args.out)
+    if out.suffix != ".npy":
+        raise PrismStereoError(f"--out must end in .npy, got {out}")
+    if out.resolve() in (Path(args.left).resolve(), Path(args.right).resolve()):
+        raise PrismStereoError("--out would overwrite an input image")
+    left, right = read_image(args.left), read_image(args.right)
+    if left.shape != right.shape:
+        raise PrismStereoError(f"left {tuple(left.shape)} and right {tuple(right.shape)} images differ in size")
+    options = MatchOptions(cost=args.cost, aggregation=args.aggregation)
+    res = match_rectified(left[None], right[None], args.disparities, options)
+    disparity = torch.where(res.valid, res.disparity, torch.full_like(res.disparity, float("nan")))[0, 0]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.save(out, disparity.numpy().astype(np.float32))
+    print(f"wrote {out}: {res.valid.float().mean():.1%} of pixels valid")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``prismstereo`` command."""
     parser = argparse.ArgumentParser(prog="prismstereo", description="Single-lens bi-prism stereo.")
@@ -323,6 +347,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="depths of the printed error curves")
     design.add_argument("--plot", default=None, help="write the error-vs-depth curves to this image")
     design.set_defaults(func=_cmd_design)
+
+    match = sub.add_parser("match", help="match an already rectified conventional pair (no prism)")
+    match.add_argument("left", metavar="LEFT", help="left image (8/16-bit PNG/TIFF/JPEG)")
+    match.add_argument("right", metavar="RIGHT", help="right image")
+    match.add_argument("--disparities", type=int, required=True, help="search disparities 0..N-1")
+    match.add_argument("--out", required=True, help="output .npy: float32 left-view disparity, NaN where invalid")
+    match.add_argument("--cost", choices=("census", "sad", "zncc"), default="census")
+    match.add_argument("--aggregation", choices=("sgm", "box"), default="sgm")
+    match.set_defaults(func=_cmd_match)
 
     demo = sub.add_parser("demo", help="run the main job on a built-in default")
     demo.add_argument("--rig", default="thesis_setup1", help="rig JSON file or preset name")

@@ -3,6 +3,7 @@ import subprocess
 import sys
 
 import pytest
+import torch
 
 from prismstereo import BiPrismRig, __version__, thesis_setup1
 from prismstereo.cli import main
@@ -125,3 +126,37 @@ def test_render_errors(tmp_path, capsys, extra, message):
     code = main(["render", "--rig", str(_small_rig(tmp_path)), "--out", str(tmp_path / "x.png"), *extra])
     assert code == 2
     assert message in capsys.readouterr().err
+
+
+def test_match_writes_disparity(tmp_path, capsys):
+    import numpy as np
+
+    from prismstereo.io import write_image
+    from tests.matching.test_cost_select import shifted_pair
+
+    left, right = shifted_pair(5.0, h=40, w=100, seed=1)
+    write_image(tmp_path / "l.png", left[0], bits=16)
+    write_image(tmp_path / "r.png", right[0], bits=16)
+    out = tmp_path / "disp.npy"
+    assert main(["match", str(tmp_path / "l.png"), str(tmp_path / "r.png"), "--disparities", "12", "--out",
+                 str(out)]) == 0
+    disp = np.load(out)
+    assert disp.shape == (40, 100) and disp.dtype == np.float32
+    assert np.isnan(disp).any() and abs(np.nanmedian(disp[5:-5, 20:-5]) - 5.0) < 0.1
+    assert "valid" in capsys.readouterr().out
+
+
+def test_match_errors(tmp_path, capsys):
+    from prismstereo.io import write_image
+
+    write_image(tmp_path / "a.png", torch.rand(1, 20, 30))
+    write_image(tmp_path / "b.png", torch.rand(1, 20, 31))
+    assert main(["match", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--disparities", "8", "--out",
+                 str(tmp_path / "d.npy")]) == 2
+    assert "differ in size" in capsys.readouterr().err
+    assert main(["match", str(tmp_path / "a.png"), str(tmp_path / "missing.png"), "--disparities", "8", "--out",
+                 str(tmp_path / "d.npy")]) == 2
+    assert "image not found" in capsys.readouterr().err
+    assert main(["match", str(tmp_path / "a.png"), str(tmp_path / "a.png"), "--disparities", "8", "--out",
+                 str(tmp_path / "d.png")]) == 2
+    assert "must end in .npy" in capsys.readouterr().err

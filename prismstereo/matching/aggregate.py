@@ -15,9 +15,13 @@ from prismstereo.errors import OptionError, check_shape
 
 __all__ = ["box_filter", "sgm_aggregate"]
 
+# (scan dim, reverse, row shift of the predecessor): dim 3 scans columns, dim 2 rows; a shift of +-1 makes
+# the horizontal scan diagonal (the predecessor of row y is row y - shift of the previous column)
 _DIRECTIONS = {
-    2: ((3, False), (3, True)),
-    4: ((3, False), (3, True), (2, False), (2, True)),
+    2: ((3, False, 0), (3, True, 0)),
+    4: ((3, False, 0), (3, True, 0), (2, False, 0), (2, True, 0)),
+    8: ((3, False, 0), (3, True, 0), (2, False, 0), (2, True, 0),
+        (3, False, 1), (3, False, -1), (3, True, 1), (3, True, -1)),
 }
 
 
@@ -37,7 +41,7 @@ def box_filter(volume: torch.Tensor, window: int) -> torch.Tensor:
     return F.avg_pool2d(volume, window, stride=1, padding=window // 2, count_include_pad=False)
 
 
-def _scan(cost: torch.Tensor, p1: float, p2: float, dim: int, reverse: bool) -> torch.Tensor:
+def _scan(cost: torch.Tensor, p1: float, p2: float, dim: int, reverse: bool, shift: int = 0) -> torch.Tensor:
     slices = cost.unbind(dim)  # each (B, D, X)
     order = range(len(slices) - 1, -1, -1) if reverse else range(len(slices))
     out: list[torch.Tensor] = [cost.new_empty(0)] * len(slices)
@@ -47,24 +51,32 @@ def _scan(cost: torch.Tensor, p1: float, p2: float, dim: int, reverse: bool) -> 
         if prev is None:
             cur = c
         else:
+            has_prev = None
+            if shift:  # diagonal: row y continues the path of row y - shift in the previous column
+                prev = torch.roll(prev, shifts=shift, dims=-1)
+                rows = torch.arange(prev.shape[-1], device=prev.device)
+                has_prev = (rows >= shift) if shift > 0 else (rows < prev.shape[-1] + shift)
+                prev = torch.where(has_prev, prev, c)  # rows without a predecessor start afresh
             m = prev.min(dim=1, keepdim=True).values
             up = F.pad(prev[:, 1:], (0, 0, 0, 1), value=float("inf"))
             down = F.pad(prev[:, :-1], (0, 0, 1, 0), value=float("inf"))
             cur = c + torch.minimum(torch.minimum(prev, torch.minimum(up, down) + p1), m + p2) - m
+            if has_prev is not None:
+                cur = torch.where(has_prev, cur, c)
         out[i] = cur
         prev = cur
     return torch.stack(out, dim=dim)
 
 
 def sgm_aggregate(cost: torch.Tensor, p1: float, p2: float, directions: int = 4) -> torch.Tensor:
-    """Semi-global aggregation of a (B, D, H, W) cost volume along 2 (horizontal) or 4 (plus vertical)
-    scanline directions; returns the sum of the path costs, same shape.
+    """Semi-global aggregation of a (B, D, H, W) cost volume along 2 (horizontal), 4 (plus vertical) or 8
+    (plus diagonal) scanline directions; returns the sum of the path costs, same shape.
 
     Args:
         cost: (B, D, H, W), lower is better, finite.
         p1: penalty for a change of one hypothesis between neighbours (>= 0).
         p2: penalty for larger changes (>= p1).
-        directions: 2 or 4.
+        directions: 2, 4 or 8.
 
     Example:
         >>> sgm_aggregate(torch.rand(1, 8, 10, 12), 0.5, 2.0).shape
@@ -76,6 +88,6 @@ def sgm_aggregate(cost: torch.Tensor, p1: float, p2: float, directions: int = 4)
     if not 0 <= p1 <= p2:
         raise OptionError(f"need 0 <= p1 <= p2, got p1={p1}, p2={p2}")
     total = torch.zeros_like(cost)
-    for dim, reverse in _DIRECTIONS[directions]:
-        total = total + _scan(cost, p1, p2, dim, reverse)
+    for dim, reverse, shift in _DIRECTIONS[directions]:
+        total = total + _scan(cost, p1, p2, dim, reverse, shift)
     return total

@@ -26,29 +26,32 @@ Aggregation = Literal["box", "sgm"]
 class MatchOptions:
     """Options of :func:`match_rectified`.
 
-    The defaults are a first working point, not yet a tuned one: on the Middlebury pairs they give
-    bad>1px (invalid counted as bad) of 18.5 % (Tsukuba) and 23.3 % (Venus), against 7.1 % / 9.7 % for
-    OpenCV StereoSGBM (see the depth issue's notes); 8-direction SGM and adaptive P2 are still missing.
+    The defaults (census 5x5, 7x7 box, 8-direction SGM with P1 16 / P2 128 in box-averaged Hamming units,
+    left-right check, no uniqueness test) were chosen on the two Middlebury pairs themselves
+    (``benchmarks/middlebury.py``): bad>1px with invalid counted as bad 11.2 % (Tsukuba) and 8.3 % (Venus),
+    against 7.2 % and 10.0 % for OpenCV StereoSGBM with the README's settings; not yet the 0.8x target.
 
     Args:
         cost: 'census' (default), 'sad' or 'zncc'.
         window: census / ZNCC window (odd).
         box: box pre-aggregation window applied to the per-pixel cost (odd, 1 = none).
-        aggregation: 'sgm' (4 scanline directions) or 'box' (the pre-aggregation only).
+        aggregation: 'sgm' (scanline directions, see ``directions``) or 'box' (the pre-aggregation only).
+        directions: SGM scan directions, 2, 4 or 8.
         p1, p2: SGM penalties, in units of the (box-averaged) cost.
         lr_threshold: left-right consistency tolerance (px), None to skip the check.
-        uniqueness_ratio: best <= ratio * second best outside +-1, in (0, 1] (1 disables).
+        uniqueness_ratio: best <= ratio * second best outside +-1, in (0, 1] (1 keeps every pixel).
         min_confidence: pixels below this confidence (1 - best / second) are invalid.
     """
 
     cost: Cost = "census"
     window: int = 5
-    box: int = 5
+    box: int = 7
     aggregation: Aggregation = "sgm"
-    p1: float = 0.8
-    p2: float = 6.0
+    directions: int = 8
+    p1: float = 16.0
+    p2: float = 128.0
     lr_threshold: float | None = 1.0
-    uniqueness_ratio: float = 0.98
+    uniqueness_ratio: float = 1.0
     min_confidence: float = 0.0
 
     def __post_init__(self) -> None:
@@ -126,7 +129,7 @@ def match_rectified(
         cost = box_filter(cost, options.box)
     local = cost
     if options.aggregation == "sgm":
-        cost = sgm_aggregate(cost, options.p1, options.p2)
+        cost = sgm_aggregate(cost, options.p1, options.p2, options.directions)
     method = "parabola" if options.cost == "zncc" else "equiangular"
     index, _ = winner_take_all(cost)
     # sub-pixel from the locally aggregated cost around the (SGM) winner: SGM's P1 flattens the cost curve

@@ -38,13 +38,16 @@ def test_sgm_matches_reference_recursion():
     cost = torch.rand(1, 5, 4, 6, generator=gen, dtype=F64)
     expected = sum(naive_path(cost, 0.3, 1.1, dx, dy) for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)))
     torch.testing.assert_close(sgm_aggregate(cost, 0.3, 1.1, 4), expected)
+    diagonals = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
+    expected8 = sum(naive_path(cost, 0.3, 1.1, dx, dy) for dx, dy in diagonals)
+    torch.testing.assert_close(sgm_aggregate(cost, 0.3, 1.1, 8), expected8)
     expected2 = naive_path(cost, 0.3, 1.1, 1, 0) + naive_path(cost, 0.3, 1.1, -1, 0)
     torch.testing.assert_close(sgm_aggregate(cost, 0.3, 1.1, 2), expected2)
 
 
 def test_sgm_errors():
     with pytest.raises(OptionError, match="directions must be one of"):
-        sgm_aggregate(torch.rand(1, 3, 4, 4), 0.1, 0.2, 8)
+        sgm_aggregate(torch.rand(1, 3, 4, 4), 0.1, 0.2, 6)
     with pytest.raises(OptionError, match="need 0 <= p1 <= p2"):
         sgm_aggregate(torch.rand(1, 3, 4, 4), 0.5, 0.2)
     with pytest.raises(OptionError, match="positive odd int"):
