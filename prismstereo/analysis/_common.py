@@ -11,7 +11,7 @@ import torch
 from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 
-__all__ = ["AnalysisError", "as_tensor", "rig_parameters", "check_positive", "brent", "check_untilted"]
+__all__ = ["AnalysisError", "as_tensor", "check_positive", "brent", "check_untilted"]
 
 
 class AnalysisError(PrismStereoError, ValueError):
@@ -35,15 +35,6 @@ def as_tensor(value: Any, like: torch.Tensor | None = None, name: str = "value")
     except (TypeError, ValueError, RuntimeError) as exc:
         raise AnalysisError(f"{name} must be a number or a tensor, got {value!r}") from exc
     return out
-
-
-def rig_parameters(rig: BiPrismRig | RigParameters, like: torch.Tensor) -> RigParameters:
-    """The rig's parameters as tensors of ``like``'s dtype and device (autograd preserved)."""
-    if isinstance(rig, BiPrismRig):
-        return rig.parameters(like)
-    if isinstance(rig, RigParameters):
-        return rig.to(like)
-    raise AnalysisError(f"rig must be a BiPrismRig or RigParameters, got {type(rig).__name__}")
 
 
 def check_positive(value: torch.Tensor, name: str, *, strict: bool = True) -> None:

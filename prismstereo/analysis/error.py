@@ -50,11 +50,11 @@ from typing import Literal, NamedTuple
 
 import torch
 
-from prismstereo.analysis._common import AnalysisError, as_tensor, rig_parameters
+from prismstereo.analysis._common import AnalysisError, as_tensor
 from prismstereo.analysis.fov_exact import exact_fov_extent
 from prismstereo.errors import check_option, check_shape
 from prismstereo.geometry.optics import project_points, trace_pixels
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
 __all__ = [
@@ -213,7 +213,7 @@ def disparity_mm(rig: BiPrismRig | RigParameters, uv_left: torch.Tensor, uv_righ
     """
     check_shape(uv_left, ["*", 2], "uv_left")
     check_shape(uv_right, ["*", 2], "uv_right")
-    p = rig_parameters(rig, uv_left)
+    p = as_parameters(rig, uv_left)
     return (uv_right[..., 0] - uv_left[..., 0]) * p.pixel_size
 
 
@@ -259,7 +259,7 @@ def depth_small_angle(rig: BiPrismRig | RigParameters, disparity: torch.Tensor |
         1030.4
     """
     d = as_tensor(disparity, name="disparity")
-    p = rig_parameters(rig, d)
+    p = as_parameters(rig, d)
     a, b = _ab(p)
     s = d + 2 * p.f * p.alpha
     return a - b * s / (s - 2 * p.f * p.alpha * p.n)
@@ -274,7 +274,7 @@ def disparity_small_angle(rig: BiPrismRig | RigParameters, depth: torch.Tensor |
         800.0
     """
     z = as_tensor(depth, name="depth")
-    p = rig_parameters(rig, z)
+    p = as_parameters(rig, z)
     a, b = _ab(p)
     q = 2 * p.f * p.alpha * p.n
     return q * (z - a) / (z - a + b) - 2 * p.f * p.alpha
@@ -316,7 +316,7 @@ def depth_planar(
     """
     xl = as_tensor(x_left_mm, name="x_left_mm")
     xr = as_tensor(x_right_mm, xl, "x_right_mm")
-    p = rig_parameters(rig, xl)
+    p = as_parameters(rig, xl)
     bl, al = _planar_ray(p, xl, -1.0)
     br, ar = _planar_ray(p, xr, 1.0)
     return p.T_o + p.T + (br - bl) / (torch.tan(al) - torch.tan(ar))  # eq. 6.9
@@ -382,7 +382,7 @@ def closed_form_sensitivities(
     """
     check_option(n_form, ("corrected", "thesis"), "n_form")
     z = _depths(depth)
-    p = rig_parameters(rig, z)
+    p = as_parameters(rig, z)
     a, b = _ab(p)
     g, r = (z - a) / b, (z - a + b) / (z - a)
     k = (p.n - 1) / p.n
@@ -418,7 +418,7 @@ def exact_dz_dd(rig: BiPrismRig | RigParameters, depth: torch.Tensor | float, la
         2148.0
     """
     z = _depths(depth)
-    p = rig_parameters(rig, z)
+    p = as_parameters(rig, z)
     pair = _exact_pixels(p, z, as_tensor(lateral_mm, z, "lateral_mm"))
     uv_r = pair.uv_right.detach().clone().requires_grad_(True)
     with torch.enable_grad():
@@ -451,7 +451,7 @@ def exact_sensitivities(
         (2148.0, 5.872)
     """
     z = _depths(depth)
-    p0 = rig_parameters(rig, z)
+    p0 = as_parameters(rig, z)
     pair = _exact_pixels(p0, z, as_tensor(lateral_mm, z, "lateral_mm"))
     names = ("alpha", "n", "f", "T", "T_o")
     with torch.enable_grad():
@@ -496,7 +496,7 @@ def error_budget(
         raise AnalysisError(f"uncertainties must be an Uncertainties, got {type(u).__name__}")
     z = _depths(depth)
     sens = closed_form_sensitivities(rig, z) if model == "closed_form" else exact_sensitivities(rig, z, lateral_mm)
-    pixel = float(rig_parameters(rig, z).pixel_size)
+    pixel = float(as_parameters(rig, z).pixel_size)
     steps = Sensitivities(D=u.disparity_px * pixel, T_o=u.apex_distance_mm, alpha=u.alpha_rad,
                           f=u.focal_length_mm, n=u.refractive_index, T=u.thickness_mm)
     contrib = Sensitivities(*[s.detach().abs() * step for s, step in zip(sens, steps, strict=True)])
@@ -520,7 +520,7 @@ def error_curves(
     if not math.isfinite(disparity_px) or disparity_px <= 0:
         raise AnalysisError(f"disparity_px must be > 0, got {disparity_px!r}")
     z = _depths(depth)
-    step = disparity_px * float(rig_parameters(rig, z).pixel_size)
+    step = disparity_px * float(as_parameters(rig, z).pixel_size)
     closed = closed_form_sensitivities(rig, z).D.detach().abs() * step
     exact = exact_dz_dd(rig, z, lateral_mm).abs() * step
     return ErrorCurves(z, closed, exact)

@@ -123,7 +123,7 @@ def normalise_right_grid(uv: torch.Tensor, rig: BiPrismRig | RigParameters) -> t
         tensor([-0.9980,  0.0000])
     """
     w, h = _size(rig)
-    w_ref = _reference_width(rig)
+    w_ref = rig.reference_width
     x = (2.0 * (uv[..., 0] - w_ref) + 1.0) / (w - w_ref) - 1.0
     y = (2.0 * uv[..., 1] + 1.0) / h - 1.0
     return torch.stack([x, y], dim=-1)
@@ -133,13 +133,6 @@ def _size(rig: BiPrismRig | RigParameters) -> tuple[int, int]:
     if isinstance(rig, BiPrismRig):
         return rig.image_width, rig.image_height
     return rig.width, rig.height
-
-
-def _reference_width(rig: BiPrismRig | RigParameters) -> int:
-    if isinstance(rig, BiPrismRig):
-        return rig.reference_width
-    apex = rig.cx + rig.f / rig.pixel_size * rig.d / rig.T_o
-    return min(rig.width, max(0, math.ceil(float(apex.detach()))))
 
 
 def _reference_pixels(rig, like: torch.Tensor, rows: torch.Tensor | None, columns: torch.Tensor) -> torch.Tensor:
@@ -191,7 +184,7 @@ def exact_sampling_grid(
         torch.Size([8, 96, 64, 2])
     """
     check_shape(depths, ["D"], "depths")
-    w_ref = _reference_width(rig)
+    w_ref = rig.reference_width
     uv_ref = _reference_pixels(rig, depths, rows, torch.arange(w_ref, dtype=depths.dtype))
     uv, valid = _positions(rig, uv_ref, depths, extend=False)
     return SamplingGrid(uv, valid, normalise_right_grid(uv, rig), depths)
@@ -236,7 +229,7 @@ def shift_bands(
     check_shape(depths, ["D"], "depths")
     if not isinstance(bands, int) or not 1 <= bands <= depths.shape[0]:
         raise OptionError(f"bands must be an int in [1, D={depths.shape[0]}], got {bands!r}")
-    w_ref = _reference_width(rig)
+    w_ref = rig.reference_width
     dt = depths.dtype
     if exact is None:
         exact = exact_sampling_grid(rig, depths, rows)

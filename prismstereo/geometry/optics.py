@@ -26,7 +26,7 @@ import torch
 from prismstereo.conventions import HALVES as _HALVES
 from prismstereo.conventions import Half
 from prismstereo.errors import RigError, check_floating, check_option, check_shape
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 
 __all__ = [
     "Half",
@@ -96,12 +96,7 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a * b).sum(-1)
 
 
-def _params(rig: BiPrismRig | RigParameters, like: torch.Tensor) -> RigParameters:
-    if isinstance(rig, BiPrismRig):
-        return rig.parameters(like)
-    if isinstance(rig, RigParameters):
-        return rig.to(like)
-    raise RigError(f"rig must be a BiPrismRig or RigParameters, got {type(rig).__name__}")
+_params = as_parameters
 
 
 def refract(incident: torch.Tensor, normal: torch.Tensor, eta: torch.Tensor | float) -> Refraction:

@@ -27,7 +27,7 @@ import torch
 
 from prismstereo.errors import RigError
 
-__all__ = ["BiPrismRig", "RigParameters", "thesis_setup1", "thesis_setup2"]
+__all__ = ["BiPrismRig", "RigParameters", "as_parameters", "thesis_setup1", "thesis_setup2"]
 
 _REQUIRED = (
     "alpha_deg",
@@ -75,6 +75,17 @@ class RigParameters(NamedTuple):
     tilt: torch.Tensor
     width: int
     height: int
+
+    @property
+    def reference_width(self) -> int:
+        """W_ref, the columns left of the apex column (see :attr:`BiPrismRig.reference_width`); not differentiable.
+
+        Example:
+            >>> thesis_setup1().parameters().reference_width
+            512
+        """
+        apex = self.cx + self.f / self.pixel_size * self.d / self.T_o
+        return min(self.width, max(0, math.ceil(float(apex.detach()))))
 
     def to(self, like: torch.Tensor) -> RigParameters:
         """Return the parameters on ``like``'s device and dtype (autograd is preserved).
@@ -348,6 +359,24 @@ class BiPrismRig:
         except json.JSONDecodeError as exc:
             raise RigError(f"rig file is not valid JSON: {exc}") from exc
         return cls.from_dict(data)
+
+
+def as_parameters(rig: BiPrismRig | RigParameters, like: torch.Tensor) -> RigParameters:
+    """The rig as :class:`RigParameters` on ``like``'s dtype and device (autograd preserved): the one entry
+    point through which every differentiable function accepts either a rig or its tensors.
+
+    Raises:
+        RigError: if ``rig`` is neither.
+
+    Example:
+        >>> as_parameters(thesis_setup1(), torch.zeros(1, dtype=torch.float64)).n.dtype
+        torch.float64
+    """
+    if isinstance(rig, BiPrismRig):
+        return rig.parameters(like)
+    if isinstance(rig, RigParameters):
+        return rig.to(like)
+    raise RigError(f"rig must be a BiPrismRig or RigParameters, got {type(rig).__name__}")
 
 
 def _float_tuple(value: Any, length: int, name: str) -> tuple[float, ...]:

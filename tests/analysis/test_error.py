@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from prismstereo import OptionError, thesis_setup1, thesis_setup2
+from prismstereo import OptionError, RigError, thesis_setup1, thesis_setup2
 from prismstereo.analysis import (
     AnalysisError,
     Sensitivities,
@@ -199,5 +199,5 @@ def test_invalid_input_raises():
         error_curves(rig, [500.0], disparity_px=0.0)
     with pytest.raises(AnalysisError, match="threshold"):
         small_angle_check(rig, [500.0], threshold=2.0)
-    with pytest.raises(AnalysisError, match="rig must be a BiPrismRig or RigParameters"):
+    with pytest.raises(RigError, match="rig must be a BiPrismRig or RigParameters"):
         depth_small_angle("thesis_setup1", 1.0)

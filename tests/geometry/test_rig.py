@@ -185,3 +185,5 @@ def test_replace_validates():
 def test_apex_column_moves_with_offset():
     rig = thesis_setup1().replace(prism_offset_x_mm=3.0)
     assert rig.apex_column == pytest.approx(511.5 + 25.0 / 0.00465 * 3.0 / 170.0)
+    assert rig.reference_width == 607 == rig.parameters().reference_width  # columns u < 606.37
+    assert thesis_setup1().reference_width == 512 == thesis_setup1().parameters(dtype=torch.float64).reference_width
