@@ -97,7 +97,41 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             proj = project_points(rig, pts[mask], half)
             worst = max(worst, float((proj.uv - uv[mask]).norm(dim=-1).max()))
         print(f"  depth {depth:6.0f} mm: max error {worst:.2e} px")
+    if args.scale > 0:
+        _demo_depth(rig, args.scale, Path(args.out))
     return 0
+
+
+def _demo_depth(rig: BiPrismRig, scale: int, out: Path) -> None:
+    """Render a step scene, run the first-version depth model, print its error, write the outputs."""
+    import numpy as np
+
+    from prismstereo.io import write_image
+    from prismstereo.model import PrismStereo
+    from prismstereo.synthetic import ImageFormation, render, step_scene
+
+    small = rig.replace(image_width=rig.image_width // scale, image_height=rig.image_height // scale,
+                        pixel_size_mm=rig.pixel_size_mm * scale, principal_point=None)
+    near, far = 450.0, 650.0
+    print(f"Depth from one capture (step scene {near:g}/{far:g} mm, sensor {small.image_width}x{small.image_height}"
+          f" = 1/{scale} resolution, noise 1/255)")
+    cap = render(small, step_scene(small, near, far), ImageFormation(supersample=2, noise_sigma=1 / 255))
+    model = PrismStereo(small, (400.0, 700.0))
+    with torch.no_grad():
+        res = model(cap.image)
+    w = small.reference_width
+    gt, cov = cap.depth[..., :w], cap.covisible[..., :w]
+    ok = res.valid & cov
+    rel = ((res.depth - gt).abs() / gt)[ok]
+    print(f"  {model.num_hypotheses} hypotheses; {ok.float().sum() / cov.float().sum():.1%} of co-visible pixels"
+          f" valid; relative depth error mean {rel.mean():.3%}, median {rel.median():.3%}")
+    out.mkdir(parents=True, exist_ok=True)
+    depth = torch.where(res.valid, res.depth, torch.full_like(res.depth, float("nan")))[0, 0]
+    np.save(out / "depth.npy", depth.numpy().astype(np.float32))
+    write_image(out / "capture.png", cap.image[0])
+    preview = ((depth - near + 50) / (far - near + 100)).nan_to_num(0.0).clamp(0, 1)
+    write_image(out / "depth_preview.png", preview[None])
+    print(f"  wrote {out}/depth.npy (mm, NaN invalid), depth_preview.png, capture.png")
 
 
 SCENES = ("plane", "slanted", "step", "sphere", "checkerboard", "circlegrid", "middlebury")
@@ -359,6 +393,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="run the main job on a built-in default")
     demo.add_argument("--rig", default="thesis_setup1", help="rig JSON file or preset name")
+    demo.add_argument("--scale", type=int, default=2,
+                      help="run the depth part on a sensor this many times coarser (0 skips it)")
+    demo.add_argument("--out", default="demo_output", help="output folder of the depth part")
     demo.set_defaults(func=_cmd_demo)
     return parser
 

@@ -67,14 +67,21 @@ def test_no_command_prints_help(capsys):
     assert "usage: prismstereo" in capsys.readouterr().err
 
 
-def test_demo(capsys):
-    assert main(["demo"]) == 0
+def test_demo(tmp_path, capsys):
+    import numpy as np
+
+    assert main(["demo", "--scale", "4", "--out", str(tmp_path / "demo")]) == 0
     out = capsys.readouterr().out
     assert "left virtual camera (least-squares)" in out
-    lines = [ln for ln in out.splitlines() if ln.strip().startswith("depth")]
+    lines = [ln for ln in out.splitlines() if ln.strip().startswith("depth ")]
     assert len(lines) == 4
     for line in lines:  # the exact round trip is far below a micro-pixel
         assert float(line.split("max error")[1].split("px")[0]) < 1e-6
+    error_line = next(ln for ln in out.splitlines() if "relative depth error mean" in ln)
+    assert float(error_line.split("mean ")[1].split("%")[0]) < 1.0
+    depth = np.load(tmp_path / "demo" / "depth.npy")
+    assert depth.shape == (192, 128) and np.nanmin(depth) > 350 and np.nanmax(depth) < 750
+    assert (tmp_path / "demo" / "depth_preview.png").exists() and (tmp_path / "demo" / "capture.png").exists()
 
 
 def _small_rig(tmp_path):
