@@ -6,8 +6,9 @@ both halves; the other half's bits sampled at the *exact* plane-sweep grid of ev
 Hamming costs; box and SGM aggregation; winner-take-all with equiangular sub-pixel refinement on the box
 cost; depth by :func:`~prismstereo.depth.convert.index_to_depth`.
 
-This first version samples with one ``grid_sample`` per hypothesis (exact, slow); the shift-band fast
-form and the left-right check of the plane sweep come next.
+This first version samples with one ``grid_sample`` per hypothesis (exact, slow) and rejects occluded
+pixels with a z-buffer test in the other half; the shift-band fast form and a symmetric left-right check
+of the plane sweep come next.
 """
 
 from __future__ import annotations
@@ -84,6 +85,8 @@ class PrismStereo(nn.Module):
         sgm: use 8-direction SGM after the box (P1, P2 in box-averaged Hamming units).
         p1, p2: SGM penalties.
         min_confidence: pixels with lower confidence are invalid.
+        occlusion_tolerance: relative depth margin of the z-buffer occlusion test (:meth:`visible`), None to
+            skip it.
 
     Example:
         >>> small = thesis_setup1().replace(image_width=128, image_height=96, pixel_size_mm=0.0372,
@@ -104,6 +107,7 @@ class PrismStereo(nn.Module):
         p1: float = 16.0,
         p2: float = 128.0,
         min_confidence: float = 0.0,
+        occlusion_tolerance: float | None = 0.01,
     ) -> None:
         super().__init__()
         if num_hypotheses is None:
@@ -119,6 +123,28 @@ class PrismStereo(nn.Module):
         self.register_buffer("grid_valid", grid.valid)  # (D, H, W_ref)
         self.census_window, self.box, self.sgm = census_window, box, sgm
         self.p1, self.p2, self.min_confidence = p1, p2, min_confidence
+        self.occlusion_tolerance = occlusion_tolerance
+
+    def visible(self, index: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        """Occlusion test of the estimate (a z-buffer in the other half): each reference pixel's match is
+        rounded to a right-half pixel; a pixel is visible when no other reference pixel with a point nearer
+        than ``depth - occlusion_tolerance`` claims the same right-half pixel. Returns (B, 1, H, W_ref) bool.
+        """
+        b, _, h, w_ref = index.shape
+        norm = self.grid.to(depth.dtype)  # (D, H, W_ref, 2) normalised coordinates of the other half
+        hyp = index[:, 0]  # (B, H, W_ref)
+        rows = torch.arange(h, device=index.device).view(1, h, 1).expand_as(hyp)
+        cols = torch.arange(w_ref, device=index.device).view(1, 1, w_ref).expand_as(hyp)
+        g = norm[hyp, rows, cols]  # (B, H, W_ref, 2)
+        w_o = self.split.width - self.split.split
+        x = torch.round(((g[..., 0] + 1) * w_o - 1) / 2).long().clamp(0, w_o - 1)
+        y = torch.round(((g[..., 1] + 1) * h - 1) / 2).long().clamp(0, h - 1)
+        target = (y * w_o + x).view(b, -1)
+        z = depth.view(b, -1)
+        zbuf = torch.full((b, h * w_o), float("inf"), dtype=z.dtype, device=z.device)
+        zbuf = zbuf.scatter_reduce(1, target, z, reduce="amin")
+        nearest = zbuf.gather(1, target)
+        return (z <= nearest + self.occlusion_tolerance * z).view(b, 1, h, w_ref)
 
     @property
     def num_hypotheses(self) -> int:
@@ -154,4 +180,6 @@ class PrismStereo(nn.Module):
         sampled_ok = grid_valid.unsqueeze(0).expand(cost.shape).gather(1, index)
         valid = sampled_ok & (confidence >= self.min_confidence)
         depth = index_to_depth(refined, self.depths.to(refined.dtype))
+        if self.occlusion_tolerance is not None:
+            valid = valid & self.visible(index, depth)
         return DepthResult(depth, valid, torch.where(valid, confidence, torch.zeros_like(confidence)), refined)

@@ -61,3 +61,19 @@ def test_model_buffers_and_errors(setup1_model):
         model(torch.rand(1, 1, 10, 10))
     with pytest.raises(OptionError, match="num_hypotheses must be an int >= 2"):
         PrismStereo(rig, (400.0, 800.0), num_hypotheses=1)
+
+
+def test_occlusion_test_rejects_pixels_hidden_from_the_right_half():
+    rig = scaled_rig(thesis_setup1(), 4)
+    cap = render(rig, step_scene(rig, 450.0, 650.0, seed=1), ImageFormation(supersample=2, noise_sigma=1 / 255))
+    w = rig.reference_width
+    hidden = cap.valid[..., :w] & ~cap.covisible[..., :w]
+    cov = cap.covisible[..., :w]
+    with torch.no_grad():
+        plain = PrismStereo(rig, (400.0, 700.0), occlusion_tolerance=None)(cap.image)
+        checked = PrismStereo(rig, (400.0, 700.0))(cap.image)
+    assert checked.valid[hidden].float().mean() < 0.6 * plain.valid[hidden].float().mean()
+    assert checked.valid[cov].float().mean() > 0.85
+    rel = lambda r: ((r.depth - cap.depth[..., :w]).abs() / cap.depth[..., :w])  # noqa: E731
+    bad = lambda r: ((rel(r) > 0.02) & r.valid).float().sum() / r.valid.float().sum()  # noqa: E731
+    assert bad(checked) < bad(plain)
