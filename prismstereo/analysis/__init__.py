@@ -12,6 +12,16 @@ Every closed form of the thesis sits next to the exact ray-traced model it appro
 """
 
 from prismstereo.analysis._common import AnalysisError
+from prismstereo.analysis.depth_models import (
+    ExactDepth,
+    StereoPair,
+    depth_exact,
+    depth_planar,
+    depth_small_angle,
+    disparity_mm,
+    disparity_small_angle,
+    project_pair,
+)
 from prismstereo.analysis.design import (
     VARY,
     Design,
@@ -29,22 +39,14 @@ from prismstereo.analysis.design import (
 from prismstereo.analysis.error import (
     ErrorBudget,
     ErrorCurves,
-    ExactDepth,
     Sensitivities,
     SmallAngleCheck,
-    StereoPair,
     Uncertainties,
     closed_form_sensitivities,
-    depth_exact,
-    depth_planar,
-    depth_small_angle,
-    disparity_mm,
-    disparity_small_angle,
     error_budget,
     error_curves,
     exact_dz_dd,
     exact_sensitivities,
-    project_pair,
     small_angle_check,
 )
 from prismstereo.analysis.fov import (
