@@ -96,9 +96,6 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a * b).sum(-1)
 
 
-_params = as_parameters
-
-
 def refract(incident: torch.Tensor, normal: torch.Tensor, eta: torch.Tensor | float) -> Refraction:
     """Vector form of Snell's law (thesis eq. 3.1 and 3.5-3.10 without the per-ray frames).
 
@@ -144,7 +141,7 @@ def pixel_directions(rig: BiPrismRig | RigParameters, uv: torch.Tensor) -> torch
     """
     check_shape(uv, ["*", 2], "uv")
     check_floating(uv, "uv")
-    p = _params(rig, uv)
+    p = as_parameters(rig, uv)
     return _pixel_directions(p, uv)
 
 
@@ -277,7 +274,7 @@ def trace_directions(
     check_shape(directions, ["*", 3], "directions")
     check_floating(directions, "directions")
     check_option(half, _TRACE_HALVES, "half")
-    return _trace(_params(rig, directions), directions, half)
+    return _trace(as_parameters(rig, directions), directions, half)
 
 
 def trace_pixels(
@@ -301,7 +298,7 @@ def trace_pixels(
     check_shape(uv, ["*", 2], "uv")
     check_floating(uv, "uv")
     check_option(half, _TRACE_HALVES, "half")
-    p = _params(rig, uv)
+    p = as_parameters(rig, uv)
     return _trace(p, _pixel_directions(p, uv), half)
 
 
@@ -343,7 +340,7 @@ def apex_ray(rig: BiPrismRig | RigParameters, half: Half, like: torch.Tensor | N
     check_option(half, _HALVES, "half")
     if like is None:
         like = rig.alpha if isinstance(rig, RigParameters) else torch.zeros((), dtype=torch.float64)
-    p = _params(rig, like)
+    p = as_parameters(rig, like)
     apex = _planes(p).apex
     return _trace(p, apex / apex.norm(), half)
 
@@ -444,7 +441,7 @@ def project_points(
     check_option(half, _HALVES, "half")
     if not isinstance(iterations, int) or iterations < 1:
         raise RigError(f"iterations must be a positive int, got {iterations!r}")
-    p = _params(rig, points)
+    p = as_parameters(rig, points)
     f64 = points.dtype == torch.float64
     h = 1e-4 if f64 else 2e-2
     tol = 1e-6 if f64 else 2e-3
