@@ -169,12 +169,13 @@ def _zncc(reference: torch.Tensor, other: torch.Tensor, offsets: torch.Tensor, w
     var_r = (box_filter(gray_r * gray_r, window) - mean_r * mean_r).clamp_min(0)
     mean_o = box_filter(gray_o, window)
     var_o = (box_filter(gray_o * gray_o, window) - mean_o * mean_o).clamp_min(0)
+    stats_o = torch.cat([gray_o, mean_o, var_o], dim=1)  # one shifted view per offset serves all three
     prods, m_o, v_o, valid = [], [], [], []
     for off in offsets.tolist():
-        view, ok = shifted(gray_o, off, width)
-        prods.append((gray_r * view)[:, 0])
-        m_o.append(shifted(mean_o, off, width)[0][:, 0])
-        v_o.append(shifted(var_o, off, width)[0][:, 0])
+        view, ok = shifted(stats_o, off, width)
+        prods.append(gray_r[:, 0] * view[:, 0])
+        m_o.append(view[:, 1])
+        v_o.append(view[:, 2])
         valid.append(ok)
     cross = box_filter(torch.stack(prods, 1), window)
     mo, vo = torch.stack(m_o, 1), torch.stack(v_o, 1)
