@@ -110,8 +110,7 @@ def _demo_depth(rig: BiPrismRig, scale: int, out: Path) -> None:
     from prismstereo.model import PrismStereo
     from prismstereo.synthetic import ImageFormation, render, step_scene
 
-    small = rig.replace(image_width=rig.image_width // scale, image_height=rig.image_height // scale,
-                        pixel_size_mm=rig.pixel_size_mm * scale, principal_point=None)
+    small = rig.downscaled(scale)
     near, far = 450.0, 650.0
     print(f"Depth from one capture (step scene {near:g}/{far:g} mm, sensor {small.image_width}x{small.image_height}"
           f" = 1/{scale} resolution, noise 1/255)")

@@ -89,8 +89,7 @@ class PrismStereo(nn.Module):
             skip it.
 
     Example:
-        >>> small = thesis_setup1().replace(image_width=128, image_height=96, pixel_size_mm=0.0372,
-        ...                                 principal_point=None)
+        >>> small = thesis_setup1().downscaled(8)
         >>> model = PrismStereo(small, (400.0, 700.0))
         >>> model(torch.rand(1, 1, 96, 128)).depth.shape
         torch.Size([1, 1, 96, 64])

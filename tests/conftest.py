@@ -41,9 +41,7 @@ def rig(request) -> BiPrismRig:
 
 def scaled_rig(rig: BiPrismRig | None = None, scale: int = 8) -> BiPrismRig:
     """The rig's field of view on a sensor ``scale`` times coarser (fast tests, same geometry)."""
-    rig = rig or thesis_setup1()
-    return rig.replace(image_width=rig.image_width // scale, image_height=rig.image_height // scale,
-                       pixel_size_mm=rig.pixel_size_mm * scale, principal_point=None)
+    return (rig or thesis_setup1()).downscaled(scale)
 
 
 def random_pixels(rig: BiPrismRig, n: int, dtype: torch.dtype, seed: int = 0) -> torch.Tensor:

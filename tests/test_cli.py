@@ -85,7 +85,7 @@ def test_demo(tmp_path, capsys):
 
 
 def _small_rig(tmp_path):
-    rig = thesis_setup1().replace(image_width=128, image_height=96, pixel_size_mm=0.0372, principal_point=None)
+    rig = thesis_setup1().downscaled(8)
     path = tmp_path / "small.json"
     rig.to_json(path)
     return path

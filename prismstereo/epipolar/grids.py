@@ -178,8 +178,7 @@ def exact_sampling_grid(
         SamplingGrid.
 
     Example:
-        >>> small = thesis_setup1().replace(image_width=128, image_height=96, pixel_size_mm=0.0372,
-        ...                                 principal_point=None)
+        >>> small = thesis_setup1().downscaled(8)
         >>> exact_sampling_grid(small, depth_hypotheses(300.0, 1200.0, 8)).uv.shape
         torch.Size([8, 96, 64, 2])
     """
@@ -220,8 +219,7 @@ def shift_bands(
         ShiftBands.
 
     Example:
-        >>> small = thesis_setup1().replace(image_width=128, image_height=96, pixel_size_mm=0.0372,
-        ...                                 principal_point=None)
+        >>> small = thesis_setup1().downscaled(8)
         >>> sb = shift_bands(small, depth_hypotheses(300.0, 1200.0, 16), bands=2)
         >>> sb.maps.shape[0], sb.shifts.shape
         (2, torch.Size([16]))
@@ -278,8 +276,7 @@ def band_residual(exact: SamplingGrid, bands: ShiftBands) -> BandResidual:
     """Compare the fast form with the exact grid on every valid sample (same rig, depths, rows).
 
     Example:
-        >>> small = thesis_setup1().replace(image_width=128, image_height=96, pixel_size_mm=0.0372,
-        ...                                 principal_point=None)
+        >>> small = thesis_setup1().downscaled(8)
         >>> d = depth_hypotheses(300.0, 1200.0, 16)
         >>> res = band_residual(exact_sampling_grid(small, d), shift_bands(small, d, 4))
         >>> res.max_px < 0.05
@@ -310,8 +307,7 @@ def bands_for_tolerance(
         RigError: if even one band per hypothesis misses the tolerance.
 
     Example:
-        >>> small = thesis_setup1().replace(image_width=128, image_height=96, pixel_size_mm=0.0372,
-        ...                                 principal_point=None)
+        >>> small = thesis_setup1().downscaled(8)
         >>> sb, res = bands_for_tolerance(small, depth_hypotheses(300.0, 1200.0, 16))
         >>> res.max_px < 0.05
         True

@@ -280,6 +280,21 @@ class BiPrismRig:
             height=self.image_height,
         )
 
+    def downscaled(self, factor: int) -> BiPrismRig:
+        """The same field of view on a sensor ``factor`` times coarser (pixels ``factor`` times larger, image
+        size divided and rounded down, principal point back at the new image centre): for quick previews
+        and tests with the rig's geometry.
+
+        Example:
+            >>> small = thesis_setup1().downscaled(4)
+            >>> small.image_width, small.image_height, small.pixel_size_mm
+            (256, 192, 0.0186)
+        """
+        if not isinstance(factor, int) or factor < 1:
+            raise RigError(f"factor must be a positive int, got {factor!r}")
+        return self.replace(image_width=self.image_width // factor, image_height=self.image_height // factor,
+                            pixel_size_mm=self.pixel_size_mm * factor, principal_point=None)
+
     def replace(self, **changes: Any) -> BiPrismRig:
         """Return a validated copy with some fields changed.
 

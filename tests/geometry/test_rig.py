@@ -177,6 +177,18 @@ def test_parameters_requires_grad():
     assert p.alpha.grad is not None and p.alpha.grad.item() == 1.0
 
 
+def test_downscaled_keeps_the_field_of_view():
+    rig = thesis_setup1().replace(principal_point=(500.0, 380.0))
+    small = rig.downscaled(4)
+    assert (small.image_width, small.image_height) == (256, 192)
+    assert small.pixel_size_mm == pytest.approx(4 * 0.00465)
+    assert small.principal_point == (127.5, 95.5)
+    assert small.image_width * small.pixel_size_mm == pytest.approx(rig.image_width * rig.pixel_size_mm)
+    assert rig.downscaled(1) == rig.replace(principal_point=None)
+    with pytest.raises(RigError, match="factor must be a positive int"):
+        rig.downscaled(0)
+
+
 def test_replace_validates():
     with pytest.raises(RigError):
         thesis_setup1().replace(refractive_index=0.5)
