@@ -1,8 +1,10 @@
-"""Reading and writing images and ground truth (OpenCV for image files, NumPy for arrays).
+"""Reading and writing images, depth maps and ground truth (OpenCV for image files, NumPy for arrays).
 
 Images in tensors are (C, H, W) or (B, C, H, W) float in [0, 1], RGB channel order; on disk they are 8- or
 16-bit PNG/TIFF/JPEG (OpenCV's BGR order is handled here). Ground truth goes to ``.npz`` with NaN for
-invalid values (see :mod:`prismstereo.conventions`).
+invalid values (see :mod:`prismstereo.conventions`). Depth maps go to ``.npy`` (float32 mm, NaN invalid) or
+to 16-bit PNG as round(Z * scale), 0 invalid (scale 256: the endoscopy datasets' convention, which caps
+depth at 65535 / 256 = 255.996 mm; deeper values are clipped), with a colour-mapped preview.
 """
 
 from __future__ import annotations
@@ -15,7 +17,16 @@ import torch
 
 from prismstereo.errors import PrismStereoError, check_shape
 
-__all__ = ["ImageIOError", "read_image", "write_image", "save_capture"]
+__all__ = [
+    "ImageIOError",
+    "read_image",
+    "write_image",
+    "save_capture",
+    "write_depth_npy",
+    "write_depth_png",
+    "read_depth_png",
+    "write_depth_preview",
+]
 
 
 class ImageIOError(PrismStereoError, OSError):
@@ -101,3 +112,126 @@ def save_capture(capture, index: int, image_path: str | Path, bits: int = 8, met
     arrays.update({k: np.array(str(v)) for k, v in (metadata or {}).items()})
     np.savez_compressed(npz_path, **arrays)
     return npz_path
+
+
+def _depth_array(depth: torch.Tensor, valid: torch.Tensor | None) -> np.ndarray:
+    """(H, W) float64 numpy depth with NaN where invalid or non-finite."""
+    check_shape(depth, ["H", "W"], "depth")
+    d = depth.detach().to(torch.float64)
+    if valid is not None:
+        check_shape(valid, list(depth.shape), "valid")
+        d = torch.where(valid.to(torch.bool), d, torch.full_like(d, float("nan")))
+    d = d.cpu().numpy()
+    d[~np.isfinite(d)] = np.nan
+    return d
+
+
+def _imwrite(path: Path, data: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), data):
+        raise ImageIOError(f"cannot write image: {path}")
+
+
+def write_depth_npy(path: str | Path, depth: torch.Tensor, valid: torch.Tensor | None = None) -> None:
+    """Write a depth map (H, W) in mm as a float32 ``.npy`` array, NaN where invalid or non-finite.
+
+    Raises:
+        ImageIOError: if the file cannot be written.
+
+    Example:
+        >>> write_depth_npy("depth.npy", torch.full((96, 64), 500.0))  # doctest: +SKIP
+    """
+    data = _depth_array(depth, valid).astype(np.float32)
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.save(path, data)
+    except OSError as exc:
+        raise ImageIOError(f"cannot write depth map {path}: {exc}") from exc
+
+
+def write_depth_png(
+    path: str | Path, depth: torch.Tensor, valid: torch.Tensor | None = None, scale: float = 256.0
+) -> int:
+    """Write a depth map (H, W) in mm as a 16-bit PNG of round(Z * scale) clipped to [1, 65535], 0 invalid.
+
+    Args:
+        path: output ``.png``.
+        depth: (H, W) depth Z (mm); NaN / non-finite / ``valid`` False are written as 0.
+        valid: optional (H, W) bool mask.
+        scale: levels per mm (default 256, the endoscopy convention: 1/256 mm steps up to 255.996 mm).
+
+    Returns:
+        The number of valid pixels clipped at 65535 (depth beyond 65535 / scale mm).
+
+    Raises:
+        ImageIOError: on a non-positive scale or a failed write.
+
+    Example:
+        >>> write_depth_png("depth.png", torch.full((96, 64), 200.0))  # doctest: +SKIP
+        0
+    """
+    if not (np.isfinite(scale) and scale > 0):
+        raise ImageIOError(f"the depth PNG scale must be a positive number, got {scale!r}")
+    d = _depth_array(depth, valid)
+    ok = np.isfinite(d)
+    levels = np.zeros(d.shape, dtype=np.float64)
+    levels[ok] = np.round(d[ok] * scale)
+    clipped = int((levels[ok] > 65535).sum())
+    levels[ok] = np.clip(levels[ok], 1, 65535)  # a valid depth never becomes the invalid 0
+    _imwrite(Path(path), levels.astype(np.uint16))
+    return clipped
+
+
+def read_depth_png(path: str | Path, scale: float = 256.0) -> torch.Tensor:
+    """Read a 16-bit depth PNG written by :func:`write_depth_png`: (H, W) float32 mm, NaN where 0.
+
+    Raises:
+        ImageIOError: if the file is missing, not decodable, or not a single-channel 16-bit image.
+
+    Example:
+        >>> read_depth_png("depth.png").shape  # doctest: +SKIP
+        torch.Size([96, 64])
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ImageIOError(f"depth image not found: {path}")
+    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if data is None or data.dtype != np.uint16 or data.ndim != 2:
+        raise ImageIOError(f"not a single-channel 16-bit depth PNG: {path}")
+    depth = data.astype(np.float32) / np.float32(scale)
+    depth[data == 0] = np.nan
+    return torch.from_numpy(depth)
+
+
+def write_depth_preview(
+    path: str | Path,
+    depth: torch.Tensor,
+    valid: torch.Tensor | None = None,
+    cmap: str = "turbo",
+    percentiles: tuple[float, float] = (2.0, 98.0),
+) -> None:
+    """Write an 8-bit RGB picture of a depth map (H, W): a matplotlib colormap of inverse depth (near warm,
+    far cool with ``turbo``) stretched between the given percentiles of the valid depths; invalid pixels black.
+
+    Raises:
+        ImageIOError: on an unknown colormap or a failed write.
+
+    Example:
+        >>> write_depth_preview("depth_preview.png", 400 + 100 * torch.rand(96, 64))  # doctest: +SKIP
+    """
+    import matplotlib
+
+    try:
+        colormap = matplotlib.colormaps[cmap]
+    except KeyError as exc:
+        raise ImageIOError(f"unknown matplotlib colormap {cmap!r}") from exc
+    d = _depth_array(depth, valid)
+    ok = np.isfinite(d) & (d > 0)
+    inv = np.zeros(d.shape)
+    inv[ok] = 1.0 / d[ok]
+    lo, hi = np.percentile(inv[ok], percentiles) if ok.any() else (0.0, 1.0)
+    t = np.clip((inv - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
+    rgb = colormap(t)[..., :3]
+    rgb[~ok] = 0.0
+    _imwrite(Path(path), np.ascontiguousarray((rgb[..., ::-1] * 255).round().astype(np.uint8)))

@@ -1,36 +1,53 @@
 """``PrismStereo``: one bi-prism capture in, metric depth of the reference (left) half out.
 
-The layers, in order: :class:`~prismstereo.matching.split.SplitImage` at the apex column; census bits of
-both halves; the other half's bits sampled at the *exact* plane-sweep grid of every depth hypothesis
-(:func:`~prismstereo.epipolar.grids.exact_sampling_grid`, precomputed and registered as a buffer);
-Hamming costs; box and SGM aggregation; winner-take-all with equiangular sub-pixel refinement on the box
-cost; depth by :func:`~prismstereo.depth.convert.index_to_depth`.
+The layers, in order:
 
-This first version samples with one ``grid_sample`` per hypothesis (exact, slow) and rejects occluded
-pixels with a z-buffer test in the other half; the shift-band fast form and a symmetric left-right check
-of the plane sweep come next.
+1. :class:`~prismstereo.matching.split.SplitImage` at the apex column (moves with the prism offset).
+2. The exact sweep m(u, v, s) (:mod:`prismstereo.epipolar.sweep`): where reference pixel (u, v) appears in
+   the other half at sweep coordinate s (linear in 1/Z), fitted once per rig to ~1e-10 px.
+3. **Coarse level** (``coarse_factor`` f > 1): both halves box-downsampled by f; every hypothesis of the full
+   range (<= 1 coarse px apart) warps the other half onto the reference pixels
+   (:func:`~prismstereo.matching.sweep_cost.warp_slices`), matching cost
+   (:func:`~prismstereo.matching.sweep_cost.sweep_cost`), box + semi-global aggregation, winner-take-all
+   with sub-pixel refinement, uniqueness confidence.
+4. **Fine level**: the coarse estimate upsampled to full resolution; a band of 2 R + 1 hypotheses (<= 1 px
+   apart) around it per pixel, evaluated on the exact per-pixel sweep polynomials; cost, box, winner and
+   sub-pixel refinement (equiangular, parabola or a differentiable local soft-argmin).
+   With f = 1 the full range is searched at full resolution in one level (the reference mode).
+5. Depth from the sweep coordinate (exact: s is linear in 1/Z), validity (inside the common field of view,
+   winner inside the band, confidence) and a z-buffer occlusion test in the other half.
+
+Why coarse-to-fine by default: over the thesis' working range the correspondence moves ~365 px across the
+other half (``thesis_setup1``); a full-resolution search touches H x W_ref x 368 voxels per pass, the
+coarse level (f = 4) 1/64 of that and the fine band 11 / 368. ``benchmarks/depth_targets.py`` measures
+both modes.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo.depth.convert import index_to_depth
-from prismstereo.epipolar.grids import depth_hypotheses, exact_sampling_grid
-from prismstereo.errors import OptionError, RigError, check_shape
-from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
+from prismstereo.depth.range import default_z_range
+from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients, sweep_to_depth
+from prismstereo.errors import OptionError, check_option, check_shape
+from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_filter, sgm_aggregate
-from prismstereo.matching.cost import census_transform
-from prismstereo.matching.select import subpixel_refine, uniqueness, winner_take_all
+from prismstereo.matching.cost import COSTS, Cost
+from prismstereo.matching.select import soft_argmin_local, subpixel_refine, winner_take_all
 from prismstereo.matching.split import SplitImage
+from prismstereo.matching.sweep_cost import sweep_cost, warp_slices, worst_cost
 
-__all__ = ["DepthResult", "PrismStereo", "hypotheses_for_rig"]
+__all__ = ["DepthResult", "PrismStereo", "Refinement", "sweep_hypotheses"]
+
+Refinement = Literal["equiangular", "parabola", "soft_argmin"]
+REFINEMENTS: tuple[str, ...] = ("equiangular", "parabola", "soft_argmin")
+_TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05}  # soft-argmin temperature per cost's units
 
 
 class DepthResult(NamedTuple):
@@ -39,54 +56,86 @@ class DepthResult(NamedTuple):
     Attributes:
         depth: (B, 1, H, W_ref) depth Z (mm); meaningless where not valid.
         valid: (B, 1, H, W_ref) bool.
-        confidence: (B, 1, H, W_ref) in [0, 1].
-        index: (B, 1, H, W_ref) fractional hypothesis index.
+        confidence: (B, 1, H, W_ref) in [0, 1] (0 where invalid).
+        index: (B, 1, H, W_ref) fractional index into the model's ``depths`` (uniform in 1/Z).
+        match: (B, 2, H, W_ref) (u, v) of each pixel's match in the other half, full-sensor pixels (the
+            generalised disparity).
     """
 
     depth: torch.Tensor
     valid: torch.Tensor
     confidence: torch.Tensor
     index: torch.Tensor
+    match: torch.Tensor
 
 
-def hypotheses_for_rig(rig: BiPrismRig, z_range_mm: tuple[float, float], max_step_px: float = 1.0) -> torch.Tensor:
-    """Depth hypotheses uniform in 1/Z over ``z_range_mm`` with neighbours at most ``max_step_px`` apart in
-    the right half (measured on the exact correspondences of a grid of reference pixels).
+def _basis_grid(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+    """(N, H, W, 2) coefficients at (D,) coordinates -> (1, D, H, W, 2) by one matrix product."""
+    n, h, w, _ = coefficients.shape
+    basis = chebyshev_basis(s.to(coefficients), n)  # (D, N)
+    return (basis @ coefficients.reshape(n, -1)).view(1, -1, h, w, 2)
+
+
+def _evaluate(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+    """(N, H, W, 2) per-pixel polynomials at per-pixel coordinates s (B, J, H, W) -> (B, J, H, W, 2)."""
+    basis = chebyshev_basis(s.to(coefficients), coefficients.shape[0])  # (B, J, H, W, N)
+    return torch.einsum("bjhwn,nhwk->bjhwk", basis, coefficients)
+
+
+def _similarity(best: torch.Tensor, cost: str, channels: int, window: int) -> torch.Tensor:
+    """Confidence in [0, 1] from the winner's (box-averaged) cost: the NCC for 'zncc', 1 - cost / worst
+    otherwise."""
+    worst = worst_cost(cost, channels, window)
+    return (1.0 - best / (1.0 if cost == "zncc" else worst)).clamp(0.0, 1.0)
+
+
+def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0) -> int:
+    """Number of hypotheses, uniform in s over [-1, 1], with neighbours at most ``max_step_px`` apart in
+    the other half for every pixel of the per-pixel sweep polynomials ``coefficients`` (N, H, W, 2).
 
     Example:
-        >>> hypotheses_for_rig(thesis_setup1(), (400.0, 700.0)).shape[0] > 10
+        >>> from prismstereo.depth.range import default_z_range
+from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
+        >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 700.0))
+        >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1)
+        >>> coef = sweep_coefficients(fit, uv.double()).permute(2, 0, 1, 3)
+        >>> sweep_hypotheses(coef) >= 10
         True
     """
-    z0, z1 = z_range_mm
-    if not rig.apex_distance_mm + rig.prism_thickness_mm < z0 < z1:
-        raise RigError(f"z_range_mm must lie beyond the prism's back plane and increase, got {z_range_mm}")
-    f64 = torch.float64
-    u = torch.linspace(0.0, rig.reference_width - 1.0, 9, dtype=f64)
-    v = torch.linspace(0.0, rig.image_height - 1.0, 7, dtype=f64)
-    uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), -1).reshape(-1, 2)
-    rays = trace_pixels(rig, uv)
-    near = project_points(rig, points_at_depth(rays, z0), "right")
-    far = project_points(rig, points_at_depth(rays, z1), "right")
-    ok = near.valid & far.valid
-    span = (near.uv - far.uv).norm(dim=-1)[ok].max() if ok.any() else torch.tensor(rig.image_width / 2.0)
-    num = max(2, math.ceil(float(span) / max_step_px * 1.02) + 1)
-    return depth_hypotheses(z0, z1, num)
+    if max_step_px <= 0:
+        raise OptionError(f"max_step_px must be > 0, got {max_step_px}")
+    probe = torch.linspace(-1.0, 1.0, 257, dtype=coefficients.dtype, device=coefficients.device)
+    sub = coefficients[:, ::4, ::4]
+    pos = _basis_grid(sub, probe)[0]  # (257, h, w, 2)
+    speed = (pos[1:] - pos[:-1]).norm(dim=-1).amax() * 256 / 2  # px per unit s (max over pixels)
+    return max(2, math.ceil(float(speed) * 2 / max_step_px * 1.02) + 1)
 
 
 class PrismStereo(nn.Module):
-    """Depth from one bi-prism capture by exact plane sweep.
+    """Depth from one bi-prism capture: exact plane sweep, coarse-to-fine.
 
     Args:
         rig: the rig.
-        z_range_mm: (z_min, z_max) depth range searched.
-        num_hypotheses: D; default so that neighbouring hypotheses are <= 1 px apart.
-        census_window: census window (odd, >= 3).
-        box: box aggregation window (odd).
-        sgm: use 8-direction SGM after the box (P1, P2 in box-averaged Hamming units).
-        p1, p2: SGM penalties.
+        z_range_mm: (z_min, z_max) depth range searched; default
+            :func:`~prismstereo.depth.range.default_z_range` (from the rig's common field of view).
+        num_hypotheses: D at full resolution, uniform in 1/Z; default: neighbours <= 1 px apart.
+        cost: cost of the coarse (or single) level: 'census' (default, robust to gain and vignetting
+            differences between the halves), 'sad' or 'zncc' (:mod:`prismstereo.matching.sweep_cost`).
+        fine_cost: cost of the fine band, default 'zncc' (sub-pixel accurate with the parabola fit).
+        window: census / ZNCC window (odd).
+        box: box aggregation window of the coarse (or single) level.
+        fine_box: box window of the fine band.
+        aggregation: 'sgm' (8-direction semi-global after the box) or 'box'.
+        p1, p2: SGM penalties in units of the box-averaged cost.
+        coarse_factor: f, the coarse level's downsampling (1 = one full-resolution level); default: the
+            power of two keeping >= 48 coarse hypotheses per ... see :meth:`default_coarse_factor`.
+        band: R, the fine band is s0 + j step, j = -R..R; default f + 1.
+        refinement: sub-pixel refinement of the final level: None (default) picks the fit matching each
+            level's cost (equiangular for L1-type census/SAD, parabola for ZNCC); 'equiangular',
+            'parabola', or 'soft_argmin' (a local soft-argmin, differentiable w.r.t. the cost: gradients reach
+            the image with 'sad' or 'zncc').
         min_confidence: pixels with lower confidence are invalid.
-        occlusion_tolerance: relative depth margin of the z-buffer occlusion test (:meth:`visible`), None to
-            skip it.
+        occlusion_tolerance: relative depth margin of the z-buffer occlusion test, None to skip it.
 
     Example:
         >>> small = thesis_setup1().downscaled(8)
@@ -98,87 +147,195 @@ class PrismStereo(nn.Module):
     def __init__(
         self,
         rig: BiPrismRig,
-        z_range_mm: tuple[float, float],
+        z_range_mm: tuple[float, float] | None = None,
         num_hypotheses: int | None = None,
-        census_window: int = 5,
-        box: int = 7,
-        sgm: bool = True,
-        p1: float = 16.0,
-        p2: float = 128.0,
-        min_confidence: float = 0.0,
+        *,
+        cost: Cost = "census",
+        fine_cost: Cost = "zncc",
+        window: int = 5,
+        box: int = 5,
+        fine_box: int = 7,
+        aggregation: Literal["sgm", "box"] = "sgm",
+        p1: float = 1.0,
+        p2: float = 8.0,
+        coarse_factor: int | None = None,
+        band: int | None = None,
+        refinement: Refinement | None = None,
+        min_confidence: float = 0.5,
         occlusion_tolerance: float | None = 0.01,
     ) -> None:
         super().__init__()
-        if num_hypotheses is None:
-            depths = hypotheses_for_rig(rig, z_range_mm)
-        elif isinstance(num_hypotheses, int) and num_hypotheses >= 2:
-            depths = depth_hypotheses(z_range_mm[0], z_range_mm[1], num_hypotheses)
-        else:
-            raise OptionError(f"num_hypotheses must be an int >= 2 or None, got {num_hypotheses!r}")
-        grid = exact_sampling_grid(rig, depths)
+        check_option(cost, COSTS, "cost")
+        check_option(fine_cost, COSTS, "fine_cost")
+        check_option(aggregation, ("sgm", "box"), "aggregation")
+        if refinement is not None:
+            check_option(refinement, REFINEMENTS, "refinement")
+        for name, value in (("box", box), ("fine_box", fine_box), ("window", window)):
+            if not isinstance(value, int) or value < 1 or value % 2 == 0:
+                raise OptionError(f"{name} must be a positive odd int, got {value!r}")
+        self.rig = rig
         self.split = SplitImage(rig)
-        self.register_buffer("depths", depths.to(torch.float32))
-        self.register_buffer("grid", grid.normalised.to(torch.float32))  # (D, H, W_ref, 2)
-        self.register_buffer("grid_valid", grid.valid)  # (D, H, W_ref)
-        self.census_window, self.box, self.sgm = census_window, box, sgm
-        self.p1, self.p2, self.min_confidence = p1, p2, min_confidence
+        z_range_mm = default_z_range(rig) if z_range_mm is None else z_range_mm
+        fit = fit_sweep(rig, z_range_mm)
+        h, w_ref = rig.image_height, rig.reference_width
+        self.z_range = tuple(float(z) for z in z_range_mm)
+        f64 = torch.float64
+        uv = torch.stack(torch.meshgrid(torch.arange(w_ref, dtype=f64), torch.arange(h, dtype=f64),
+                                        indexing="xy"), -1)  # (H, W_ref, 2)
+        fine = sweep_coefficients(fit, uv).permute(2, 0, 1, 3).contiguous()  # (N, H, W_ref, 2) pixels
+        if num_hypotheses is None:
+            num_hypotheses = sweep_hypotheses(fine)
+        elif not isinstance(num_hypotheses, int) or num_hypotheses < 2:
+            raise OptionError(f"num_hypotheses must be an int >= 2 or None, got {num_hypotheses!r}")
+        if coarse_factor is None:
+            coarse_factor = self.default_coarse_factor(num_hypotheses, h, w_ref)
+        if not isinstance(coarse_factor, int) or coarse_factor < 1 or h // coarse_factor < 8:
+            raise OptionError(f"coarse_factor must be an int >= 1 leaving >= 8 rows, got {coarse_factor!r}")
+        self.factor = coarse_factor
+        self.band = coarse_factor + 1 if band is None else band
+        if not isinstance(self.band, int) or self.band < 1:
+            raise OptionError(f"band must be an int >= 1, got {band!r}")
+        self.fine_cost = fine_cost
+        self.cost, self.window, self.box, self.fine_box = cost, window, box, fine_box
+        self.aggregation, self.p1, self.p2 = aggregation, p1, p2
+        self.refinement, self.min_confidence = refinement, min_confidence
         self.occlusion_tolerance = occlusion_tolerance
+        self.num_hypotheses = num_hypotheses
 
-    def visible(self, index: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
-        """Occlusion test of the estimate (a z-buffer in the other half): each reference pixel's match is
-        rounded to a right-half pixel; a pixel is visible when no other reference pixel with a point nearer
-        than ``depth - occlusion_tolerance`` claims the same right-half pixel. Returns (B, 1, H, W_ref) bool.
+        w_o = rig.image_width - w_ref
+        rays = trace_pixels(rig, uv.view(-1, 2))
+        self.register_buffer("reference_valid", (rays.valid & rays.left).view(h, w_ref))
+        uv_o = torch.stack(torch.meshgrid(torch.arange(w_ref, rig.image_width, dtype=f64),
+                                          torch.arange(h, dtype=f64), indexing="xy"), -1)
+        rays_o = trace_pixels(rig, uv_o.view(-1, 2))
+        other_valid = (rays_o.valid & ~rays_o.left).view(h, w_o)
+        self.register_buffer("other_valid", other_valid)
+        self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, num_hypotheses, dtype=f64),
+                                                      fit.z_range).float())
+        self.register_buffer("coefficients", self._normalised(fine, 1, h, w_o).float())
+        self.register_buffer("pixel_coefficients", fine.float())
+        if coarse_factor > 1:
+            fc = coarse_factor
+            hc, wc = math.ceil(h / fc), math.ceil(w_ref / fc)
+            uvc = (torch.stack(torch.meshgrid(torch.arange(wc, dtype=f64), torch.arange(hc, dtype=f64),
+                                              indexing="xy"), -1) + 0.5) * fc - 0.5
+            coarse = sweep_coefficients(fit, uvc).permute(2, 0, 1, 3)
+            self.register_buffer("coarse_coefficients", self._normalised(coarse, fc, h, w_o).float())
+            self.coarse_hypotheses = sweep_hypotheses(coarse / fc)
+            pad = (0, math.ceil(w_o / fc) * fc - w_o, 0, hc * fc - h)
+            valid_c = F.avg_pool2d(F.pad(other_valid.to(f64)[None, None], pad), fc)[0, 0] > 0.999
+            self.register_buffer("coarse_other_valid", valid_c)
+
+    @staticmethod
+    def default_coarse_factor(num_hypotheses: int, height: int, width: int) -> int:
+        """f = the largest power of two (<= 4) with >= 64 hypotheses and >= 32 rows and columns left at
+        the coarse level; 1 (a single full-resolution level) for small searches. (f = 8 on a 1024 x 768
+        sensor loses the pixels within ~40 px of the other half's edge: the coarse windows span 72 px.)
+
+        Example:
+            >>> PrismStereo.default_coarse_factor(368, 768, 512), PrismStereo.default_coarse_factor(40, 96, 64)
+            (4, 1)
         """
-        b, _, h, w_ref = index.shape
-        norm = self.grid.to(depth.dtype)  # (D, H, W_ref, 2) normalised coordinates of the other half
-        hyp = index[:, 0]  # (B, H, W_ref)
-        rows = torch.arange(h, device=index.device).view(1, h, 1).expand_as(hyp)
-        cols = torch.arange(w_ref, device=index.device).view(1, 1, w_ref).expand_as(hyp)
-        g = norm[hyp, rows, cols]  # (B, H, W_ref, 2)
-        w_o = self.split.width - self.split.split
-        x = torch.round(((g[..., 0] + 1) * w_o - 1) / 2).long().clamp(0, w_o - 1)
-        y = torch.round(((g[..., 1] + 1) * h - 1) / 2).long().clamp(0, h - 1)
-        target = (y * w_o + x).view(b, -1)
-        z = depth.view(b, -1)
-        zbuf = torch.full((b, h * w_o), float("inf"), dtype=z.dtype, device=z.device)
-        zbuf = zbuf.scatter_reduce(1, target, z, reduce="amin")
-        nearest = zbuf.gather(1, target)
-        return (z <= nearest + self.occlusion_tolerance * z).view(b, 1, h, w_ref)
+        f = 1
+        while f < 4 and num_hypotheses / (2 * f) >= 64 and min(height, width) / (2 * f) >= 32:
+            f *= 2
+        return f
 
-    @property
-    def num_hypotheses(self) -> int:
-        """D, the number of depth hypotheses."""
-        return int(self.depths.shape[0])
+    def _normalised(self, coefficients: torch.Tensor, factor: int, h: int, w_o: int) -> torch.Tensor:
+        """Map pixel-unit polynomials to grid_sample coordinates of the other half (padded to a multiple of
+        ``factor``, align_corners=False): the map is affine, so only T_0's coefficient gets the offset."""
+        split = self.split.split
+        width, height = math.ceil(w_o / factor) * factor, math.ceil(h / factor) * factor
+        scale = coefficients.new_tensor([2.0 / width, 2.0 / height])
+        out = coefficients * scale
+        offset = coefficients.new_tensor([(1.0 - 2.0 * split) / width - 1.0, 1.0 / height - 1.0])
+        out[0] = out[0] + offset
+        return out
 
-    def cost_volume(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B, D, H, W_ref) box-aggregated Hamming costs and the (D, H, W_ref) sampling validity."""
-        ref, other = self.split(image)
-        bits_ref = census_transform(ref, self.census_window)
-        bits_other = census_transform(other, self.census_window)
-        b, k, h, w_o = bits_other.shape
-        d, _, w_ref, _ = self.grid.shape
-        grid = self.grid.to(image.dtype)
-        costs = []
-        for i in range(d):  # one grid_sample per hypothesis: exact but slow (see module docstring)
-            sampled = F.grid_sample(bits_other, grid[i].expand(b, -1, -1, -1), mode="bilinear",
-                                    padding_mode="border", align_corners=False)
-            costs.append((bits_ref - sampled).abs().sum(1))
-        volume = torch.stack(costs, dim=1)
-        worst = torch.full_like(volume, float(k))
-        volume = torch.where(self.grid_valid.unsqueeze(0), volume, worst)
-        return box_filter(volume, self.box), self.grid_valid
+    def _downsample(self, image: torch.Tensor) -> torch.Tensor:
+        f = self.factor
+        h, w = image.shape[-2:]
+        padded = F.pad(image, (0, math.ceil(w / f) * f - w, 0, math.ceil(h / f) * f - h), mode="replicate")
+        return F.avg_pool2d(padded, f)
+
+    def _aggregate(self, cost: torch.Tensor, box: int) -> tuple[torch.Tensor, torch.Tensor]:
+        local = box_filter(cost, box)
+        return local, sgm_aggregate(local, self.p1, self.p2, 8) if self.aggregation == "sgm" else local
+
+    def _select(self, local: torch.Tensor, total: torch.Tensor, index: torch.Tensor, cost: str, final: bool):
+        method = self.refinement if final and self.refinement is not None else None
+        if method == "soft_argmin":
+            return soft_argmin_local(total, index, radius=2, temperature=_TEMPERATURE[cost])
+        return subpixel_refine(local, index, method or ("parabola" if cost == "zncc" else "equiangular"))
+
+    def full_search(self, reference: torch.Tensor, other: torch.Tensor, coefficients: torch.Tensor,
+                    other_valid: torch.Tensor, num: int, final: bool):
+        """One level over the whole range: (s (B, 1, H, W), valid, confidence) at that level's resolution."""
+        s_values = torch.linspace(-1.0, 1.0, num, dtype=reference.dtype, device=reference.device)
+        warped = warp_slices(other, _basis_grid(coefficients.to(reference), s_values), other_valid)
+        local, total = self._aggregate(sweep_cost(reference, warped, self.cost, self.window), self.box)
+        index, _ = winner_take_all(total.detach())
+        refined = self._select(local, total, index, self.cost, final)
+        confidence = _similarity(local.gather(1, index), self.cost, reference.shape[1], self.window)
+        ok = warped.valid.gather(1, index)
+        return -1.0 + refined * (2.0 / (num - 1)), ok, confidence
 
     def forward(self, image: torch.Tensor) -> DepthResult:
-        """Depth of the reference half of ``image`` (B, C, H, W) in [0, 1]."""
+        """Depth of the reference half of ``image`` (B, C, H, W) in [0, 1], C = 1 or 3."""
         check_shape(image, ["B", "C", "H", "W"], "image")
-        local, grid_valid = self.cost_volume(image)
-        cost = sgm_aggregate(local, self.p1, self.p2, 8) if self.sgm else local
-        index, _ = winner_take_all(cost)
-        refined = subpixel_refine(local, index, "equiangular")
-        _, confidence = uniqueness(cost, index, 1.0)
-        sampled_ok = grid_valid.unsqueeze(0).expand(cost.shape).gather(1, index)
-        valid = sampled_ok & (confidence >= self.min_confidence)
-        depth = index_to_depth(refined, self.depths.to(refined.dtype))
+        ref, other = self.split(image)
+        h, w_ref = ref.shape[-2:]
+        step = 2.0 / (self.num_hypotheses - 1)
+        if self.factor == 1:
+            s, ok, confidence = self.full_search(ref, other, self.coefficients, self.other_valid,
+                                                 self.num_hypotheses, True)
+        else:
+            f = self.factor
+            s_c, ok_c, _ = self.full_search(self._downsample(ref), self._downsample(other),
+                                                 self.coarse_coefficients, self.coarse_other_valid,
+                                                 self.coarse_hypotheses, False)
+            s0 = F.interpolate(s_c, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
+            ok0 = F.interpolate(ok_c.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
+            offsets = torch.arange(-self.band, self.band + 1, device=ref.device).to(ref.dtype).view(1, -1, 1, 1)
+            s_band = (s0.detach() + offsets * step).clamp(-1.0, 1.0)  # (B, J, H, W)
+            grid = _evaluate(self.coefficients.to(ref), s_band)
+            warped = warp_slices(other, grid, self.other_valid)
+            local = box_filter(sweep_cost(ref, warped, self.fine_cost, self.window), self.fine_box)
+            j, _ = winner_take_all(local.detach())  # no SGM: the coarse level already regularised the band
+            refined = self._select(local, local, j, self.fine_cost, True)
+            inside = (j > 0) & (j < 2 * self.band)
+            s = s_band.gather(1, j) + (refined - j.to(ref.dtype)) * step
+            ok = ok0 & inside & warped.valid.gather(1, j)
+            confidence = _similarity(local.gather(1, j), self.fine_cost, ref.shape[1], self.window)
+        s = s.clamp(-1.0, 1.0)
+        z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
+        depth = sweep_to_depth(s, z_range)
+        match = _evaluate(self.pixel_coefficients.to(s), s).squeeze(1).permute(0, 3, 1, 2)
+        valid = ok & self.reference_valid & (confidence >= self.min_confidence)
         if self.occlusion_tolerance is not None:
-            valid = valid & self.visible(index, depth)
-        return DepthResult(depth, valid, torch.where(valid, confidence, torch.zeros_like(confidence)), refined)
+            valid = valid & self.visible(match, depth, valid)
+        confidence = torch.where(valid, confidence, torch.zeros_like(confidence))
+        index = (s + 1.0) / step
+        return DepthResult(depth, valid, confidence, index, match)
+
+    def visible(self, match: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+        """Z-buffer occlusion test in the other half: each valid pixel's match (B, 2, H, W_ref) is rounded
+        to an other-half pixel; a pixel is visible when no other valid reference pixel with a point nearer
+        than ``depth (1 - occlusion_tolerance)`` claims the same pixel. Returns (B, 1, H, W_ref) bool.
+
+        Example:
+            >>> model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0))
+            >>> m = torch.zeros(1, 2, 96, 64); z = torch.full((1, 1, 96, 64), 500.0)
+            >>> bool(model.visible(m, z, torch.ones(1, 1, 96, 64, dtype=torch.bool)).all())
+            True
+        """
+        b, _, h, w_ref = depth.shape
+        w_o = self.split.width - self.split.split
+        x = torch.round(match[:, 0] - self.split.split).long().clamp(0, w_o - 1)
+        y = torch.round(match[:, 1]).long().clamp(0, h - 1)
+        target = (y * w_o + x).view(b, -1)
+        tol = self.occlusion_tolerance or 0.0
+        z = torch.where(valid, depth, torch.full_like(depth, float("inf"))).view(b, -1)
+        zbuf = torch.full((b, h * w_o), float("inf"), dtype=z.dtype, device=z.device)
+        zbuf = zbuf.scatter_reduce(1, target, z, reduce="amin")
+        return (z * (1 - tol) <= zbuf.gather(1, target)).view(b, 1, h, w_ref)

@@ -43,3 +43,44 @@ def test_errors(tmp_path):
     cv2.imwrite(str(tmp_path / "float.tiff"), np.zeros((4, 4), np.float32))
     with pytest.raises(ImageIOError, match="unsupported image depth"):
         read_image(tmp_path / "float.tiff")
+
+
+def test_depth_png_round_trip_and_clipping(tmp_path):
+    from prismstereo.io import read_depth_png, write_depth_npy, write_depth_png
+
+    depth = torch.tensor([[100.0, 200.123, float("nan")], [255.99, 300.0, 0.001]], dtype=torch.float64)
+    valid = torch.tensor([[True, True, True], [True, True, False]])
+    assert write_depth_png(tmp_path / "d.png", depth, valid) == 1  # 300 mm > 65535 / 256 mm
+    import cv2
+
+    raw = cv2.imread(str(tmp_path / "d.png"), cv2.IMREAD_UNCHANGED)
+    assert raw.dtype == np.uint16 and raw.tolist() == [[25600, 51231, 0], [65533, 65535, 0]]
+    back = read_depth_png(tmp_path / "d.png")
+    assert torch.isnan(back[0, 2]) and torch.isnan(back[1, 2])
+    assert abs(float(back[0, 1]) - 200.123) <= 1 / 512
+    write_depth_png(tmp_path / "s.png", depth, valid, scale=32.0)
+    assert float(read_depth_png(tmp_path / "s.png", scale=32.0)[1, 1]) == 300.0
+    write_depth_npy(tmp_path / "d.npy", depth, valid)
+    arr = np.load(tmp_path / "d.npy")
+    assert arr.dtype == np.float32 and np.isnan(arr[[0, 1], [2, 2]]).all() and arr[1, 1] == 300.0
+    with pytest.raises(ImageIOError, match="scale must be a positive number"):
+        write_depth_png(tmp_path / "x.png", depth, scale=0.0)
+    with pytest.raises(ImageIOError, match="not a single-channel 16-bit depth PNG"):
+        write_image(tmp_path / "rgb.png", torch.zeros(3, 2, 2))
+        read_depth_png(tmp_path / "rgb.png")
+
+
+def test_depth_preview(tmp_path):
+    from prismstereo.io import write_depth_preview
+
+    depth = torch.linspace(300.0, 900.0, 20).reshape(4, 5)
+    depth[0, 0] = float("nan")
+    valid = torch.ones(4, 5, dtype=torch.bool)
+    valid[3, 4] = False
+    write_depth_preview(tmp_path / "p.png", depth, valid)
+    img = read_image(tmp_path / "p.png")
+    assert img.shape == (3, 4, 5)
+    assert (img[:, 0, 0] == 0).all() and (img[:, 3, 4] == 0).all()  # invalid is black
+    assert (img[:, 0, 1] - img[:, 3, 3]).abs().sum() > 0.5  # near and far get different colours
+    with pytest.raises(ImageIOError, match="unknown matplotlib colormap"):
+        write_depth_preview(tmp_path / "p.png", depth, cmap="nope")

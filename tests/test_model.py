@@ -2,9 +2,13 @@ import pytest
 import torch
 
 from prismstereo import OptionError, RigError, ShapeError, thesis_setup1, thesis_setup2
-from prismstereo.model import PrismStereo, hypotheses_for_rig
+from prismstereo.epipolar import exact_sampling_grid
+from prismstereo.epipolar.sweep import depth_to_sweep
+from prismstereo.model import PrismStereo, sweep_hypotheses
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, step_scene
 from tests.conftest import scaled_rig
+
+FORM = ImageFormation(supersample=2, noise_sigma=1 / 255)
 
 
 @pytest.fixture(scope="module")
@@ -13,32 +17,74 @@ def setup1_model():
     return rig, PrismStereo(rig, (400.0, 800.0))
 
 
-def test_hypotheses_are_at_most_one_pixel_apart():
-    rig = scaled_rig(thesis_setup1(), 4)
-    depths = hypotheses_for_rig(rig, (400.0, 800.0))
-    from prismstereo.epipolar import exact_sampling_grid
+def _errors(rig, res, cap):
+    w = rig.reference_width
+    cov = cap.covisible[..., :w]
+    ok = res.valid & cov
+    rel = ((res.depth - cap.depth[..., :w]).abs() / cap.depth[..., :w])[ok]
+    return rel, ok.float().sum() / cov.float().sum()
 
-    grid = exact_sampling_grid(rig, depths, rows=torch.arange(0.0, rig.image_height, 8.0))
+
+def test_hypotheses_are_at_most_one_pixel_apart(setup1_model):
+    rig, model = setup1_model
+    grid = exact_sampling_grid(rig, model.depths.double(), rows=torch.arange(0.0, rig.image_height, 8.0))
     ok = grid.valid[1:] & grid.valid[:-1]
-    assert (grid.uv[1:] - grid.uv[:-1]).norm(dim=-1)[ok].max() <= 1.0
-    with pytest.raises(RigError, match="z_range_mm must lie beyond"):
-        hypotheses_for_rig(rig, (100.0, 800.0))
+    step = (grid.uv[1:] - grid.uv[:-1]).norm(dim=-1)[ok]
+    assert 0.9 < step.max() <= 1.0
+    assert sweep_hypotheses(model.pixel_coefficients.double(), 2.0) < model.num_hypotheses
+    with pytest.raises(OptionError, match="max_step_px must be > 0"):
+        sweep_hypotheses(model.pixel_coefficients, 0.0)
+
+
+def test_match_output_is_the_exact_correspondence(setup1_model):
+    rig, model = setup1_model
+    depth = 560.0
+    cap = render(rig, fronto_parallel_plane(rig, depth, seed=4), FORM)
+    with torch.no_grad():
+        res = model(cap.image)
+    w = rig.reference_width
+    ok = res.valid & cap.covisible[..., :w]
+    # where the depth is right to 0.1 %, the match is the renderer's true match to well below a pixel
+    good = ok[0, 0] & ((res.depth[0, 0] - depth).abs() < 0.001 * depth)
+    truth = cap.match_uv[0, :, :, :w].permute(1, 2, 0)[good]  # (B, 2, H, W) over the whole sensor
+    assert good.sum() > 1000
+    assert (res.match[0].permute(1, 2, 0)[good] - truth).norm(dim=-1).median() < 0.05
 
 
 @pytest.mark.parametrize("depth", [450.0, 700.0])
 def test_fronto_parallel_plane_depth(setup1_model, depth):
     rig, model = setup1_model
-    cap = render(rig, fronto_parallel_plane(rig, depth, seed=5), ImageFormation(supersample=2, noise_sigma=1 / 255))
+    cap = render(rig, fronto_parallel_plane(rig, depth, seed=5), FORM)
     with torch.no_grad():
         res = model(cap.image)
-    w = rig.reference_width
-    assert res.depth.shape == (1, 1, rig.image_height, w)
-    cov = cap.covisible[..., :w]
-    ok = res.valid & cov
-    assert ok.float().sum() / cov.float().sum() > 0.95
-    rel = ((res.depth - depth).abs() / depth)[ok]
+    assert res.depth.shape == res.valid.shape == res.confidence.shape == (1, 1, rig.image_height, rig.reference_width)
+    assert res.match.shape == (1, 2, rig.image_height, rig.reference_width)
+    rel, coverage = _errors(rig, res, cap)
+    assert coverage > 0.95
     # quarter-resolution sensor: the error scales with the pixel size (0.25 % is the full-size target)
-    assert rel.mean() < 0.006 and rel.median() < 0.004
+    assert rel.mean() < 0.006 and rel.median() < 0.003
+    # index counts hypotheses: depths[index] interpolated in 1/Z is the depth
+    s = -1 + 2 * res.index / (model.num_hypotheses - 1)
+    torch.testing.assert_close(s, depth_to_sweep(res.depth, torch.tensor([400.0, 800.0])), atol=1e-4, rtol=0)
+
+
+def test_coarse_to_fine_matches_the_full_search():
+    """The default two-level search and the single full-resolution level agree on a plane."""
+    rig = scaled_rig(thesis_setup1(), 4)
+    coarse = PrismStereo(rig, (450.0, 900.0), coarse_factor=2)
+    full = PrismStereo(rig, (450.0, 900.0), coarse_factor=1)
+    assert coarse.factor == 2 and coarse.band == 3 and coarse.num_hypotheses == full.num_hypotheses
+    cap = render(rig, fronto_parallel_plane(rig, 600.0, seed=6), FORM)
+    with torch.no_grad():
+        a, b = coarse(cap.image), full(cap.image)
+    cov = cap.covisible[..., :rig.reference_width]
+    both = a.valid & b.valid & cov
+    assert both.float().sum() > 0.9 * cov.float().sum()
+    diff = (a.depth - b.depth).abs()[both] / 600.0
+    assert diff.median() < 3e-3  # ~0.15 px on this quarter-resolution sensor (1 px ~ 1.9 % at 600 mm)
+    for res in (a, b):
+        rel, coverage = _errors(rig, res, cap)
+        assert rel.mean() < 0.006 and coverage > 0.95
 
 
 def test_setup2_and_step_scene():
@@ -47,31 +93,58 @@ def test_setup2_and_step_scene():
     cap = render(rig, step_scene(rig, 450.0, 650.0, seed=2), ImageFormation(supersample=2))
     with torch.no_grad():
         res = model(cap.image)
-    w = rig.reference_width
-    ok = res.valid & cap.covisible[..., :w]
-    rel = ((res.depth - cap.depth[..., :w]).abs() / cap.depth[..., :w])[ok]
+    rel, _ = _errors(rig, res, cap)
     assert rel.median() < 0.004 and (rel < 0.02).float().mean() > 0.9
 
 
-def test_model_buffers_and_errors(setup1_model):
+def test_soft_argmin_refinement_passes_gradients_to_the_image():
+    rig = scaled_rig(thesis_setup1(), 8)
+    model = PrismStereo(rig, (400.0, 800.0), cost="sad", fine_cost="sad", refinement="soft_argmin",
+                        occlusion_tolerance=None)
+    cap = render(rig, fronto_parallel_plane(rig, 550.0, seed=7), FORM)
+    image = cap.image.clone().requires_grad_(True)
+    res = model(image)
+    res.depth[res.valid].sum().backward()
+    assert image.grad is not None and image.grad.abs().sum() > 0 and torch.isfinite(image.grad).all()
+
+
+def test_model_buffers_batch_and_errors(setup1_model):
     rig, model = setup1_model
-    assert model.grid.shape == (model.num_hypotheses, rig.image_height, rig.reference_width, 2)
-    assert "grid" in dict(model.named_buffers())
+    buffers = dict(model.named_buffers())
+    assert {"coefficients", "pixel_coefficients", "reference_valid", "other_valid", "depths"} <= set(buffers)
+    assert model.depths.shape == (model.num_hypotheses,)
+    x = torch.rand(2, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        both = model(x)
+        one = model(x[1:])
+    torch.testing.assert_close(both.depth[1:], one.depth)
     with pytest.raises(ShapeError, match="but the rig's sensor is"):
         model(torch.rand(1, 1, 10, 10))
     with pytest.raises(OptionError, match="num_hypotheses must be an int >= 2"):
         PrismStereo(rig, (400.0, 800.0), num_hypotheses=1)
+    with pytest.raises(OptionError, match="'census'"):
+        PrismStereo(rig, (400.0, 800.0), cost="ssd")
+    with pytest.raises(OptionError, match="'soft_argmin'"):
+        PrismStereo(rig, (400.0, 800.0), refinement="mean")
+    with pytest.raises(OptionError, match="coarse_factor"):
+        PrismStereo(rig, (400.0, 800.0), coarse_factor=64)
+    with pytest.raises(OptionError, match="fine_box must be a positive odd int"):
+        PrismStereo(rig, (400.0, 800.0), fine_box=4)
+    with pytest.raises(RigError, match="beyond the prism's back plane"):
+        PrismStereo(rig, (100.0, 800.0))
+    assert PrismStereo.default_coarse_factor(382, 768, 512) == 4
+    assert PrismStereo.default_coarse_factor(100, 192, 128) == 1
 
 
 def test_occlusion_test_rejects_pixels_hidden_from_the_right_half():
     rig = scaled_rig(thesis_setup1(), 4)
-    cap = render(rig, step_scene(rig, 450.0, 650.0, seed=1), ImageFormation(supersample=2, noise_sigma=1 / 255))
+    cap = render(rig, step_scene(rig, 450.0, 650.0, seed=1), FORM)
     w = rig.reference_width
     hidden = cap.valid[..., :w] & ~cap.covisible[..., :w]
     cov = cap.covisible[..., :w]
     with torch.no_grad():
-        plain = PrismStereo(rig, (400.0, 700.0), occlusion_tolerance=None)(cap.image)
-        checked = PrismStereo(rig, (400.0, 700.0))(cap.image)
+        plain = PrismStereo(rig, (400.0, 700.0), occlusion_tolerance=None, min_confidence=0.0)(cap.image)
+        checked = PrismStereo(rig, (400.0, 700.0), min_confidence=0.0)(cap.image)
     assert checked.valid[hidden].float().mean() < 0.6 * plain.valid[hidden].float().mean()
     assert checked.valid[cov].float().mean() > 0.85
     rel = lambda r: ((r.depth - cap.depth[..., :w]).abs() / cap.depth[..., :w])  # noqa: E731

@@ -12,6 +12,7 @@ from prismstereo.geometry.optics import (
     points_at_depth,
     project_points,
     refract,
+    solve_projection,
     trace_directions,
     trace_pixels,
 )
@@ -41,6 +42,7 @@ __all__ = [
     "pixel_directions",
     "points_at_depth",
     "project_points",
+    "solve_projection",
     "refract",
     "trace_directions",
     "trace_pixels",

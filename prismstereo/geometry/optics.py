@@ -33,6 +33,7 @@ __all__ = [
     "RayBundle",
     "Refraction",
     "Projection",
+    "solve_projection",
     "refract",
     "pixel_directions",
     "trace_pixels",
@@ -224,6 +225,8 @@ def _trace(p: RigParameters, directions: torch.Tensor, half: str) -> RayBundle:
     t_l = _dot(pl.n_left, pl.apex) / torch.where(den_l > 0, den_l, torch.ones_like(den_l))
     t_r = _dot(pl.n_right, pl.apex) / torch.where(den_r > 0, den_r, torch.ones_like(den_r))
     natural_left = t_l > t_r  # a ray exactly at the apex (x = d) belongs to the right half
+    extended = half.endswith("_extended")  # internal: the face's infinite plane, no prism-edge checks
+    half = half.removesuffix("_extended")
     if half == "auto":
         use_left = natural_left
     else:
@@ -246,6 +249,8 @@ def _trace(p: RigParameters, directions: torch.Tensor, half: str) -> RayBundle:
     entry_on_surface = _dot(n_other, p1 - pl.apex) >= 0  # the forced face is the one really hit
     entry_within = _dot(pl.n_back, p1 - pl.back) <= 0  # enters before the face meets the back plane
     valid = (den_l > tiny) & (den_r > tiny) & (t1 > 0) & (den_b > 0) & inside.valid & out.valid
+    if extended:
+        return RayBundle(p2, out.directions, valid, use_left, p1)
     valid = valid & exits_back & entry_within
     if half != "auto":
         valid = valid & entry_on_surface
@@ -436,12 +441,41 @@ def project_points(
         >>> proj.uv.shape, proj.valid
         (torch.Size([1, 2]), tensor([True]))
     """
+    uv, converged = solve_projection(rig, points, half, iterations, initial_uv)
+    w, h = _size_of(rig)
+    on_sensor = (uv[..., 0] >= -0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= h - 0.5)
+    return Projection(uv, converged & on_sensor)
+
+
+def _size_of(rig: BiPrismRig | RigParameters) -> tuple[int, int]:
+    return (rig.image_width, rig.image_height) if isinstance(rig, BiPrismRig) else (rig.width, rig.height)
+
+
+def solve_projection(
+    rig: BiPrismRig | RigParameters,
+    points: torch.Tensor,
+    half: Half,
+    iterations: int = 5,
+    initial_uv: torch.Tensor | None = None,
+    extended: bool = False,
+) -> Projection:
+    """:func:`project_points` without the sensor bounds: the sensor-plane position (*, 2) of each point seen
+    through ``half``'s prism face, valid where the ray exists (no miss, no TIR), reaches the point and the
+    Newton solve converged, even if the position lies off the sensor. With ``extended`` the face is its
+    infinite plane (no apex, edge or other-face checks): the analytic continuation used to fit smooth
+    sweep curves (:mod:`prismstereo.epipolar.sweep`) through depths where the real ray does not exist.
+
+    Example:
+        >>> solve_projection(thesis_setup1(), torch.tensor([[10.0, 5.0, 600.0]]), "right").valid
+        tensor([True])
+    """
     check_shape(points, ["*", 3], "points")
     check_floating(points, "points")
     check_option(half, _HALVES, "half")
     if not isinstance(iterations, int) or iterations < 1:
         raise RigError(f"iterations must be a positive int, got {iterations!r}")
     p = as_parameters(rig, points)
+    half = f"{half}_extended" if extended else half
     f64 = points.dtype == torch.float64
     h = 1e-4 if f64 else 2e-2
     tol = 1e-6 if f64 else 2e-3
@@ -459,11 +493,7 @@ def project_points(
                               uv[..., 1].clamp(-p.height, 2.0 * p.height)], dim=-1)
     uv, last, rays = _newton_step(p, points, uv.detach(), half, h, max_step)
     beyond = _dot(points - rays.origins, rays.directions) > 0
-    on_sensor = (
-        (uv[..., 0] >= -0.5) & (uv[..., 0] <= p.width - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= p.height - 0.5)
-    )
-    valid = rays.valid & beyond & on_sensor & (last.detach() < tol)
-    return Projection(uv, valid)
+    return Projection(uv, rays.valid & beyond & (last.detach() < tol))
 
 
 def _initial_guess(p: RigParameters, points: torch.Tensor, half: str) -> torch.Tensor:

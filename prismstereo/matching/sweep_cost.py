@@ -1,0 +1,163 @@
+"""Plane-sweep cost volumes: warp the other half-image to the reference pixels once per hypothesis (one
+``grid_sample`` call for all of them), then compare.
+
+For a fronto-parallel depth plane the warped slice is the other half as seen from the reference view, so
+window costs (census, ZNCC) compare like with like; for a coarse-to-fine band around a smooth prior
+surface each slice is the warp by a surface parallel to that prior (a slanted support window).
+
+Costs (lower is better), all (B, D, H, W):
+
+* ``'sad'``: mean over channels of |I_ref - I_warped| per pixel (aggregate with a box afterwards);
+  differentiable w.r.t. both images.
+* ``'census'``: Hamming distance between the census codes (``window`` x ``window``, one bit per neighbour
+  and channel: darker than the centre) of the reference and of each warped slice, in [0, bits].
+* ``'zncc'``: 1 - zero-normalised cross-correlation over the window (grey), in [0, 2]; differentiable.
+
+Samples outside the other half or on its pixels that see nothing through the prism get the worst cost.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+
+from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.matching.cost import COSTS, Cost
+
+__all__ = ["Warped", "warp_slices", "sweep_cost", "worst_cost"]
+
+
+class Warped(NamedTuple):
+    """The other half-image resampled at every hypothesis.
+
+    Attributes:
+        image: (B, C, D, H, W) samples.
+        valid: (B, D, H, W) bool: every bilinear tap lies inside the other half on a pixel that sees
+            through the prism.
+    """
+
+    image: torch.Tensor
+    valid: torch.Tensor
+
+
+def warp_slices(other: torch.Tensor, grid: torch.Tensor, other_valid: torch.Tensor | None = None) -> Warped:
+    """Sample ``other`` at a plane-sweep grid with one bilinear ``grid_sample`` call.
+
+    Args:
+        other: (B, C, H_o, W_o) the other half-image.
+        grid: (B or 1, D, H, W, 2) sample positions normalised for ``grid_sample`` (align_corners=False:
+            -1 and +1 are the outer edges of the first and last pixel).
+        other_valid: optional (H_o, W_o) bool, pixels of the other half that see through the prism.
+
+    Returns:
+        Warped.
+
+    Example:
+        >>> w = warp_slices(torch.rand(2, 1, 10, 12), torch.zeros(1, 3, 10, 8, 2))
+        >>> w.image.shape, w.valid.shape
+        (torch.Size([2, 1, 3, 10, 8]), torch.Size([2, 3, 10, 8]))
+    """
+    check_shape(other, ["B", "C", "H", "W"], "other")
+    check_shape(grid, ["B", "D", "H", "W", 2], "grid")
+    b, c = other.shape[:2]
+    g = grid.to(other.dtype)
+    if g.shape[0] not in (1, b):
+        raise ShapeError(f"grid batch {g.shape[0]} must be 1 or the image batch {b}")
+    _, d, h, w, _ = g.shape
+    g = g.expand(b, -1, -1, -1, -1)
+    # border padding: windows reaching past the edge see replicated pixels instead of black, which keeps
+    # matches near the other half's edges; the sample itself must lie inside (the bilinear footprint of a
+    # centre inside the outer pixel edges) on pixels that see through the prism
+    h_o, w_o = other.shape[-2:]
+    inside = (g[..., 0].abs() <= 1.0 - 1.0 / w_o) & (g[..., 1].abs() <= 1.0 - 1.0 / h_o)
+    stacked = other if other_valid is None else torch.cat([other, other_valid.to(other).expand(b, 1, -1, -1)], 1)
+    sampled = F.grid_sample(stacked, g.reshape(b, d * h, w, 2), mode="bilinear", padding_mode="border",
+                            align_corners=False).view(b, -1, d, h, w)
+    valid = inside if other_valid is None else inside & (sampled[:, c] > 0.999)
+    return Warped(sampled[:, :c], valid)
+
+
+def worst_cost(cost: Cost, channels: int, window: int) -> float:
+    """The largest value of a cost: the fill for invalid samples.
+
+    Example:
+        >>> worst_cost("census", 1, 5)
+        24.0
+    """
+    check_option(cost, COSTS, "cost")
+    return {"sad": 1.0, "zncc": 2.0, "census": float(channels * (window * window - 1))}[cost]
+
+
+def _box(volume: torch.Tensor, window: int) -> torch.Tensor:
+    return F.avg_pool2d(volume, window, stride=1, padding=window // 2, count_include_pad=False)
+
+
+def _census(reference: torch.Tensor, warped: torch.Tensor, window: int) -> torch.Tensor:
+    r = window // 2
+    h, w = reference.shape[-2:]
+    ref = reference.unsqueeze(2)  # (B, C, 1, H, W)
+    pad_ref = F.pad(reference, (r, r, r, r), mode="replicate").unsqueeze(2)
+    pad_w = F.pad(warped, (r, r, r, r, 0, 0), mode="replicate")
+    total = torch.zeros_like(warped[:, 0])
+    for dy in range(window):
+        for dx in range(window):
+            if (dy, dx) == (r, r):
+                continue
+            bit_r = (pad_ref[..., dy:dy + h, dx:dx + w] < ref).to(warped.dtype)
+            bit_w = (pad_w[..., dy:dy + h, dx:dx + w] < warped).to(warped.dtype)
+            total = total + (bit_r - bit_w).abs().sum(1)
+    return total
+
+
+def _zncc(reference: torch.Tensor, warped: torch.Tensor, window: int) -> torch.Tensor:
+    ref = reference.mean(1, keepdim=True)  # (B, 1, H, W)
+    wrp = warped.mean(1)  # (B, D, H, W)
+    mean_r = _box(ref, window)
+    var_r = (_box(ref * ref, window) - mean_r * mean_r).clamp_min(0)
+    mean_w = _box(wrp, window)
+    var_w = (_box(wrp * wrp, window) - mean_w * mean_w).clamp_min(0)
+    cross = _box(wrp * ref, window) - mean_w * mean_r
+    ncc = cross / torch.sqrt(var_r * var_w + 1e-12)
+    return 1.0 - ncc.clamp(-1, 1)
+
+
+def sweep_cost(
+    reference: torch.Tensor, warped: Warped, cost: Cost = "census", window: int = 5
+) -> torch.Tensor:
+    """Per-pixel matching cost of the reference half against each warped slice.
+
+    Args:
+        reference: (B, C, H, W) reference half in [0, 1].
+        warped: :func:`warp_slices` of the other half, image (B, C, D, H, W).
+        cost: 'sad', 'zncc' or 'census'.
+        window: census / ZNCC window (odd; census >= 3).
+
+    Returns:
+        (B, D, H, W) cost, the worst value (:func:`worst_cost`) where the sample is not valid.
+
+    Raises:
+        OptionError: unknown cost or bad window. ShapeError: reference and slices disagree.
+
+    Example:
+        >>> ref = torch.rand(1, 1, 12, 16)
+        >>> slices = Warped(ref.unsqueeze(2).repeat(1, 1, 3, 1, 1), torch.ones(1, 3, 12, 16, dtype=torch.bool))
+        >>> float(sweep_cost(ref, slices, "census").abs().max())
+        0.0
+    """
+    check_option(cost, COSTS, "cost")
+    check_shape(reference, ["B", "C", "H", "W"], "reference")
+    check_shape(warped.image, ["B", "C", "D", "H", "W"], "warped.image")
+    if not isinstance(window, int) or window < 1 or window % 2 == 0 or (cost == "census" and window < 3):
+        raise OptionError(f"window must be an odd int (>= 3 for census), got {window!r}")
+    if warped.image.shape[:2] != reference.shape[:2] or warped.image.shape[-2:] != reference.shape[-2:]:
+        raise ShapeError(f"reference {tuple(reference.shape)} does not match slices {tuple(warped.image.shape)}")
+    if cost == "census":
+        volume = _census(reference, warped.image, window)
+    elif cost == "sad":
+        volume = (reference.unsqueeze(2) - warped.image).abs().mean(1)
+    else:
+        volume = _zncc(reference, warped.image, window)
+    worst = torch.full_like(volume, worst_cost(cost, reference.shape[1], window))
+    return torch.where(warped.valid, volume, worst)

@@ -1,0 +1,105 @@
+import pytest
+import torch
+
+from prismstereo import OptionError, RigError, thesis_setup1, thesis_setup2
+from prismstereo.epipolar import depth_hypotheses, exact_sampling_grid
+from prismstereo.epipolar.sweep import (
+    chebyshev_basis,
+    depth_to_sweep,
+    evaluate_sweep,
+    fit_sweep,
+    sweep_coefficients,
+    sweep_positions,
+    sweep_to_depth,
+)
+from prismstereo.geometry.optics import solve_projection
+from tests.conftest import RIGS, scaled_rig
+
+
+def test_chebyshev_basis_matches_torch_special():
+    x = torch.linspace(-1, 1, 11, dtype=torch.float64)
+    ours = chebyshev_basis(x, 6)
+    ref = torch.stack([torch.special.chebyshev_polynomial_t(x, k) for k in range(6)], -1)
+    torch.testing.assert_close(ours, ref)
+    assert chebyshev_basis(x, 1).shape == (11, 1)
+    with pytest.raises(OptionError, match="n must be >= 1"):
+        chebyshev_basis(x, 0)
+
+
+def test_sweep_coordinate_round_trip_and_ends():
+    z = torch.tensor([228.0, 400.0, 1374.0], dtype=torch.float64)
+    rng = torch.tensor([228.0, 1374.0], dtype=torch.float64)
+    s = depth_to_sweep(z, rng)
+    assert s[0] == -1 and s[-1] == 1
+    torch.testing.assert_close(sweep_to_depth(s, rng), z)
+    # uniform s is uniform inverse depth, the spacing of depth_hypotheses
+    torch.testing.assert_close(sweep_to_depth(torch.linspace(-1, 1, 7, dtype=torch.float64), rng),
+                               depth_hypotheses(228.0, 1374.0, 7))
+
+
+@pytest.mark.parametrize("name", sorted(RIGS))
+def test_fit_reproduces_the_exact_grid(name):
+    rig = RIGS[name]()
+    fit = fit_sweep(rig, (228.0, 1374.0))
+    depths = depth_hypotheses(228.0, 1374.0, 5)
+    rows = torch.arange(3.0, rig.image_height, 151.0, dtype=torch.float64)
+    exact = exact_sampling_grid(rig, depths, rows)
+    uv = torch.stack(torch.meshgrid(torch.arange(rig.reference_width, dtype=torch.float64), rows,
+                                    indexing="xy"), -1)
+    est = sweep_positions(fit, uv, depth_to_sweep(depths, fit.z_range).view(-1, 1, 1))
+    err = (est - exact.uv).norm(dim=-1)[exact.valid]
+    assert err.numel() > 1000 and err.max() < (1e-4 if name == "setup2" else 1e-8)
+    assert fit.max_error_px < 1e-3
+
+
+def test_fit_continues_beyond_the_field_of_view():
+    """Pixels whose real match leaves the right half still get a smooth curve (the faces' planes)."""
+    rig = scaled_rig(thesis_setup1(), 8)
+    fit = fit_sweep(rig, (228.0, 1374.0))
+    uv = torch.tensor([[0.0, 40.0]], dtype=torch.float64)  # far left: no real match at 228 mm
+    pos = sweep_positions(fit, uv, torch.linspace(-1, 1, 50, dtype=torch.float64).view(-1, 1))
+    assert torch.isfinite(pos).all() and (pos[1:] - pos[:-1]).norm(dim=-1).max() < 5.0
+
+
+def test_coefficients_and_evaluation_shapes_float32():
+    rig = scaled_rig(thesis_setup1(), 8)
+    fit = fit_sweep(rig, (300.0, 1200.0))
+    uv = torch.rand(4, 5, 2, generator=torch.Generator().manual_seed(0)) * 60
+    c = sweep_coefficients(fit, uv)
+    assert c.shape == (4, 5, fit.coefficients.shape[0], 2) and c.dtype == torch.float32
+    s = torch.zeros(4, 5)
+    assert evaluate_sweep(c, s).shape == (4, 5, 2)
+
+
+def test_fit_is_differentiable_wrt_rig_parameters():
+    rig = scaled_rig(thesis_setup1(), 16)
+    p = rig.parameters(torch.zeros((), dtype=torch.float64))
+    alpha = p.alpha.clone().requires_grad_(True)
+    fit = fit_sweep(p._replace(alpha=alpha), (300.0, 1200.0), tolerance_px=1e-6)
+    uv = torch.tensor([[10.0, 20.0]], dtype=torch.float64)
+    pos = sweep_positions(fit, uv, torch.tensor([0.3], dtype=torch.float64))
+    pos[0, 0].backward()
+    # finite difference of the exact projection
+    from prismstereo.geometry.optics import points_at_depth, trace_pixels
+
+    def exact(a: float) -> float:
+        q = p._replace(alpha=torch.tensor(a, dtype=torch.float64))
+        z = sweep_to_depth(torch.tensor(0.3, dtype=torch.float64), fit.z_range.detach())
+        pt = points_at_depth(trace_pixels(q, uv, half="left"), z)
+        return float(solve_projection(q, pt, "right").uv[0, 0])
+
+    h = 1e-6
+    fd = (exact(float(p.alpha) + h) - exact(float(p.alpha) - h)) / (2 * h)
+    assert abs(float(alpha.grad) - fd) < 1e-4 * abs(fd)
+
+
+def test_fit_errors():
+    rig = scaled_rig(thesis_setup2(), 8)
+    with pytest.raises(RigError, match="beyond the prism's back plane"):
+        fit_sweep(rig, (50.0, 1000.0))
+    with pytest.raises(RigError, match="increasing"):
+        fit_sweep(rig, (900.0, 500.0))
+    with pytest.raises(OptionError, match="at least 2 nodes"):
+        fit_sweep(rig, (300.0, 900.0), nodes_uv=1)
+    with pytest.raises(RigError, match="sweep fit error"):
+        fit_sweep(rig, (228.0, 1374.0), nodes_uv=2, nodes_depth=2, tolerance_px=1e-12, max_nodes=4)

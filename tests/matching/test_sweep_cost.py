@@ -1,0 +1,62 @@
+import pytest
+import torch
+
+from prismstereo import OptionError, ShapeError
+from prismstereo.matching.sweep_cost import Warped, sweep_cost, warp_slices, worst_cost
+
+
+def _shift_grid(h: int, w: int, w_o: int, shifts: list[float]) -> torch.Tensor:
+    """(1, D, h, w, 2) normalised grids sampling other column u + shift, row v."""
+    v, u = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
+    grids = [torch.stack([(2 * (u + s) + 1) / w_o - 1, (2 * v + 1) / h - 1], -1) for s in shifts]
+    return torch.stack(grids)[None]
+
+
+def test_warp_slices_samples_columns_and_flags_outside():
+    other = torch.arange(12.0, dtype=torch.float64).view(1, 1, 1, 12).expand(1, 1, 3, 12).contiguous()
+    warped = warp_slices(other, _shift_grid(3, 8, 12, [0.0, 2.5, 6.0]))
+    torch.testing.assert_close(warped.image[0, 0, 1, 0], torch.arange(8.0, dtype=torch.float64) + 2.5)
+    assert warped.valid[0, 0].all() and warped.valid[0, 1].all()
+    assert warped.valid[0, 2, 0].tolist() == [True] * 6 + [False] * 2  # columns 12, 13 are outside
+    mask = torch.ones(3, 12, dtype=torch.bool)
+    mask[:, 5] = False  # a pixel that sees nothing through the prism poisons both bilinear neighbours
+    w2 = warp_slices(other, _shift_grid(3, 8, 12, [0.0, 0.5]), mask)
+    assert w2.valid[0, 0, 0].tolist() == [True] * 5 + [False] + [True] * 2
+    assert w2.valid[0, 1, 0].tolist() == [True] * 4 + [False, False] + [True] * 2
+
+
+@pytest.mark.parametrize("cost", ["sad", "zncc", "census"])
+def test_true_shift_has_the_lowest_cost(cost):
+    gen = torch.Generator().manual_seed(0)
+    other = torch.rand(2, 1, 20, 40, generator=gen, dtype=torch.float64)
+    ref = other[..., 5:29]  # reference column u shows other column u + 5
+    warped = warp_slices(other, _shift_grid(20, 24, 40, [3.0, 4.0, 5.0, 6.0, 7.0]))
+    vol = sweep_cost(ref, warped, cost, 5)
+    assert vol.shape == (2, 5, 20, 24)
+    assert (vol.argmin(1) == 2).float().mean() > 0.97
+    assert vol[:, 2].abs().max() < 1e-9
+
+
+def test_invalid_samples_get_the_worst_cost_and_errors():
+    ref = torch.rand(1, 3, 6, 7, generator=torch.Generator().manual_seed(1))
+    valid = torch.zeros(1, 2, 6, 7, dtype=torch.bool)
+    slices = Warped(torch.rand(1, 3, 2, 6, 7), valid)
+    assert (sweep_cost(ref, slices, "census", 3) == worst_cost("census", 3, 3)).all()
+    assert worst_cost("census", 3, 3) == 24.0 and worst_cost("sad", 1, 5) == 1.0
+    with pytest.raises(OptionError, match="'census'"):
+        sweep_cost(ref, slices, "ssd", 5)
+    with pytest.raises(OptionError, match="odd int"):
+        sweep_cost(ref, slices, "census", 1)
+    with pytest.raises(ShapeError, match="does not match"):
+        sweep_cost(ref[..., :5], slices, "sad", 3)
+    with pytest.raises(ShapeError, match="grid batch"):
+        warp_slices(torch.rand(2, 1, 6, 7), torch.zeros(3, 2, 6, 7, 2))
+
+
+def test_sad_and_zncc_are_differentiable():
+    gen = torch.Generator().manual_seed(2)
+    ref = torch.rand(1, 1, 6, 8, generator=gen, dtype=torch.float64, requires_grad=True)
+    other = torch.rand(1, 1, 6, 10, generator=gen, dtype=torch.float64, requires_grad=True)
+    grid = _shift_grid(6, 8, 10, [0.3, 1.6])
+    for cost in ("sad", "zncc"):
+        torch.autograd.gradcheck(lambda a, b, c=cost: sweep_cost(a, warp_slices(b, grid), c, 3), (ref, other))

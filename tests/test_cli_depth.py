@@ -1,0 +1,150 @@
+"""``prismstereo depth`` on a 128 x 96 version of setup 1 (rendered fronto-parallel planes)."""
+
+import importlib.util
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from prismstereo import thesis_setup1
+from prismstereo.cli import main
+from prismstereo.io import read_depth_png, read_image, write_image
+
+NEAR, FAR = 240.0, 525.0  # mm: the near plane fits the 16-bit PNG's 255.996 mm, the far one does not
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_thread():
+    """Small tensors: intra-op threads only add contention on a shared CPU."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """A small rig file, an 8-bit grey capture of a plane at FAR and a 16-bit RGB one at NEAR."""
+    from prismstereo import synthetic as syn
+
+    folder = tmp_path_factory.mktemp("depth_cli")
+    rig = thesis_setup1().downscaled(8)
+    rig.to_json(folder / "small.json")
+    planes = [syn.fronto_parallel_plane(rig, FAR, seed=3), syn.fronto_parallel_plane(rig, NEAR, seed=4, channels=3)]
+    cap = syn.render(rig, planes, syn.ImageFormation(supersample=2, channels=3, noise_sigma=1 / 255, seed=1))
+    write_image(folder / "far.png", cap.image[0, :1], bits=8)
+    write_image(folder / "near.png", cap.image[1], bits=16)
+    return folder
+
+
+def _run(scene, *args):
+    return main(["depth", *[str(a) for a in args], "--rig", str(scene / "small.json")])
+
+
+def test_npy_of_a_plane(scene, tmp_path, capsys):
+    out = tmp_path / "far.npy"
+    assert _run(scene, scene / "far.png", "--out", out) == 0
+    text = capsys.readouterr().out
+    assert "depth range 222.1-1332.6 mm (default for this rig)" in text and f"wrote {out}" in text
+    depth = np.load(out)
+    assert depth.shape == (96, 64) and depth.dtype == np.float32
+    assert np.isnan(depth).any() and np.isfinite(depth).mean() > 0.5
+    assert abs(np.nanmedian(depth) / FAR - 1) < 0.02
+
+
+def test_png_round_trip_preview_and_ply(scene, tmp_path, capsys):
+    npy, png = tmp_path / "near.npy", tmp_path / "near.png"
+    assert _run(scene, scene / "near.png", "--out", npy, "--z-range", 200, 400, "--ply") == 0
+    assert _run(scene, scene / "near.png", "--out", png, "--z-range", 200, 400) == 0
+    assert "depth range 200.0-400.0 mm (--z-range)" in capsys.readouterr().out
+    depth = np.load(npy)
+    assert abs(np.nanmedian(depth) / NEAR - 1) < 0.02
+    import cv2
+
+    raw = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+    assert raw.dtype == np.uint16 and raw.shape == (96, 64)
+    expected = np.where(np.isnan(depth), 0, np.clip(np.round(depth.astype(np.float64) * 256), 1, 65535))
+    assert (raw == expected).all()  # the same model run, written as round(mm x 256), 0 invalid
+    back = read_depth_png(png).numpy()
+    ok = np.isfinite(depth) & (depth < 255)
+    assert ok.mean() > 0.2 and np.abs(back[ok] - depth[ok]).max() <= 1 / 512
+    preview = read_image(tmp_path / "near_preview.png")
+    assert preview.shape == (3, 96, 64) and (preview[:, torch.from_numpy(np.isnan(depth))] == 0).all()
+    from prismstereo.depth import read_ply
+
+    cloud = read_ply(tmp_path / "near.ply")  # next to near.npy
+    assert cloud.points.shape[0] == np.isfinite(depth).sum() and cloud.colors.shape == cloud.points.shape
+    np.testing.assert_allclose(np.sort(cloud.points[:, 2].numpy()), np.sort(depth[np.isfinite(depth)]), rtol=1e-6)
+    image = read_image(scene / "near.png")[:, :, :64]  # colours of the reference half
+    first = np.argwhere(np.isfinite(depth))[0]
+    assert cloud.colors[0].tolist() == (image[:, first[0], first[1]] * 255).round().to(torch.uint8).tolist()
+
+
+def test_png_clipping_warns(scene, tmp_path, capsys):
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "far.png") == 0
+    assert "clipped to 65535 (see --png-scale)" in capsys.readouterr().out
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "far32.png", "--png-scale", 32) == 0
+    assert "warning" not in capsys.readouterr().out
+    assert abs(np.nanmedian(read_depth_png(tmp_path / "far32.png", scale=32).numpy()) / FAR - 1) < 0.02
+
+
+def test_directory_of_two_images_batched_with_ply(scene, tmp_path, capsys):
+    out = tmp_path / "results"
+    assert _run(scene, scene / "far.png", scene / "near.png", "--out", out, "--batch-size", "2", "--ply",
+                "--hypotheses", "48") == 0
+    assert "48 hypotheses" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["far.npy", "far.ply", "near.npy", "near.ply"]
+    assert abs(np.nanmedian(np.load(out / "far.npy")) / FAR - 1) < 0.02
+    assert abs(np.nanmedian(np.load(out / "near.npy")) / NEAR - 1) < 0.02
+    from prismstereo.depth import read_ply
+
+    assert read_ply(out / "far.ply").colors.shape[1] == 3
+    assert _run(scene, scene / "far.png", scene / "near.png", "--out", out, "--format", "png") == 0
+    assert {"far.png", "far_preview.png", "near.png", "near_preview.png"} <= {p.name for p in out.iterdir()}
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["{junk}", "--out", "{tmp}/d.npy"], "cannot decode image"),
+        (["{tmp}/missing.png", "--out", "{tmp}/d.npy"], "image not found"),
+        (["{small}", "--out", "{tmp}/d.npy"], "is 64x48 px but the rig's sensor is 128x96 px"),
+        (["{far}", "--out", "{tmp}/d.npy", "--z-range", "100", "500"], "not beyond the prism's back plane"),
+        (["{far}", "--out", "{tmp}/d.npy", "--z-range", "600", "400"], "must be greater than z_min"),
+        (["{far}", "--out", "{far}"], "--out would overwrite the input image"),
+        (["{far}", "--out", "{dir}", "--format", "png"], "--out would overwrite the input image"),
+        (["{far}", "{far}", "--out", "{tmp}/d.npy"], "2 images: --out must be a directory"),
+        (["{far}", "{tmp}/x/far.png", "--out", "{tmp}/o"], "would both write {tmp}/o/far.npy"),
+        (["{far}", "{tmp}/far_preview.png", "--out", "{tmp}/o", "--format", "png"], "would both write"),
+        (["{far}", "--out", "{tmp}/d.tif"], "--out must end in .npy or .png (one image) or be a directory"),
+        (["{far}", "--out", "{tmp}/d.npy", "--format", "png"], "--format png contradicts --out"),
+        (["{far}", "--out", "{tmp}/d.npy", "--batch-size", "0"], "--batch-size must be >= 1"),
+        (["{far}", "--out", "{tmp}/d.npy", "--hypotheses", "1"], "--hypotheses must be >= 2"),
+        (["{far}", "--out", "{tmp}/d.png", "--png-scale", "0"], "--png-scale must be a positive number"),
+    ],
+)
+def test_errors(scene, tmp_path, capsys, args, message):
+    (tmp_path / "junk.png").write_bytes(b"not an image")
+    write_image(tmp_path / "small.png", torch.rand(1, 48, 64))
+    names = {"junk": tmp_path / "junk.png", "small": tmp_path / "small.png", "far": scene / "far.png",
+             "dir": scene, "tmp": tmp_path}
+    assert _run(scene, *[a.format(**names) for a in args]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("prismstereo: error:") and message.format(**names) in err
+    assert (scene / "far.png").exists() and read_image(scene / "far.png").shape == (1, 96, 128)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("prismstereo.export") is not None, reason="the ONNX export exists")
+def test_onnx_backend_not_available_yet(scene, tmp_path, capsys):
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "d.npy", "--backend", "onnx") == 2
+    assert "--backend onnx is not available yet" in capsys.readouterr().err
+
+
+def test_console_script_error_has_no_traceback(scene, tmp_path):
+    write_image(tmp_path / "small.png", torch.rand(1, 48, 64))
+    proc = subprocess.run([sys.executable, "-m", "prismstereo.cli", "depth", str(tmp_path / "small.png"), "--rig",
+                           str(scene / "small.json"), "--out", str(tmp_path / "d.npy")], capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "the rig's sensor is 128x96 px" in proc.stderr
