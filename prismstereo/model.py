@@ -39,7 +39,7 @@ from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_filter, sgm_aggregate
 from prismstereo.matching.cost import COSTS, Cost
-from prismstereo.matching.select import soft_argmin_local, subpixel_refine, winner_take_all
+from prismstereo.matching.select import soft_argmin_local, subpixel_refine, uniqueness, winner_take_all
 from prismstereo.matching.split import SplitImage
 from prismstereo.matching.sweep_cost import sweep_cost, warp_slices, worst_cost
 
@@ -134,7 +134,10 @@ class PrismStereo(nn.Module):
             level's cost (equiangular for L1-type census/SAD, parabola for ZNCC); 'equiangular',
             'parabola', or 'soft_argmin' (a local soft-argmin, differentiable w.r.t. the cost: gradients reach
             the image with 'sad' or 'zncc').
-        min_confidence: pixels with lower confidence are invalid.
+        min_confidence: pixels with lower confidence (the final level's NCC) are invalid.
+        min_uniqueness: pixels whose coarse (or single) level winner is not unique enough, 1 - best / second
+            best aggregated cost outside winner +- 1 below this, are invalid (false matches of pixels that the
+            other half does not see have a runner-up close to the winner).
         occlusion_tolerance: relative depth margin of the z-buffer occlusion test, None to skip it.
 
     Example:
@@ -162,6 +165,7 @@ class PrismStereo(nn.Module):
         band: int | None = None,
         refinement: Refinement | None = None,
         min_confidence: float = 0.5,
+        min_uniqueness: float = 0.3,
         occlusion_tolerance: float | None = 0.01,
     ) -> None:
         super().__init__()
@@ -198,7 +202,7 @@ class PrismStereo(nn.Module):
         self.fine_cost = fine_cost
         self.cost, self.window, self.box, self.fine_box = cost, window, box, fine_box
         self.aggregation, self.p1, self.p2 = aggregation, p1, p2
-        self.refinement, self.min_confidence = refinement, min_confidence
+        self.refinement, self.min_confidence, self.min_uniqueness = refinement, min_confidence, min_uniqueness
         self.occlusion_tolerance = occlusion_tolerance
         self.num_hypotheses = num_hypotheses
 
@@ -277,7 +281,8 @@ class PrismStereo(nn.Module):
         index, _ = winner_take_all(total.detach())
         refined = self._select(local, total, index, self.cost, final)
         confidence = _similarity(local.gather(1, index), self.cost, reference.shape[1], self.window)
-        ok = warped.valid.gather(1, index)
+        unique = uniqueness(total.detach(), index, 1.0)[1] >= self.min_uniqueness
+        ok = warped.valid.gather(1, index) & unique
         return -1.0 + refined * (2.0 / (num - 1)), ok, confidence
 
     def forward(self, image: torch.Tensor) -> DepthResult:

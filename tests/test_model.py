@@ -143,10 +143,24 @@ def test_occlusion_test_rejects_pixels_hidden_from_the_right_half():
     hidden = cap.valid[..., :w] & ~cap.covisible[..., :w]
     cov = cap.covisible[..., :w]
     with torch.no_grad():
-        plain = PrismStereo(rig, (400.0, 700.0), occlusion_tolerance=None, min_confidence=0.0)(cap.image)
-        checked = PrismStereo(rig, (400.0, 700.0), min_confidence=0.0)(cap.image)
+        plain = PrismStereo(rig, (400.0, 700.0), occlusion_tolerance=None, min_confidence=0.0,
+                            min_uniqueness=0.0)(cap.image)
+        checked = PrismStereo(rig, (400.0, 700.0), min_confidence=0.0, min_uniqueness=0.0)(cap.image)
     assert checked.valid[hidden].float().mean() < 0.6 * plain.valid[hidden].float().mean()
     assert checked.valid[cov].float().mean() > 0.85
     rel = lambda r: ((r.depth - cap.depth[..., :w]).abs() / cap.depth[..., :w])  # noqa: E731
     bad = lambda r: ((rel(r) > 0.02) & r.valid).float().sum() / r.valid.float().sum()  # noqa: E731
     assert bad(checked) < bad(plain)
+
+
+def test_uniqueness_threshold_removes_false_matches_of_pixels_the_other_half_does_not_see():
+    rig = scaled_rig(thesis_setup1(), 8)
+    cap = render(rig, fronto_parallel_plane(rig, 228.0, seed=0), FORM)  # only ~30 % co-visible
+    w = rig.reference_width
+    cov = cap.covisible[..., :w]
+    with torch.no_grad():
+        loose = PrismStereo(rig, (205.0, 1511.0), min_uniqueness=0.0)(cap.image)
+        strict = PrismStereo(rig, (205.0, 1511.0))(cap.image)
+    false = lambda r: (r.valid & ~cov).float().sum() / r.valid.float().sum()  # noqa: E731
+    assert false(strict) < 0.8 * false(loose)
+    assert (strict.valid & cov).float().sum() > 0.8 * (loose.valid & cov).float().sum()
