@@ -68,10 +68,12 @@ def warp_slices(other: torch.Tensor, grid: torch.Tensor, other_valid: torch.Tens
     _, d, h, w, _ = g.shape
     g = g.expand(b, -1, -1, -1, -1)
     # border padding: windows reaching past the edge see replicated pixels instead of black, which keeps
-    # matches near the other half's edges; the sample itself must lie inside (the bilinear footprint of a
-    # centre inside the outer pixel edges) on pixels that see through the prism
+    # matches near the other half's edges; the sample itself must lie between the first and last pixel
+    # centres (all bilinear taps inside) on pixels that see through the prism
     h_o, w_o = other.shape[-2:]
-    inside = (g[..., 0].abs() <= 1.0 - 1.0 / w_o) & (g[..., 1].abs() <= 1.0 - 1.0 / h_o)
+    x, y = ((g[..., 0] + 1) * w_o - 1) / 2, ((g[..., 1] + 1) * h_o - 1) / 2  # pixel coordinates
+    eps = 1e-3  # px: a centre exactly on the last pixel must not fall out by rounding
+    inside = (x >= -eps) & (x <= w_o - 1 + eps) & (y >= -eps) & (y <= h_o - 1 + eps)
     stacked = other if other_valid is None else torch.cat([other, other_valid.to(other).expand(b, 1, -1, -1)], 1)
     sampled = F.grid_sample(stacked, g.reshape(b, d * h, w, 2), mode="bilinear", padding_mode="border",
                             align_corners=False).view(b, -1, d, h, w)
