@@ -1,12 +1,23 @@
-"""Matching layers: split the capture, build cost volumes, select hypotheses."""
+"""Matching layers: split the capture, build cost volumes, select hypotheses, post-process disparities."""
 
-from prismstereo.matching.aggregate import box_filter, sgm_aggregate
-from prismstereo.matching.cost import COSTS, Cost, CostVolume, census_transform, cost_volume, shifted
+from prismstereo.matching.aggregate import box_filter, sgm_aggregate, sgm_aggregate_guided
+from prismstereo.matching.cost import (
+    COSTS,
+    Cost,
+    CostVolume,
+    census_codes,
+    census_transform,
+    census_volume,
+    cost_volume,
+    shifted,
+)
+from prismstereo.matching.postprocess import fill_background, median_filter
 from prismstereo.matching.select import (
     Subpixel,
     left_right_check,
     soft_argmin_local,
     subpixel_refine,
+    subpixel_refine_guarded,
     uniqueness,
     winner_take_all,
 )
@@ -18,13 +29,19 @@ __all__ = [
     "CostVolume",
     "box_filter",
     "sgm_aggregate",
+    "sgm_aggregate_guided",
+    "census_codes",
     "census_transform",
+    "census_volume",
     "cost_volume",
     "shifted",
+    "fill_background",
+    "median_filter",
     "Subpixel",
     "left_right_check",
     "soft_argmin_local",
     "subpixel_refine",
+    "subpixel_refine_guarded",
     "uniqueness",
     "winner_take_all",
     "Halves",

@@ -6,6 +6,8 @@ into depth.
 
 * Sub-pixel: ``'equiangular'`` (the V fit, for L1-type costs such as SAD and census) or ``'parabola'``
   (for SSD-like costs such as ZNCC); a parabola on SAD pulls estimates toward integers (pixel locking).
+* :func:`subpixel_refine_guarded`: the fit on a local cost where it agrees with the (aggregated) winner,
+  else on a fallback cost: SGM's P1 flattens the aggregated curve and locks fits on it to integers.
 * :func:`soft_argmin_local`: a differentiable estimate from a softmax over the 2 r + 1 hypotheses around
   the winner (a full-range soft-argmin is biased by multi-modal costs).
 * :func:`uniqueness` and :func:`left_right_check` reject ambiguous and occluded pixels.
@@ -17,9 +19,17 @@ from typing import Literal
 
 import torch
 
-from prismstereo.errors import OptionError, check_option, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 
-__all__ = ["Subpixel", "winner_take_all", "subpixel_refine", "soft_argmin_local", "uniqueness", "left_right_check"]
+__all__ = [
+    "Subpixel",
+    "winner_take_all",
+    "subpixel_refine",
+    "subpixel_refine_guarded",
+    "soft_argmin_local",
+    "uniqueness",
+    "left_right_check",
+]
 
 Subpixel = Literal["equiangular", "parabola"]
 
@@ -73,6 +83,50 @@ def subpixel_refine(cost: torch.Tensor, index: torch.Tensor, method: Subpixel = 
     return index.to(cost.dtype) + delta
 
 
+def subpixel_refine_guarded(
+    cost: torch.Tensor,
+    index: torch.Tensor,
+    fallback: torch.Tensor | None = None,
+    method: Subpixel = "equiangular",
+) -> torch.Tensor:
+    """:func:`subpixel_refine` on ``cost`` where it has a strict local minimum at the winner, else on
+    ``fallback`` (or no refinement).
+
+    Meant for winners chosen on an aggregated cost (SGM): the fit on a lightly aggregated local cost is
+    accurate (no pixel locking) where that cost agrees with the winner; where it does not (its own minimum
+    is elsewhere, or it is flat), clamping its fit to +-0.5 would push the estimate away, so the fit on the
+    aggregated cost (``fallback``) is used there.
+
+    Args:
+        cost: (B, D, H, W) local cost.
+        index: (B, 1, H, W) long winners.
+        fallback: (B, D, H, W) cost for the other pixels (e.g. the aggregated one); None keeps them integer.
+        method: 'equiangular' or 'parabola'.
+
+    Returns:
+        (B, 1, H, W) fractional index, dtype of ``cost``.
+
+    Raises:
+        ShapeError: bad shapes. OptionError: unknown method.
+
+    Example:
+        >>> local = torch.tensor([2.0, 0.0, 1.0, 3.0]).view(1, 4, 1, 1)
+        >>> flat = torch.tensor([2.0, 0.0, 0.0, 3.0]).view(1, 4, 1, 1)
+        >>> one = torch.ones(1, 1, 1, 1, dtype=torch.long)
+        >>> float(subpixel_refine_guarded(local, one)), float(subpixel_refine_guarded(flat, one))
+        (1.25, 1.0)
+    """
+    check_shape(cost, ["B", "D", "H", "W"], "cost")
+    check_shape(index, ["B", 1, "H", "W"], "index")
+    check_option(method, ("equiangular", "parabola"), "method")
+    if fallback is not None and fallback.shape != cost.shape:
+        raise ShapeError(f"fallback {tuple(fallback.shape)} must have the cost's shape {tuple(cost.shape)}")
+    cm, c0, cp = _neighbours(cost, index)
+    agrees = (cm > c0) & (cp > c0)
+    other = index.to(cost.dtype) if fallback is None else subpixel_refine(fallback, index, method)
+    return torch.where(agrees, subpixel_refine(cost, index, method), other)
+
+
 def soft_argmin_local(
     cost: torch.Tensor, index: torch.Tensor | None = None, radius: int = 2, temperature: float = 1.0
 ) -> torch.Tensor:
@@ -91,7 +145,7 @@ def soft_argmin_local(
 
     Example:
         >>> c = torch.tensor([4.0, 1.0, 1.0, 4.0]).view(1, 4, 1, 1)
-        >>> float(soft_argmin_local(c, radius=1, temperature=0.5))
+        >>> round(float(soft_argmin_local(c, radius=1, temperature=0.5)), 2)
         1.5
     """
     check_shape(cost, ["B", "D", "H", "W"], "cost")

@@ -2,15 +2,16 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
-from prismstereo.matching import box_filter, sgm_aggregate
+from prismstereo.matching import box_filter, sgm_aggregate, sgm_aggregate_guided
 from prismstereo.matching.rectified import MatchOptions, match_rectified, right_view_volume
 from tests.matching.test_cost_select import shifted_pair
 
 F64 = torch.float64
 
 
-def naive_path(cost, p1, p2, dx, dy):
-    """Direct transcription of the SGM recursion for one direction (reference implementation)."""
+def naive_path(cost, p1, p2, dx, dy, guide=None, edge=None):
+    """Direct transcription of the SGM recursion for one direction (reference implementation); with a
+    guide, P2 of the step q -> p is max(p1, p2 / (1 + max_c |guide_p - guide_q| / edge))."""
     b, d, h, w = cost.shape
     out = torch.zeros_like(cost)
     xs = range(w) if dx >= 0 else range(w - 1, -1, -1)
@@ -24,7 +25,11 @@ def naive_path(cost, p1, p2, dx, dy):
                     out[0, k, y, x] = c
                     continue
                 prev = out[0, :, py, px]
-                cands = [prev[k], prev.min() + p2]
+                jump = p2
+                if guide is not None:
+                    step = float((guide[0, :, y, x] - guide[0, :, py, px]).abs().max())
+                    jump = max(p1, p2 / (1 + step / edge))
+                cands = [prev[k], prev.min() + jump]
                 if k > 0:
                     cands.append(prev[k - 1] + p1)
                 if k < d - 1:
@@ -45,6 +50,33 @@ def test_sgm_matches_reference_recursion():
     torch.testing.assert_close(sgm_aggregate(cost, 0.3, 1.1, 2), expected2)
 
 
+def test_guided_sgm_matches_reference_recursion():
+    gen = torch.Generator().manual_seed(1)
+    cost = torch.rand(1, 5, 5, 6, generator=gen, dtype=F64)
+    guide = torch.rand(1, 3, 5, 6, generator=gen, dtype=F64)
+    diagonals = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
+    expected = sum(naive_path(cost, 0.2, 1.5, dx, dy, guide, 0.1) for dx, dy in diagonals)
+    torch.testing.assert_close(sgm_aggregate_guided(cost, guide, 0.2, 1.5, 0.1, 8), expected)
+    # a uniform guide gives the constant-P2 aggregation
+    torch.testing.assert_close(sgm_aggregate_guided(cost, torch.zeros(1, 1, 5, 6, dtype=F64), 0.2, 1.5, 0.1, 4),
+                               sgm_aggregate(cost, 0.2, 1.5, 4))
+
+
+def test_guided_sgm_keeps_a_step_at_an_edge():
+    # strong evidence for hypothesis 1 on the left, weak evidence for 6 on the right: a constant P2 lets the
+    # left side spread into the right one (fattening); with the jump cheap across the guide's edge it stops
+    d, h, w = 8, 12, 24
+    hyp = torch.arange(d, dtype=F64).view(1, d, 1, 1)
+    column = torch.arange(w).view(1, 1, 1, w)
+    cost = torch.where(column < 12, (hyp - 1).abs().clamp(max=1), 0.02 * (hyp - 6).abs().clamp(max=1))
+    cost = cost.expand(1, d, h, w).contiguous()
+    guide = (column >= 12).to(F64).expand(1, 3, h, w)
+    smooth = sgm_aggregate(cost, 0.05, 1.0, 8).argmin(1)
+    guided = sgm_aggregate_guided(cost, guide, 0.05, 1.0, 0.01, 8).argmin(1)
+    assert (smooth[..., 12:] == 6).float().mean() < 0.7
+    assert (guided[..., :12] == 1).all() and (guided[..., 12:] == 6).all()
+
+
 def test_sgm_errors():
     with pytest.raises(OptionError, match="directions must be one of"):
         sgm_aggregate(torch.rand(1, 3, 4, 4), 0.1, 0.2, 6)
@@ -52,6 +84,15 @@ def test_sgm_errors():
         sgm_aggregate(torch.rand(1, 3, 4, 4), 0.5, 0.2)
     with pytest.raises(OptionError, match="positive odd int"):
         box_filter(torch.rand(1, 3, 4, 4), 2)
+    cost, guide = torch.rand(1, 3, 4, 4), torch.rand(1, 1, 4, 4)
+    with pytest.raises(OptionError, match="edge must be > 0"):
+        sgm_aggregate_guided(cost, guide, 0.1, 0.2, 0.0)
+    with pytest.raises(OptionError, match="need 0 <= p1 <= p2"):
+        sgm_aggregate_guided(cost, guide, 0.5, 0.2, 0.1)
+    with pytest.raises(OptionError, match="directions must be one of"):
+        sgm_aggregate_guided(cost, guide, 0.1, 0.2, 0.1, 3)
+    with pytest.raises(ShapeError, match="must match the cost"):
+        sgm_aggregate_guided(cost, torch.rand(1, 1, 4, 5), 0.1, 0.2, 0.1)
 
 
 def test_right_view_volume():
@@ -99,3 +140,57 @@ def test_match_errors():
         MatchOptions(aggregation="mgm")
     with pytest.raises(OptionError, match="box must be a positive odd int"):
         MatchOptions(box=4)
+    with pytest.raises(OptionError, match="median must be a positive odd int"):
+        MatchOptions(median=0)
+    with pytest.raises(OptionError, match="subpixel_window must be a positive odd int"):
+        MatchOptions(subpixel_window=2)
+    with pytest.raises(OptionError, match="census_threshold must be >= 0"):
+        MatchOptions(census_threshold=-0.01)
+    with pytest.raises(OptionError, match="p2_edge must be > 0 or None"):
+        MatchOptions(p2_edge=0.0)
+    with pytest.raises(OptionError, match="Unknown out_of_range 'clamp'"):
+        MatchOptions(out_of_range="clamp")
+
+
+def step_pair():
+    """Background at disparity 3, a foreground strip (left columns 80..119) at disparity 11."""
+    bg_l, bg_r = shifted_pair(3.0, h=40, w=150, seed=3)
+    fg_l, _ = shifted_pair(11.0, h=40, w=150, seed=4)
+    left, right = bg_l.clone(), bg_r.clone()
+    left[..., 80:120] = fg_l[..., 80:120]
+    right[..., 69:109] = fg_l[..., 80:120]
+    return left, right
+
+
+def test_fill_gives_occluded_pixels_the_background():
+    left, right = step_pair()
+    res = match_rectified(left, right, 16)
+    assert res.disparity.dtype == F64 and res.filled.dtype == torch.bool
+    assert not (res.valid & res.filled).any()
+    assert (res.valid | res.filled).all()  # dense
+    band = res.disparity[..., 5:-5, 73:79]  # occluded background, rejected by the left-right check
+    assert res.filled[..., 5:-5, 73:79].float().mean() > 0.9
+    err = (band - 3.0).abs()
+    assert err.median() < 0.3 and err.quantile(0.9) < 1.0  # background, not the foreground's 11
+    off = match_rectified(left, right, 16, MatchOptions(fill=False))
+    assert not off.filled.any() and not off.valid[..., 5:-5, 73:79].float().mean() > 0.2
+
+
+def test_left_border_takes_the_disparity_of_its_right():
+    # columns u < 6.4 have no match in the right image: with out-of-range hypotheses replicating the last
+    # in-range cost SGM carries the disparity into them, the range check rejects them and the fill
+    # completes them; with the worst cost they get small in-range disparities (6 px off)
+    left, right = shifted_pair(6.4, h=48, w=140, seed=2)
+    res = match_rectified(left, right, 16)
+    assert res.filled[..., :6].all() and not res.valid[..., :6].any()
+    assert (res.disparity[..., 8:-8, :7] - 6.4).abs().max() < 0.5
+    worst = match_rectified(left, right, 16, MatchOptions(out_of_range="worst"))
+    assert (worst.disparity[..., 8:-8, :7] - 6.4).abs().max() > 3
+
+
+def test_match_rectified_dtype_and_colour():
+    left, right = shifted_pair(4.0, h=32, w=80, seed=6, channels=3)
+    for opts in (MatchOptions(), MatchOptions(grey=False, p2_edge=None, median=1, census_threshold=0.0)):
+        res = match_rectified(left.float(), right.float(), 8, opts)
+        assert res.disparity.dtype == torch.float32
+        assert (res.disparity[..., 6:-6, 10:-6] - 4.0).abs().median() < 0.1

@@ -1,0 +1,74 @@
+import pytest
+import torch
+
+from prismstereo import OptionError, ShapeError
+from prismstereo.matching import fill_background, median_filter, subpixel_refine, subpixel_refine_guarded
+
+F64 = torch.float64
+
+
+def test_median_filter_removes_outliers_and_keeps_ramps():
+    ramp = torch.arange(12, dtype=F64).view(1, 1, 1, 12).expand(2, 1, 10, 12).clone() * 0.5
+    noisy = ramp.clone()
+    noisy[0, 0, 3, 4] = 40.0  # isolated spikes
+    noisy[0, 0, 7, 8] = -3.0
+    noisy[1, 0, 5, 5] = 11.0
+    out = median_filter(noisy, 5)
+    assert out.dtype == F64
+    torch.testing.assert_close(out[..., 2:-2, 2:-2], ramp[..., 2:-2, 2:-2])  # a linear ramp is a fixed point
+    assert median_filter(noisy, 1) is noisy
+
+
+def test_median_filter_ignores_invalid_pixels():
+    d = torch.tensor([[1.0, 2.0, 100.0, 3.0, 4.0]]).view(1, 1, 1, 5)
+    ok = torch.tensor([[True, True, False, True, True]]).view(1, 1, 1, 5)
+    out = median_filter(d, 5, ok)
+    # column 1 sees valid 1, 2, 3 -> 2; column 3 sees 2, 3, 4 -> 3; even counts take the lower middle value
+    assert out.flatten().tolist() == [1.0, 2.0, 100.0, 3.0, 3.0]
+    none = torch.zeros_like(ok)
+    assert torch.equal(median_filter(d, 3, none), d)
+
+
+def test_median_filter_errors():
+    d = torch.rand(1, 1, 4, 4)
+    with pytest.raises(OptionError, match="window must be a positive odd int"):
+        median_filter(d, 4)
+    with pytest.raises(ShapeError, match="disparity must have shape"):
+        median_filter(torch.rand(1, 2, 4, 4))
+    with pytest.raises(ShapeError, match="valid must be a bool tensor"):
+        median_filter(d, 3, torch.ones(1, 1, 4, 4))
+
+
+def test_fill_background_takes_the_lower_neighbour():
+    # background 3, an occluded band (invalid) left of a foreground at 9, the left border invalid too
+    d = torch.tensor([0.0, 0.0, 3.0, 3.0, 0.0, 0.0, 9.0, 9.0, 0.0]).view(1, 1, 1, 9).repeat(2, 1, 3, 1)
+    ok = d > 0
+    ok[1, :, 1] = False  # a row without valid pixels stays unfilled
+    out, filled = fill_background(d.to(F64), ok)
+    assert out.dtype == F64
+    assert out[0, 0, 0].tolist() == [3.0, 3.0, 3.0, 3.0, 3.0, 3.0, 9.0, 9.0, 9.0]
+    assert filled[0, 0, 0].tolist() == [True, True, False, False, True, True, False, False, True]
+    assert not filled[1, 0, 1].any() and torch.equal(out[1, 0, 1], d[1, 0, 1].to(F64))
+
+
+def test_fill_background_errors():
+    d = torch.rand(1, 1, 4, 4)
+    with pytest.raises(ShapeError, match="valid must be a bool tensor"):
+        fill_background(d, None)
+    with pytest.raises(ShapeError, match="valid must be a bool tensor"):
+        fill_background(d, torch.ones(1, 1, 4, 5, dtype=torch.bool))
+
+
+def test_subpixel_refine_guarded():
+    x = torch.arange(8, dtype=F64).view(1, 8, 1, 1)
+    local = torch.cat([(x - 3.3).abs(), (x - 3.3).abs().clamp(max=0.3)], dim=-1)  # the second one is flat
+    aggregated = ((x - 3.0).abs() * 5).expand(1, 8, 1, 2)
+    index = torch.full((1, 1, 1, 2), 3, dtype=torch.long)
+    out = subpixel_refine_guarded(local, index, aggregated)
+    assert float(out[0, 0, 0, 0]) == pytest.approx(3.3)  # the local fit where it agrees with the winner
+    assert float(out[0, 0, 0, 1]) == float(subpixel_refine(aggregated, index)[0, 0, 0, 1])  # fallback
+    assert float(subpixel_refine_guarded(local, index)[0, 0, 0, 1]) == 3.0  # no fallback: integer
+    with pytest.raises(ShapeError, match="fallback"):
+        subpixel_refine_guarded(local, index, aggregated[..., :1])
+    with pytest.raises(OptionError, match="Unknown method 'cubic'"):
+        subpixel_refine_guarded(local, index, method="cubic")
