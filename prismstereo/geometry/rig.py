@@ -27,7 +27,7 @@ import torch
 
 from prismstereo.errors import RigError
 
-__all__ = ["BiPrismRig", "RigParameters", "as_parameters", "thesis_setup1", "thesis_setup2"]
+__all__ = ["BiPrismRig", "RigParameters", "as_parameters", "thesis_setup1", "thesis_setup2", "PRESETS", "load_rig"]
 
 _REQUIRED = (
     "alpha_deg",
@@ -448,3 +448,21 @@ def thesis_setup2() -> BiPrismRig:
         image_width=1024,
         image_height=768,
     )
+
+
+PRESETS = {"thesis_setup1": thesis_setup1, "thesis_setup2": thesis_setup2}
+
+
+def load_rig(source: str | Path) -> BiPrismRig:
+    """A rig from a JSON file path or a preset name (``thesis_setup1``, ``thesis_setup2``).
+
+    Raises:
+        RigError: missing file, invalid JSON or an invalid rig.
+
+    Example:
+        >>> load_rig("thesis_setup2").focal_length_mm
+        8.0
+    """
+    if str(source) in PRESETS:
+        return PRESETS[str(source)]()
+    return BiPrismRig.from_json(source)

@@ -199,3 +199,15 @@ def test_apex_column_moves_with_offset():
     assert rig.apex_column == pytest.approx(511.5 + 25.0 / 0.00465 * 3.0 / 170.0)
     assert rig.reference_width == 607 == rig.parameters().reference_width  # columns u < 606.37
     assert thesis_setup1().reference_width == 512 == thesis_setup1().parameters(dtype=torch.float64).reference_width
+
+
+def test_load_rig_from_preset_name_or_json_path(tmp_path):
+    from prismstereo.geometry.rig import PRESETS, load_rig
+
+    assert set(PRESETS) == {"thesis_setup1", "thesis_setup2"}
+    assert load_rig("thesis_setup2") == thesis_setup2()
+    path = tmp_path / "rig.json"
+    thesis_setup1().replace(prism_offset_x_mm=1.5).to_json(path)
+    assert load_rig(path).prism_offset_x_mm == 1.5
+    with pytest.raises(RigError, match="rig file not found"):
+        load_rig(tmp_path / "missing.json")

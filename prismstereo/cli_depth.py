@@ -1,0 +1,209 @@
+"""The ``prismstereo depth`` subcommand: depth maps (and point clouds) of bi-prism captures.
+
+Parses nothing itself beyond its own arguments and only calls the library: reading and size-checking the
+images, building :class:`~prismstereo.model.PrismStereo` once, running it in batches on the chosen backend
+and writing .npy / 16-bit .png (+ preview) / .ply outputs without ever overwriting an input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import importlib
+import math
+import sys
+from pathlib import Path
+from typing import NamedTuple
+
+import torch
+
+from prismstereo.errors import PrismStereoError
+from prismstereo.geometry.rig import BiPrismRig, load_rig
+
+__all__ = ["add_depth_parser"]
+
+DEPTH_FORMATS = ("npy", "png")
+BACKENDS = ("torch", "onnx")
+
+
+class _DepthTarget(NamedTuple):
+    """Where one image's results go: the depth file, its preview (png format) and its point cloud (--ply)."""
+
+    depth: Path
+    preview: Path | None
+    ply: Path | None
+
+
+def _depth_targets(images: list[Path], out: Path, fmt: str | None, ply: bool) -> list[_DepthTarget]:
+    """Output paths of ``prismstereo depth`` (OUT a .npy/.png file for one image, else a directory), checked
+    so that no two outputs collide and no output overwrites an input image."""
+    suffix = out.suffix.lower()
+    if suffix in (".npy", ".png") and not out.is_dir():
+        if len(images) > 1:
+            raise PrismStereoError(f"{len(images)} images: --out must be a directory, got {out}")
+        if fmt is not None and fmt != suffix[1:]:
+            raise PrismStereoError(f"--format {fmt} contradicts --out {out}")
+        fmt, stems = suffix[1:], [(out.parent, out.stem, out)]
+    else:
+        if out.exists() and not out.is_dir():
+            raise PrismStereoError(f"--out {out} exists and is not a directory")
+        if suffix and not out.is_dir():
+            raise PrismStereoError(f"--out must end in .npy or .png (one image) or be a directory, got {out}")
+        fmt = fmt or "npy"
+        stems = [(out, image.stem, out / f"{image.stem}.{fmt}") for image in images]
+    targets = [
+        _DepthTarget(path, folder / f"{stem}_preview.png" if fmt == "png" else None,
+                     folder / f"{stem}.ply" if ply else None)
+        for folder, stem, path in stems
+    ]
+    inputs = {image.resolve(): image for image in images}
+    written: dict[Path, Path] = {}
+    for image, target in zip(images, targets, strict=True):
+        for path in target:
+            if path is None:
+                continue
+            if path.resolve() in inputs:
+                raise PrismStereoError(f"--out would overwrite the input image {inputs[path.resolve()]}")
+            if path.resolve() in written:
+                raise PrismStereoError(f"{written[path.resolve()]} and {image} would both write {path}")
+            written[path.resolve()] = image
+    return targets
+
+
+def _onnx_export():
+    """The ``prismstereo.export`` module, or a clear error while this version has no ONNX export."""
+    try:
+        return importlib.import_module("prismstereo.export")
+    except ModuleNotFoundError as exc:
+        if exc.name != "prismstereo.export":
+            raise PrismStereoError(f"--backend onnx needs {exc.name}, which is not installed") from exc
+        raise PrismStereoError("--backend onnx is not available yet: this version has no ONNX export "
+                               "(prismstereo.export); use --backend torch") from exc
+
+
+@functools.lru_cache(maxsize=1)
+def _onnx_runner(model: torch.nn.Module):
+    """The ONNX runtime session of ``model``, built once per invocation."""
+    make = getattr(_onnx_export(), "onnx_session", None)
+    if make is None:
+        raise PrismStereoError("--backend onnx is not available yet: prismstereo.export has no onnx_session(); "
+                               "use --backend torch")
+    return make(model)
+
+
+def _run_backend(name: str, model, batch: torch.Tensor):
+    """Depth of a (B, C, H, W) batch by backend ``name``: ``torch`` runs the model, ``onnx`` the exported graph
+    (``prismstereo.export.onnx_session(model)`` must return a callable batch -> (depth, valid, confidence,
+    index) like :class:`~prismstereo.model.DepthResult`). Returns a DepthResult."""
+    from prismstereo.model import DepthResult
+
+    if name == "torch":
+        with torch.inference_mode():
+            return model(batch)
+    if name == "onnx":
+        return DepthResult(*_onnx_runner(model)(batch))
+    raise PrismStereoError(f"unknown backend {name!r}. Choose from: {', '.join(BACKENDS)}")
+
+
+def _read_capture(path: Path, rig: BiPrismRig) -> torch.Tensor:
+    """A full sensor image (C, H, W) in [0, 1], checked against the rig's sensor size."""
+    from prismstereo.io import read_image
+
+    image = read_image(path)
+    h, w = image.shape[-2:]
+    if (w, h) != (rig.image_width, rig.image_height):
+        raise PrismStereoError(f"image {path} is {w}x{h} px but the rig's sensor is "
+                               f"{rig.image_width}x{rig.image_height} px")
+    return image
+
+
+def _write_depth(target: _DepthTarget, depth: torch.Tensor, valid: torch.Tensor, png_scale: float) -> str:
+    """Write one depth map (H, W_ref) to its target; returns a note for the summary line."""
+    from prismstereo.io import write_depth_npy, write_depth_png, write_depth_preview
+
+    if target.depth.suffix.lower() == ".npy":
+        write_depth_npy(target.depth, depth, valid)
+        return ""
+    clipped = write_depth_png(target.depth, depth, valid, png_scale)
+    write_depth_preview(target.preview, depth, valid)
+    note = f", preview {target.preview.name}"
+    if clipped:
+        note += (f"; warning: {clipped} pixels deeper than {65535 / png_scale:.3f} mm clipped to 65535"
+                 " (see --png-scale)")
+    return note
+
+
+def _cmd_depth(args: argparse.Namespace) -> int:
+    import kornia
+    from tqdm import tqdm
+
+    from prismstereo.depth import check_z_range, default_z_range, depth_to_points, write_ply
+    from prismstereo.model import PrismStereo
+
+    rig = load_rig(args.rig)
+    images = [Path(p) for p in args.images]
+    targets = _depth_targets(images, Path(args.out), args.format, args.ply)
+    if args.batch_size < 1:
+        raise PrismStereoError(f"--batch-size must be >= 1, got {args.batch_size}")
+    if args.hypotheses is not None and args.hypotheses < 2:
+        raise PrismStereoError(f"--hypotheses must be >= 2, got {args.hypotheses}")
+    if not (math.isfinite(args.png_scale) and args.png_scale > 0):
+        raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
+    if args.backend == "onnx":
+        _onnx_export()  # fail before any work while the ONNX export does not exist
+    for image in images:  # fail early, before any work or output, on an unreadable or wrong-sized image
+        _read_capture(image, rig)
+    if args.z_range is None:
+        z_range, how = default_z_range(rig), "default for this rig"
+    else:
+        z_range, how = check_z_range(rig, args.z_range), "--z-range"
+    model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses).eval()
+    print(f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.num_hypotheses} hypotheses, "
+          f"backend {args.backend}")
+    w_ref = rig.reference_width
+    with tqdm(total=len(images), unit="image", file=sys.stderr, desc="depth") as bar:
+        for start in range(0, len(images), args.batch_size):
+            chunk = list(range(start, min(start + args.batch_size, len(images))))
+            captures = [_read_capture(images[i], rig) for i in chunk]
+            grey = torch.stack([c if c.shape[0] == 1 else kornia.color.rgb_to_grayscale(c) for c in captures])
+            res = _run_backend(args.backend, model, grey)
+            if args.ply:
+                with torch.inference_mode():
+                    points = depth_to_points(rig, res.depth.to(torch.float64), res.valid)
+            for k, i in enumerate(chunk):
+                depth, valid = res.depth[k, 0], res.valid[k, 0]
+                note = _write_depth(targets[i], depth, valid, args.png_scale)
+                if args.ply:
+                    count = write_ply(targets[i].ply, points[k], colors=captures[k][:, :, :w_ref])
+                    note += f", {targets[i].ply.name} ({count} points)"
+                ok = valid & torch.isfinite(depth)
+                median = f"median {float(depth[ok].median()):.1f} mm" if bool(ok.any()) else "no valid depth"
+                tqdm.write(f"wrote {targets[i].depth}: {ok.float().mean():.1%} of reference pixels valid, "
+                           f"{median}{note}", file=sys.stdout)
+                bar.update(1)
+    return 0
+
+
+def add_depth_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``prismstereo depth`` on the main parser's subcommands."""
+    depth = sub.add_parser("depth", help="metric depth of the reference (left) half of bi-prism captures")
+    depth.add_argument("images", metavar="IMAGE", nargs="+",
+                       help="full sensor image(s): 8/16-bit grey or RGB PNG/TIFF/JPEG of the rig's size")
+    depth.add_argument("--rig", required=True, help="rig JSON file or preset name")
+    depth.add_argument("--out", required=True,
+                       help="OUT.npy (float32 mm, NaN invalid) or OUT.png (16-bit mm x 256, 0 invalid, plus "
+                            "OUT_preview.png) for one image; a directory (created) of <stem>.npy/.png otherwise")
+    depth.add_argument("--z-range", type=float, nargs=2, default=None, metavar=("ZMIN", "ZMAX"),
+                       help="depths searched (mm); default from the rig's common field of view "
+                            "(prismstereo.depth.default_z_range)")
+    depth.add_argument("--hypotheses", type=int, default=None, metavar="N",
+                       help="number of depth hypotheses (default: neighbours <= 1 px apart)")
+    depth.add_argument("--backend", choices=BACKENDS, default="torch", help="inference backend")
+    depth.add_argument("--batch-size", type=int, default=1, metavar="B", help="images processed together")
+    depth.add_argument("--format", choices=DEPTH_FORMATS, default=None,
+                       help="output format when --out is a directory (default npy)")
+    depth.add_argument("--png-scale", type=float, default=256.0, metavar="S",
+                       help="16-bit PNG levels per mm (default 256: 1/256 mm steps, at most 255.996 mm)")
+    depth.add_argument("--ply", action="store_true",
+                       help="also write <stem>.ply point clouds (camera frame, mm, coloured by the reference half)")
+    depth.set_defaults(func=_cmd_depth)
