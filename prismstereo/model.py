@@ -297,8 +297,8 @@ class PrismStereo(nn.Module):
         else:
             f = self.factor
             s_c, ok_c, _ = self.full_search(self._downsample(ref), self._downsample(other),
-                                                 self.coarse_coefficients, self.coarse_other_valid,
-                                                 self.coarse_hypotheses, False)
+                                            self.coarse_coefficients, self.coarse_other_valid,
+                                            self.coarse_hypotheses, False)
             s0 = F.interpolate(s_c, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
             ok0 = F.interpolate(ok_c.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
             offsets = torch.arange(-self.band, self.band + 1, device=ref.device).to(ref.dtype).view(1, -1, 1, 1)

@@ -130,8 +130,7 @@ def _exact(p: RigParameters, u: torch.Tensor, v: torch.Tensor, s: torch.Tensor, 
 
 
 def _solve(values: torch.Tensor, n_s: int, n_v: int, n_u: int) -> torch.Tensor:
-    like = values
-    inv = [torch.linalg.inv(chebyshev_basis(_nodes(n, like), n)) for n in (n_s, n_v, n_u)]
+    inv = [torch.linalg.inv(chebyshev_basis(_nodes(n, values), n)) for n in (n_s, n_v, n_u)]
     return torch.einsum("at,bj,ci,tjik->abck", inv[0], inv[1], inv[2], values)
 
 

@@ -441,14 +441,13 @@ def project_points(
         >>> proj.uv.shape, proj.valid
         (torch.Size([1, 2]), tensor([True]))
     """
-    uv, converged = solve_projection(rig, points, half, iterations, initial_uv)
-    w, h = _size_of(rig)
-    on_sensor = (uv[..., 0] >= -0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= h - 0.5)
+    check_floating(points, "points")
+    p = as_parameters(rig, points)
+    uv, converged = solve_projection(p, points, half, iterations, initial_uv)
+    on_sensor = (
+        (uv[..., 0] >= -0.5) & (uv[..., 0] <= p.width - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= p.height - 0.5)
+    )
     return Projection(uv, converged & on_sensor)
-
-
-def _size_of(rig: BiPrismRig | RigParameters) -> tuple[int, int]:
-    return (rig.image_width, rig.image_height) if isinstance(rig, BiPrismRig) else (rig.width, rig.height)
 
 
 def solve_projection(
