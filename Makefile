@@ -19,7 +19,7 @@ demo: $(STAMP)
 	$(VENV)/bin/prismstereo demo
 
 test: $(STAMP)
-	$(VENV)/bin/ruff check prismstereo tests benchmarks
+	$(VENV)/bin/ruff check prismstereo tests benchmarks export
 	$(PY) -m pytest -q
 
 lint: $(STAMP)

@@ -1,7 +1,7 @@
 """The ``prismstereo`` command line. It only parses arguments, calls the library and prints.
 
 Subcommands (this release): ``rig show``, ``rig preset``, ``render``, ``fov``, ``design``, ``match``, ``depth``,
-``demo``; ``--version``. The ``depth`` subcommand lives in :mod:`prismstereo.cli_depth`.
+``export``, ``demo``; ``--version``. The ``depth`` subcommand lives in :mod:`prismstereo.cli_depth`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 import torch
 
 from prismstereo import __version__
-from prismstereo.cli_depth import add_depth_parser
+from prismstereo.cli_depth import add_depth_parser, add_export_parser
 from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
 from prismstereo.geometry.rig import PRESETS, BiPrismRig, load_rig
@@ -386,6 +386,7 @@ def build_parser() -> argparse.ArgumentParser:
     match.set_defaults(func=_cmd_match)
 
     add_depth_parser(sub)
+    add_export_parser(sub)
 
     demo = sub.add_parser("demo", help="run the main job on a built-in default")
     demo.add_argument("--rig", default="thesis_setup1", help="rig JSON file or preset name")

@@ -1,4 +1,5 @@
-"""The ``prismstereo depth`` subcommand: depth maps (and point clouds) of bi-prism captures.
+"""The ``prismstereo depth`` and ``prismstereo export`` subcommands: depth maps (and point clouds) of bi-prism
+captures, and the ONNX export of the same depth model.
 
 Parses nothing itself beyond its own arguments and only calls the library: reading and size-checking the
 images, building :class:`~prismstereo.model.PrismStereo` once, running it in batches on the chosen backend
@@ -8,10 +9,9 @@ and writing .npy / 16-bit .png (+ preview) / .ply outputs without ever overwriti
 from __future__ import annotations
 
 import argparse
-import functools
-import importlib
 import math
 import sys
+import time
 from pathlib import Path
 from typing import NamedTuple
 
@@ -20,7 +20,7 @@ import torch
 from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.rig import BiPrismRig, load_rig
 
-__all__ = ["add_depth_parser"]
+__all__ = ["add_depth_parser", "add_export_parser"]
 
 DEPTH_FORMATS = ("npy", "png")
 BACKENDS = ("torch", "onnx")
@@ -70,39 +70,35 @@ def _depth_targets(images: list[Path], out: Path, fmt: str | None, ply: bool) ->
     return targets
 
 
-def _onnx_export():
-    """The ``prismstereo.export`` module, or a clear error while this version has no ONNX export."""
-    try:
-        return importlib.import_module("prismstereo.export")
-    except ModuleNotFoundError as exc:
-        if exc.name != "prismstereo.export":
-            raise PrismStereoError(f"--backend onnx needs {exc.name}, which is not installed") from exc
-        raise PrismStereoError("--backend onnx is not available yet: this version has no ONNX export "
-                               "(prismstereo.export); use --backend torch") from exc
-
-
-@functools.lru_cache(maxsize=1)
-def _onnx_runner(model: torch.nn.Module):
-    """The ONNX runtime session of ``model``, built once per invocation."""
-    make = getattr(_onnx_export(), "onnx_session", None)
-    if make is None:
-        raise PrismStereoError("--backend onnx is not available yet: prismstereo.export has no onnx_session(); "
-                               "use --backend torch")
-    return make(model)
-
-
 def _run_backend(name: str, model, batch: torch.Tensor):
-    """Depth of a (B, C, H, W) batch by backend ``name``: ``torch`` runs the model, ``onnx`` the exported graph
-    (``prismstereo.export.onnx_session(model)`` must return a callable batch -> (depth, valid, confidence,
-    index) like :class:`~prismstereo.model.DepthResult`). Returns a DepthResult."""
-    from prismstereo.model import DepthResult
-
+    """Depth of a (B, C, H, W) batch by backend ``name``: ``torch`` runs the model, ``onnx`` its exported graph
+    in onnxruntime (exported once per rig and options into the cache, :func:`prismstereo.export.onnx_session`).
+    Returns an object with ``depth`` and ``valid`` (B, 1, H, W_ref)."""
     if name == "torch":
         with torch.inference_mode():
             return model(batch)
     if name == "onnx":
-        return DepthResult(*_onnx_runner(model)(batch))
+        from prismstereo.export import onnx_session
+
+        return onnx_session(model, channels=batch.shape[1])(batch)
     raise PrismStereoError(f"unknown backend {name!r}. Choose from: {', '.join(BACKENDS)}")
+
+
+def _build_model(args: argparse.Namespace, rig: BiPrismRig):
+    """The PrismStereo of ``--z-range`` / ``--hypotheses`` (shared by ``depth`` and ``export``), with a line
+    describing its range."""
+    from prismstereo.depth import check_z_range, default_z_range
+    from prismstereo.model import PrismStereo
+
+    if args.hypotheses is not None and args.hypotheses < 2:
+        raise PrismStereoError(f"--hypotheses must be >= 2, got {args.hypotheses}")
+    if args.z_range is None:
+        z_range, how = default_z_range(rig), "default for this rig"
+    else:
+        z_range, how = check_z_range(rig, args.z_range), "--z-range"
+    model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses).eval()
+    return model, (f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.num_hypotheses} "
+                   "hypotheses")
 
 
 def _read_capture(path: Path, rig: BiPrismRig) -> torch.Tensor:
@@ -137,29 +133,19 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     import kornia
     from tqdm import tqdm
 
-    from prismstereo.depth import check_z_range, default_z_range, depth_to_points, write_ply
-    from prismstereo.model import PrismStereo
+    from prismstereo.depth import depth_to_points, write_ply
 
     rig = load_rig(args.rig)
     images = [Path(p) for p in args.images]
     targets = _depth_targets(images, Path(args.out), args.format, args.ply)
     if args.batch_size < 1:
         raise PrismStereoError(f"--batch-size must be >= 1, got {args.batch_size}")
-    if args.hypotheses is not None and args.hypotheses < 2:
-        raise PrismStereoError(f"--hypotheses must be >= 2, got {args.hypotheses}")
     if not (math.isfinite(args.png_scale) and args.png_scale > 0):
         raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
-    if args.backend == "onnx":
-        _onnx_export()  # fail before any work while the ONNX export does not exist
     for image in images:  # fail early, before any work or output, on an unreadable or wrong-sized image
         _read_capture(image, rig)
-    if args.z_range is None:
-        z_range, how = default_z_range(rig), "default for this rig"
-    else:
-        z_range, how = check_z_range(rig, args.z_range), "--z-range"
-    model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses).eval()
-    print(f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.num_hypotheses} hypotheses, "
-          f"backend {args.backend}")
+    model, summary = _build_model(args, rig)
+    print(f"{summary}, backend {args.backend}")
     w_ref = rig.reference_width
     with tqdm(total=len(images), unit="image", file=sys.stderr, desc="depth") as bar:
         for start in range(0, len(images), args.batch_size):
@@ -207,3 +193,39 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--ply", action="store_true",
                        help="also write <stem>.ply point clouds (camera frame, mm, coloured by the reference half)")
     depth.set_defaults(func=_cmd_depth)
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from prismstereo.export import OnnxDepth, describe, export_onnx
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".onnx":
+        raise PrismStereoError(f"--out must end in .onnx, got {out}")
+    rig = load_rig(args.rig)
+    model, summary = _build_model(args, rig)
+    print(summary)
+    t0 = time.perf_counter()
+    export_onnx(model, out, channels=args.channels, opset=args.opset)
+    seconds = time.perf_counter() - t0
+    runner = OnnxDepth(out)  # proves the file loads in onnxruntime with all graph optimisations
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, exported in {seconds:.1f} s, onnxruntime load "
+          f"{runner.load_seconds:.1f} s): {describe(runner.metadata)}")
+    return 0
+
+
+def add_export_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``prismstereo export`` on the main parser's subcommands."""
+    from prismstereo.export import DEFAULT_OPSET
+
+    export = sub.add_parser("export", help="export the depth model of a rig to ONNX (for onnxruntime)")
+    export.add_argument("--rig", required=True, help="rig JSON file or preset name")
+    export.add_argument("--out", required=True, help="the .onnx file to write")
+    export.add_argument("--z-range", type=float, nargs=2, default=None, metavar=("ZMIN", "ZMAX"),
+                        help="depths searched (mm); default as for `prismstereo depth`")
+    export.add_argument("--hypotheses", type=int, default=None, metavar="N",
+                        help="number of depth hypotheses (default: neighbours <= 1 px apart)")
+    export.add_argument("--opset", type=int, default=DEFAULT_OPSET, metavar="K",
+                        help=f"ONNX opset (16-20, default {DEFAULT_OPSET})")
+    export.add_argument("--channels", type=int, choices=(1, 3), default=1,
+                        help="input channels of the graph (default 1: grey, as `prismstereo depth` feeds it)")
+    export.set_defaults(func=_cmd_export)

@@ -76,10 +76,58 @@ def _basis_grid(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
     return (basis @ coefficients.reshape(n, -1)).view(1, -1, h, w, 2)
 
 
-def _evaluate(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
-    """(N, H, W, 2) per-pixel polynomials at per-pixel coordinates s (B, J, H, W) -> (B, J, H, W, 2)."""
-    basis = chebyshev_basis(s.to(coefficients), coefficients.shape[0])  # (B, J, H, W, N)
-    return torch.einsum("bjhwn,nhwk->bjhwk", basis, coefficients)
+_TABLE_SIZES = (17, 33, 65)  # candidate numbers of tabulated sweep coordinates (2^k + 1)
+_TABLE_TOLERANCE_PX = 1e-3
+
+
+def _sweep_table(coefficients: torch.Tensor, tolerance_px: float = _TABLE_TOLERANCE_PX) -> torch.Tensor:
+    """Tabulate per-pixel sweep polynomials (N, H, W, 2) at K uniform sweep coordinates -> (K, H, W, 2), with
+    the smallest K of ``_TABLE_SIZES`` whose local cubics (:func:`_local_cubic`) stay within ``tolerance_px``
+    of the polynomials (checked on a pixel subset at 64 random coordinates; float64)."""
+    n = coefficients.shape[0]
+    probe = coefficients[:, ::8, ::8].to(torch.float64)
+    s = torch.rand(64, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 2 - 1
+    exact = _basis_grid(probe, s)[0]  # (64, h, w, 2)
+    for k in _TABLE_SIZES:
+        nodes = torch.linspace(-1.0, 1.0, k, dtype=torch.float64)
+        small = _basis_grid(probe, nodes)[0]
+        coef, u = _local_cubic(small, s.view(-1, 1, 1, 1).expand(-1, 1, *probe.shape[1:3]).contiguous())
+        error = (_cubic_at(coef, u) - exact.unsqueeze(1)).norm(dim=-1).amax()
+        if error <= tolerance_px or k == _TABLE_SIZES[-1]:
+            break
+    basis = chebyshev_basis(nodes.to(coefficients), n)  # (K, N)
+    return (basis @ coefficients.reshape(n, -1)).view(k, *coefficients.shape[1:])
+
+
+def _local_cubic(table: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The cubic through the 4 table entries around each pixel's sweep coordinate.
+
+    Args:
+        table: (K, H, W, 2) positions at K uniform coordinates over [-1, 1].
+        s: (B, 1, H, W) coordinates.
+
+    Returns:
+        (coef (4, B, 1, H, W, 2) monomial coefficients in the local variable u, u (B, 1, H, W) of s), with
+        u = 0 and 1 at the two table entries bracketing s (u in [-1, 2] near the ends).
+    """
+    k, h, w, _ = table.shape
+    b = s.shape[0]
+    t = (s + 1.0) * ((k - 1) / 2)
+    i = t.detach().floor().clamp(1, k - 3)
+    u = t - i
+    pixel = torch.arange(h * w, device=s.device).view(1, 1, h, w)
+    base = i.long() * (h * w) + pixel  # (B, 1, H, W) flat index of entry i
+    flat = table.reshape(k * h * w, 2)
+    pm, p0, p1, p2 = (flat.index_select(0, (base + o * h * w).reshape(-1)).view(b, 1, h, w, 2) for o in (-1, 0, 1, 2))
+    # Lagrange cubic through u = -1, 0, 1, 2 in monomial form
+    coef = torch.stack([p0, p1 - pm / 3 - p0 / 2 - p2 / 6, (pm + p1) / 2 - p0, (p2 - pm) / 6 + (p0 - p1) / 2])
+    return coef, u
+
+
+def _cubic_at(coef: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """Evaluate :func:`_local_cubic`'s coefficients (4, B, 1, H, W, 2) at u (B, J, H, W) -> (B, J, H, W, 2)."""
+    x = u.unsqueeze(-1)
+    return coef[0] + x * (coef[1] + x * (coef[2] + x * coef[3]))
 
 
 def _similarity(best: torch.Tensor, cost: str, channels: int, window: int) -> torch.Tensor:
@@ -95,7 +143,7 @@ def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0) -> in
 
     Example:
         >>> from prismstereo.depth.range import default_z_range
-from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
+        >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
         >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 700.0))
         >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1)
         >>> coef = sweep_coefficients(fit, uv.double()).permute(2, 0, 1, 3)
@@ -123,9 +171,15 @@ class PrismStereo(nn.Module):
             differences between the halves), 'sad' or 'zncc' (:mod:`prismstereo.matching.sweep_cost`).
         fine_cost: cost of the fine band, default 'zncc' (sub-pixel accurate with the parabola fit).
         window: census / ZNCC window (odd).
+        census_threshold: census bits count neighbours darker than the centre by more than this. The default
+            0.4 / 255 is no multiple of 1 / (255 f^2) (5 does not divide 2 f^2 for any f not a multiple of 5), so
+            differences of 8-bit pixels and of their f x f coarse averages never sit exactly on it: equal
+            neighbours count as "not darker" robustly and torch and onnxruntime agree bit for bit (0.5 / 255
+            is such a multiple at f = 2 and 4 and made the coarse levels of the two runtimes differ).
         box: box aggregation window of the coarse (or single) level.
         fine_box: box window of the fine band.
-        aggregation: 'sgm' (8-direction semi-global after the box) or 'box'.
+        aggregation: 'sgm' (semi-global after the box) or 'box'.
+        directions: SGM scan directions, 2, 4 or 8.
         p1, p2: SGM penalties in units of the box-averaged cost.
         coarse_factor: f, the coarse level's downsampling (1 = one full-resolution level); default: the
             power of two keeping >= 48 coarse hypotheses per ... see :meth:`default_coarse_factor`.
@@ -156,9 +210,11 @@ class PrismStereo(nn.Module):
         cost: Cost = "census",
         fine_cost: Cost = "zncc",
         window: int = 5,
+        census_threshold: float = 0.4 / 255,
         box: int = 5,
         fine_box: int = 7,
         aggregation: Literal["sgm", "box"] = "sgm",
+        directions: int = 8,
         p1: float = 1.0,
         p2: float = 8.0,
         coarse_factor: int | None = None,
@@ -201,7 +257,12 @@ class PrismStereo(nn.Module):
             raise OptionError(f"band must be an int >= 1, got {band!r}")
         self.fine_cost = fine_cost
         self.cost, self.window, self.box, self.fine_box = cost, window, box, fine_box
-        self.aggregation, self.p1, self.p2 = aggregation, p1, p2
+        if not (isinstance(census_threshold, (int, float)) and census_threshold >= 0):
+            raise OptionError(f"census_threshold must be a number >= 0, got {census_threshold!r}")
+        self.census_threshold = float(census_threshold)
+        if directions not in (2, 4, 8):
+            raise OptionError(f"directions must be 2, 4 or 8, got {directions!r}")
+        self.aggregation, self.directions, self.p1, self.p2 = aggregation, directions, p1, p2
         self.refinement, self.min_confidence, self.min_uniqueness = refinement, min_confidence, min_uniqueness
         self.occlusion_tolerance = occlusion_tolerance
         self.num_hypotheses = num_hypotheses
@@ -216,19 +277,41 @@ class PrismStereo(nn.Module):
         self.register_buffer("other_valid", other_valid)
         self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, num_hypotheses, dtype=f64),
                                                       fit.z_range).float())
-        self.register_buffer("coefficients", self._normalised(fine, 1, h, w_o).float())
-        self.register_buffer("pixel_coefficients", fine.float())
+        # the fine level and the match output evaluate the sweep from a table of positions at K coordinates
+        # by local cubics (<= 1e-3 px from the polynomials; 4 gathers + a cubic instead of N basis terms);
+        # the single-level search keeps the polynomials (one matrix product for all hypotheses)
+        self.register_buffer("table", _sweep_table(fine).float())
+        if coarse_factor == 1:
+            self.register_buffer("coefficients", self._normalised(fine, 1).float())
         if coarse_factor > 1:
             fc = coarse_factor
             hc, wc = math.ceil(h / fc), math.ceil(w_ref / fc)
             uvc = (torch.stack(torch.meshgrid(torch.arange(wc, dtype=f64), torch.arange(hc, dtype=f64),
                                               indexing="xy"), -1) + 0.5) * fc - 0.5
             coarse = sweep_coefficients(fit, uvc).permute(2, 0, 1, 3)
-            self.register_buffer("coarse_coefficients", self._normalised(coarse, fc, h, w_o).float())
+            self.register_buffer("coarse_coefficients", self._normalised(coarse, fc).float())
             self.coarse_hypotheses = sweep_hypotheses(coarse / fc)
             pad = (0, math.ceil(w_o / fc) * fc - w_o, 0, hc * fc - h)
             valid_c = F.avg_pool2d(F.pad(other_valid.to(f64)[None, None], pad), fc)[0, 0] > 0.999
             self.register_buffer("coarse_other_valid", valid_c)
+
+    def config(self) -> dict[str, object]:
+        """The constructor's options as resolved (defaults filled in), JSON-ready; with the rig
+        (:meth:`BiPrismRig.to_dict`) they rebuild the same model: ``PrismStereo(rig, **model.config())``.
+
+        Example:
+            >>> model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0))
+            >>> PrismStereo(model.rig, **model.config()).num_hypotheses == model.num_hypotheses
+            True
+        """
+        return {
+            "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses, "cost": self.cost,
+            "fine_cost": self.fine_cost, "window": self.window, "census_threshold": self.census_threshold,
+            "box": self.box, "fine_box": self.fine_box, "aggregation": self.aggregation,
+            "directions": self.directions, "p1": self.p1, "p2": self.p2, "coarse_factor": self.factor,
+            "band": self.band, "refinement": self.refinement, "min_confidence": self.min_confidence,
+            "min_uniqueness": self.min_uniqueness, "occlusion_tolerance": self.occlusion_tolerance,
+        }
 
     @staticmethod
     def default_coarse_factor(num_hypotheses: int, height: int, width: int) -> int:
@@ -245,16 +328,20 @@ class PrismStereo(nn.Module):
             f *= 2
         return f
 
-    def _normalised(self, coefficients: torch.Tensor, factor: int, h: int, w_o: int) -> torch.Tensor:
+    def _normalised(self, coefficients: torch.Tensor, factor: int) -> torch.Tensor:
         """Map pixel-unit polynomials to grid_sample coordinates of the other half (padded to a multiple of
-        ``factor``, align_corners=False): the map is affine, so only T_0's coefficient gets the offset."""
-        split = self.split.split
+        ``factor``): the map is affine, so only T_0's coefficient gets the offset."""
+        scale, offset = self._grid_map(coefficients, factor)
+        return torch.cat([coefficients[:1] * scale + offset, coefficients[1:] * scale])
+
+    def _grid_map(self, like: torch.Tensor, factor: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
+        """(scale, offset) (2,) mapping full-sensor pixel positions to grid_sample coordinates (align_corners=
+        False) of the other half, padded to a multiple of ``factor`` (the coarse level's box downsampling)."""
+        h, w_o = self.split.height, self.split.width - self.split.split
         width, height = math.ceil(w_o / factor) * factor, math.ceil(h / factor) * factor
-        scale = coefficients.new_tensor([2.0 / width, 2.0 / height])
-        out = coefficients * scale
-        offset = coefficients.new_tensor([(1.0 - 2.0 * split) / width - 1.0, 1.0 / height - 1.0])
-        out[0] = out[0] + offset
-        return out
+        scale = like.new_tensor([2.0 / width, 2.0 / height])
+        offset = like.new_tensor([(1.0 - 2.0 * self.split.split) / width - 1.0, 1.0 / height - 1.0])
+        return scale, offset
 
     def _downsample(self, image: torch.Tensor) -> torch.Tensor:
         f = self.factor
@@ -264,7 +351,7 @@ class PrismStereo(nn.Module):
 
     def _aggregate(self, cost: torch.Tensor, box: int) -> tuple[torch.Tensor, torch.Tensor]:
         local = box_filter(cost, box)
-        return local, sgm_aggregate(local, self.p1, self.p2, 8) if self.aggregation == "sgm" else local
+        return local, sgm_aggregate(local, self.p1, self.p2, self.directions) if self.aggregation == "sgm" else local
 
     def _select(self, local: torch.Tensor, total: torch.Tensor, index: torch.Tensor, cost: str, final: bool):
         method = self.refinement if final and self.refinement is not None else None
@@ -276,8 +363,9 @@ class PrismStereo(nn.Module):
                     other_valid: torch.Tensor, num: int, final: bool):
         """One level over the whole range: (s (B, 1, H, W), valid, confidence) at that level's resolution."""
         s_values = torch.linspace(-1.0, 1.0, num, dtype=reference.dtype, device=reference.device)
-        warped = warp_slices(other, _basis_grid(coefficients.to(reference), s_values), other_valid)
-        local, total = self._aggregate(sweep_cost(reference, warped, self.cost, self.window), self.box)
+        warped = warp_slices(other, _basis_grid(coefficients.to(reference), s_values), other_valid, shared=True)
+        volume = sweep_cost(reference, warped, self.cost, self.window, self.census_threshold)
+        local, total = self._aggregate(volume, self.box)
         index, _ = winner_take_all(total.detach())
         refined = self._select(local, total, index, self.cost, final)
         confidence = _similarity(local.gather(1, index), self.cost, reference.shape[1], self.window)
@@ -303,9 +391,12 @@ class PrismStereo(nn.Module):
             ok0 = F.interpolate(ok_c.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
             offsets = torch.arange(-self.band, self.band + 1, device=ref.device).to(ref.dtype).view(1, -1, 1, 1)
             s_band = (s0.detach() + offsets * step).clamp(-1.0, 1.0)  # (B, J, H, W)
-            grid = _evaluate(self.coefficients.to(ref), s_band)
-            warped = warp_slices(other, grid, self.other_valid)
-            local = box_filter(sweep_cost(ref, warped, self.fine_cost, self.window), self.fine_box)
+            coef, u0 = _local_cubic(self.table.to(ref), s0.detach().clamp(-1.0, 1.0))
+            coef = self._normalised(coef, 1)  # grid_sample coordinates: the cubic's constant term gets the offset
+            grid = _cubic_at(coef, u0 + (s_band - s0.detach()) * ((self.table.shape[0] - 1) / 2))
+            warped = warp_slices(other, grid, self.other_valid, shared=False)
+            volume = sweep_cost(ref, warped, self.fine_cost, self.window, self.census_threshold)
+            local = box_filter(volume, self.fine_box)
             j, _ = winner_take_all(local.detach())  # no SGM: the coarse level already regularised the band
             refined = self._select(local, local, j, self.fine_cost, True)
             inside = (j > 0) & (j < 2 * self.band)
@@ -315,7 +406,8 @@ class PrismStereo(nn.Module):
         s = s.clamp(-1.0, 1.0)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
-        match = _evaluate(self.pixel_coefficients.to(s), s).squeeze(1).permute(0, 3, 1, 2)
+        coef, u = _local_cubic(self.table.to(s), s)
+        match = _cubic_at(coef, u).squeeze(1).permute(0, 3, 1, 2)
         valid = ok & self.reference_valid & (confidence >= self.min_confidence)
         if self.occlusion_tolerance is not None:
             valid = valid & self.visible(match, depth, valid)

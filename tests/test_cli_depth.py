@@ -1,6 +1,5 @@
 """``prismstereo depth`` on a 128 x 96 version of setup 1 (rendered fronto-parallel planes)."""
 
-import importlib.util
 import subprocess
 import sys
 
@@ -136,10 +135,33 @@ def test_errors(scene, tmp_path, capsys, args, message):
     assert (scene / "far.png").exists() and read_image(scene / "far.png").shape == (1, 96, 128)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("prismstereo.export") is not None, reason="the ONNX export exists")
-def test_onnx_backend_not_available_yet(scene, tmp_path, capsys):
-    assert _run(scene, scene / "far.png", "--out", tmp_path / "d.npy", "--backend", "onnx") == 2
-    assert "--backend onnx is not available yet" in capsys.readouterr().err
+def test_onnx_backend_matches_torch(scene, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("PRISMSTEREO_CACHE", str(tmp_path / "cache"))
+    a, b = tmp_path / "torch.npy", tmp_path / "onnx.npy"
+    assert _run(scene, scene / "far.png", "--out", a, "--z-range", 400, 700) == 0
+    assert _run(scene, scene / "far.png", "--out", b, "--z-range", 400, 700, "--backend", "onnx") == 0
+    assert "backend onnx" in capsys.readouterr().out
+    assert len(list((tmp_path / "cache" / "onnx").glob("*.onnx"))) == 1  # exported once, cached
+    da, db = np.load(a), np.load(b)
+    both = np.isfinite(da) & np.isfinite(db)
+    assert both.mean() > 0.5 and (np.isfinite(da) == np.isfinite(db)).mean() >= 0.999
+    assert np.abs(da[both] / db[both] - 1).max() <= 1e-4
+
+
+def test_export_writes_a_loadable_model(scene, tmp_path, capsys):
+    from prismstereo.export import OnnxDepth
+
+    out = tmp_path / "m.onnx"
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(out), "--z-range", "400", "700",
+                 "--hypotheses", "24", "--opset", "17"]) == 0
+    text = capsys.readouterr().out
+    assert f"wrote {out}" in text and "input (B, 1, 96, 128), 24 hypotheses over 400.0-700.0 mm" in text
+    runner = OnnxDepth(out)
+    assert runner.metadata["prismstereo.opset"] == "17" and runner.input_shape == (1, 96, 128)
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(tmp_path / "m.txt")]) == 2
+    assert "--out must end in .onnx" in capsys.readouterr().err
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(out), "--opset", "12"]) == 2
+    assert "opset must be" in capsys.readouterr().err
 
 
 def test_console_script_error_has_no_traceback(scene, tmp_path):

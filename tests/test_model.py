@@ -3,7 +3,7 @@ import torch
 
 from prismstereo import OptionError, RigError, ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.epipolar import exact_sampling_grid
-from prismstereo.epipolar.sweep import depth_to_sweep
+from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients
 from prismstereo.model import PrismStereo, sweep_hypotheses
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, step_scene
 from tests.conftest import scaled_rig
@@ -31,9 +31,14 @@ def test_hypotheses_are_at_most_one_pixel_apart(setup1_model):
     ok = grid.valid[1:] & grid.valid[:-1]
     step = (grid.uv[1:] - grid.uv[:-1]).norm(dim=-1)[ok]
     assert 0.9 < step.max() <= 1.0
-    assert sweep_hypotheses(model.pixel_coefficients.double(), 2.0) < model.num_hypotheses
+    fit = fit_sweep(rig, model.z_range)
+    uv = torch.stack(torch.meshgrid(torch.arange(rig.reference_width, dtype=torch.float64),
+                                    torch.arange(rig.image_height, dtype=torch.float64), indexing="xy"), -1)
+    fine = sweep_coefficients(fit, uv).permute(2, 0, 1, 3)
+    assert sweep_hypotheses(fine, 1.0) == model.num_hypotheses
+    assert sweep_hypotheses(fine, 2.0) < model.num_hypotheses
     with pytest.raises(OptionError, match="max_step_px must be > 0"):
-        sweep_hypotheses(model.pixel_coefficients, 0.0)
+        sweep_hypotheses(fine, 0.0)
 
 
 def test_match_output_is_the_exact_correspondence(setup1_model):
@@ -111,7 +116,9 @@ def test_soft_argmin_refinement_passes_gradients_to_the_image():
 def test_model_buffers_batch_and_errors(setup1_model):
     rig, model = setup1_model
     buffers = dict(model.named_buffers())
-    assert {"coefficients", "pixel_coefficients", "reference_valid", "other_valid", "depths"} <= set(buffers)
+    assert {"table", "reference_valid", "other_valid", "depths"} <= set(buffers)
+    assert ("coefficients" in buffers) == (model.factor == 1)
+    assert ("coarse_coefficients" in buffers) == (model.factor > 1)
     assert model.depths.shape == (model.num_hypotheses,)
     x = torch.rand(2, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():
@@ -130,6 +137,10 @@ def test_model_buffers_batch_and_errors(setup1_model):
         PrismStereo(rig, (400.0, 800.0), coarse_factor=64)
     with pytest.raises(OptionError, match="fine_box must be a positive odd int"):
         PrismStereo(rig, (400.0, 800.0), fine_box=4)
+    with pytest.raises(OptionError, match="directions must be 2, 4 or 8"):
+        PrismStereo(rig, (400.0, 800.0), directions=6)
+    with pytest.raises(OptionError, match="census_threshold must be a number >= 0"):
+        PrismStereo(rig, (400.0, 800.0), census_threshold=-0.1)
     with pytest.raises(RigError, match="beyond the prism's back plane"):
         PrismStereo(rig, (100.0, 800.0))
     assert PrismStereo.default_coarse_factor(382, 768, 512) == 4

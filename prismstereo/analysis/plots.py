@@ -27,7 +27,12 @@ __all__ = ["new_axes", "plot_fov_top_view", "plot_fov_angles", "plot_curves"]
 
 
 def new_axes(figsize: tuple[float, float] = (7.0, 5.0)) -> Any:
-    """A fresh ``Axes`` on a pyplot-free ``Figure`` (no display backend needed)."""
+    """A fresh ``Axes`` on a pyplot-free ``Figure`` (no display backend needed).
+
+    Example:
+        >>> new_axes((4.0, 3.0)).figure.get_size_inches().tolist()
+        [4.0, 3.0]
+    """
     from matplotlib.figure import Figure
 
     return Figure(figsize=figsize, layout="constrained").subplots()

@@ -279,7 +279,7 @@ def band_residual(exact: SamplingGrid, bands: ShiftBands) -> BandResidual:
         >>> small = thesis_setup1().downscaled(8)
         >>> d = depth_hypotheses(300.0, 1200.0, 16)
         >>> res = band_residual(exact_sampling_grid(small, d), shift_bands(small, d, 4))
-        >>> res.max_px < 0.05
+        >>> res.max_px < 0.1 and res.mean_px < 0.01
         True
     """
     if exact.uv.shape[0] != bands.shifts.shape[0]:
@@ -309,7 +309,7 @@ def bands_for_tolerance(
     Example:
         >>> small = thesis_setup1().downscaled(8)
         >>> sb, res = bands_for_tolerance(small, depth_hypotheses(300.0, 1200.0, 16))
-        >>> res.max_px < 0.05
+        >>> res.max_px < 0.1 and res.mean_px < 0.01
         True
     """
     exact = exact_sampling_grid(rig, depths, rows)

@@ -109,7 +109,7 @@ def sweep_to_depth(s: torch.Tensor, z_range: torch.Tensor) -> torch.Tensor:
     """Depth Z (mm) at sweep coordinate s, the inverse of :func:`depth_to_sweep`.
 
     Example:
-        >>> sweep_to_depth(torch.tensor([-1.0, 1.0]), torch.tensor([300.0, 1200.0]))
+        >>> sweep_to_depth(torch.tensor([-1.0, 1.0]), torch.tensor([300.0, 1200.0])).round()
         tensor([ 300., 1200.])
     """
     w0, w1 = 1.0 / z_range[0], 1.0 / z_range[1]

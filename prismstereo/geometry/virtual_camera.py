@@ -123,9 +123,9 @@ def closest_point_to_rays(origins: torch.Tensor, directions: torch.Tensor) -> to
         (*, 3) the least-squares centre.
 
     Example:
-        >>> o = torch.tensor([[1., 0., 0.], [0., 1., 0.]]); d = torch.tensor([[0., 0., 1.], [0., 0., 1.]])
-        >>> closest_point_to_rays(torch.cat([o, -o]), torch.cat([d, d]))[:2]
-        tensor([0., 0.])
+        >>> o = torch.tensor([[1., 0., 0.], [0., 1., 0.]]); d = torch.tensor([[-1., 0., 1.], [0., -1., 1.]])
+        >>> closest_point_to_rays(o, torch.nn.functional.normalize(d, dim=-1)).round(decimals=4)
+        tensor([0., 0., 1.])
     """
     check_shape(origins, ["*", "N", 3], "origins")
     check_shape(directions, ["*", "N", 3], "directions")

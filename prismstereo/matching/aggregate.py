@@ -57,6 +57,8 @@ def _scan(
     order = range(len(slices) - 1, -1, -1) if reverse else range(len(slices))
     out: list[torch.Tensor] = [cost.new_empty(0)] * len(slices)
     prev = None
+    rows = torch.arange(cost.shape[2 if dim == 3 else 3], device=cost.device)
+    starts = (rows >= shift) if shift >= 0 else (rows < rows.shape[0] + shift)
     for i in order:
         c = slices[i]
         if prev is None:
@@ -64,15 +66,13 @@ def _scan(
         else:
             has_prev = None
             if shift:  # diagonal: row y continues the path of row y - shift in the previous column
-                prev = torch.roll(prev, shifts=shift, dims=-1)
-                rows = torch.arange(prev.shape[-1], device=prev.device)
-                has_prev = (rows >= shift) if shift > 0 else (rows < prev.shape[-1] + shift)
-                prev = torch.where(has_prev, prev, c)  # rows without a predecessor start afresh
+                prev = torch.roll(prev, shifts=shift, dims=-1)  # rows without a predecessor are reset below
+                has_prev = starts
             m = prev.amin(dim=1, keepdim=True)  # amin: min(dim) also computes indices, ~1000x slower here
-            up = F.pad(prev[:, 1:], (0, 0, 0, 1), value=float("inf"))
-            down = F.pad(prev[:, :-1], (0, 0, 1, 0), value=float("inf"))
+            # min(L(d - 1), L(d + 1)): one neighbour at the ends (a single Concat in the exported graph)
+            near = torch.cat([prev[:, 1:2], torch.minimum(prev[:, :-2], prev[:, 2:]), prev[:, -2:-1]], 1)
             jump = p2 if p2s is None else p2s[i]
-            cur = c + torch.minimum(torch.minimum(prev, torch.minimum(up, down) + p1), m + jump) - m
+            cur = c + torch.minimum(torch.minimum(prev, near + p1), m + jump) - m
             if has_prev is not None:
                 cur = torch.where(has_prev, cur, c)
         out[i] = cur

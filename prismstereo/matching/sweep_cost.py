@@ -10,7 +10,8 @@ Costs (lower is better), all (B, D, H, W):
 * ``'sad'``: mean over channels of |I_ref - I_warped| per pixel (aggregate with a box afterwards);
   differentiable w.r.t. both images.
 * ``'census'``: Hamming distance between the census codes (``window`` x ``window``, one bit per neighbour
-  and channel: darker than the centre) of the reference and of each warped slice, in [0, bits].
+  and channel: darker than the centre by more than ``census_threshold``) of the reference and of each
+  warped slice, in [0, bits].
 * ``'zncc'``: 1 - zero-normalised cross-correlation over the window (grey), in [0, 2]; differentiable.
 
 Samples outside the other half or on its pixels that see nothing through the prism get the worst cost.
@@ -42,7 +43,9 @@ class Warped(NamedTuple):
     valid: torch.Tensor
 
 
-def warp_slices(other: torch.Tensor, grid: torch.Tensor, other_valid: torch.Tensor | None = None) -> Warped:
+def warp_slices(
+    other: torch.Tensor, grid: torch.Tensor, other_valid: torch.Tensor | None = None, shared: bool | None = None
+) -> Warped:
     """Sample ``other`` at a plane-sweep grid with one bilinear ``grid_sample`` call.
 
     Args:
@@ -50,6 +53,9 @@ def warp_slices(other: torch.Tensor, grid: torch.Tensor, other_valid: torch.Tens
         grid: (B or 1, D, H, W, 2) sample positions normalised for ``grid_sample`` (align_corners=False:
             -1 and +1 are the outer edges of the first and last pixel).
         other_valid: optional (H_o, W_o) bool, pixels of the other half that see through the prism.
+        shared: the grid (batch 1) serves every image: the images are stacked in the channel axis of one
+            ``grid_sample`` call instead of copying the grid per image. None: when the grid's batch is 1. Pass
+            it explicitly in code that is traced for ONNX export (a traced batch of 1 would fix the choice).
 
     Returns:
         Warped.
@@ -66,7 +72,6 @@ def warp_slices(other: torch.Tensor, grid: torch.Tensor, other_valid: torch.Tens
     if g.shape[0] not in (1, b):
         raise ShapeError(f"grid batch {g.shape[0]} must be 1 or the image batch {b}")
     _, d, h, w, _ = g.shape
-    g = g.expand(b, -1, -1, -1, -1)
     # border padding: windows reaching past the edge see replicated pixels instead of black, which keeps
     # matches near the other half's edges; the sample itself must lie between the first and last pixel
     # centres (all bilinear taps inside) on pixels that see through the prism
@@ -75,10 +80,18 @@ def warp_slices(other: torch.Tensor, grid: torch.Tensor, other_valid: torch.Tens
     eps = 1e-3  # px: a centre exactly on the last pixel must not fall out by rounding
     inside = (x >= -eps) & (x <= w_o - 1 + eps) & (y >= -eps) & (y <= h_o - 1 + eps)
     stacked = other if other_valid is None else torch.cat([other, other_valid.to(other).expand(b, 1, -1, -1)], 1)
-    sampled = F.grid_sample(stacked, g.reshape(b, d * h, w, 2), mode="bilinear", padding_mode="border",
-                            align_corners=False).view(b, -1, d, h, w)
+    if shared is None:
+        shared = g.shape[0] == 1
+    if shared:  # one grid for the batch: the images go to the channel axis (no copy of the grid per image)
+        if g.shape[0] != 1:
+            raise ShapeError(f"a shared grid must have batch 1, got {g.shape[0]}")
+        sampled = F.grid_sample(stacked.reshape(1, -1, h_o, w_o), g.reshape(1, d * h, w, 2), mode="bilinear",
+                                padding_mode="border", align_corners=False).view(b, -1, d, h, w)
+    else:
+        sampled = F.grid_sample(stacked, g.expand(b, -1, -1, -1, -1).reshape(b, d * h, w, 2), mode="bilinear",
+                                padding_mode="border", align_corners=False).view(b, -1, d, h, w)
     valid = inside if other_valid is None else inside & (sampled[:, c] > 0.999)
-    return Warped(sampled[:, :c], valid)
+    return Warped(sampled[:, :c], valid.expand(b, -1, -1, -1))
 
 
 def worst_cost(cost: Cost, channels: int, window: int) -> float:
@@ -92,41 +105,49 @@ def worst_cost(cost: Cost, channels: int, window: int) -> float:
     return {"sad": 1.0, "zncc": 2.0, "census": float(channels * (window * window - 1))}[cost]
 
 
+_VAR_FLOOR = 1e-5  # (0.8 / 255)^2: below the variance of 8-bit read noise of 1 level
+
+
 def _box(volume: torch.Tensor, window: int) -> torch.Tensor:
     return F.avg_pool2d(volume, window, stride=1, padding=window // 2, count_include_pad=False)
 
 
-def _census(reference: torch.Tensor, warped: torch.Tensor, window: int) -> torch.Tensor:
+def _census(reference: torch.Tensor, warped: torch.Tensor, window: int, threshold: float) -> torch.Tensor:
     r = window // 2
     h, w = reference.shape[-2:]
-    ref = reference.unsqueeze(2)  # (B, C, 1, H, W)
+    centre_r = reference.unsqueeze(2) - threshold  # (B, C, 1, H, W)
+    centre_w = warped - threshold
     pad_ref = F.pad(reference, (r, r, r, r), mode="replicate").unsqueeze(2)
     pad_w = F.pad(warped, (r, r, r, r, 0, 0), mode="replicate")
-    total = torch.zeros_like(warped[:, 0])
+    count = None
     for dy in range(window):
         for dx in range(window):
             if (dy, dx) == (r, r):
                 continue
-            bit_r = (pad_ref[..., dy:dy + h, dx:dx + w] < ref).to(warped.dtype)
-            bit_w = (pad_w[..., dy:dy + h, dx:dx + w] < warped).to(warped.dtype)
-            total = total + (bit_r - bit_w).abs().sum(1)
-    return total
+            differ = torch.logical_xor(pad_ref[..., dy:dy + h, dx:dx + w] < centre_r,
+                                       pad_w[..., dy:dy + h, dx:dx + w] < centre_w).to(warped.dtype)
+            count = differ if count is None else count + differ
+    return count.sum(1) if count.shape[1] > 1 else count.squeeze(1)  # over channels once, at the end
 
 
 def _zncc(reference: torch.Tensor, warped: torch.Tensor, window: int) -> torch.Tensor:
-    ref = reference.mean(1, keepdim=True)  # (B, 1, H, W)
-    wrp = warped.mean(1)  # (B, D, H, W)
+    # centred on 0.5 (ZNCC is offset-invariant): E[x^2] - E[x]^2 then cancels far less in float32, which keeps
+    # torch and onnxruntime within ~1e-6 of each other on low-contrast windows
+    ref = reference.mean(1, keepdim=True) - 0.5  # (B, 1, H, W)
+    wrp = warped.mean(1) - 0.5  # (B, D, H, W)
     mean_r = _box(ref, window)
     var_r = (_box(ref * ref, window) - mean_r * mean_r).clamp_min(0)
     mean_w = _box(wrp, window)
     var_w = (_box(wrp * wrp, window) - mean_w * mean_w).clamp_min(0)
     cross = _box(wrp * ref, window) - mean_w * mean_r
-    ncc = cross / torch.sqrt(var_r * var_w + 1e-12)
+    # regularised by ~ the variance of 8-bit noise: windows without texture (e.g. the black pixels outside the
+    # prism's view) get NCC ~ 0 instead of a ratio of rounding errors (torch and onnxruntime differed by 0.02)
+    ncc = cross / torch.sqrt((var_r + _VAR_FLOOR) * (var_w + _VAR_FLOOR))
     return 1.0 - ncc.clamp(-1, 1)
 
 
 def sweep_cost(
-    reference: torch.Tensor, warped: Warped, cost: Cost = "census", window: int = 5
+    reference: torch.Tensor, warped: Warped, cost: Cost = "census", window: int = 5, census_threshold: float = 0.0
 ) -> torch.Tensor:
     """Per-pixel matching cost of the reference half against each warped slice.
 
@@ -135,12 +156,15 @@ def sweep_cost(
         warped: :func:`warp_slices` of the other half, image (B, C, D, H, W).
         cost: 'sad', 'zncc' or 'census'.
         window: census / ZNCC window (odd; census >= 3).
+        census_threshold: a census bit is set where the neighbour is darker than the centre by more than this
+            (>= 0). A threshold that is not a multiple of 1/255 keeps 8-bit ties (equal neighbours) from
+            flipping bits on rounding differences between runtimes (torch vs onnxruntime).
 
     Returns:
         (B, D, H, W) cost, the worst value (:func:`worst_cost`) where the sample is not valid.
 
     Raises:
-        OptionError: unknown cost or bad window. ShapeError: reference and slices disagree.
+        OptionError: unknown cost, bad window or negative threshold. ShapeError: reference and slices disagree.
 
     Example:
         >>> ref = torch.rand(1, 1, 12, 16)
@@ -155,8 +179,10 @@ def sweep_cost(
         raise OptionError(f"window must be an odd int (>= 3 for census), got {window!r}")
     if warped.image.shape[:2] != reference.shape[:2] or warped.image.shape[-2:] != reference.shape[-2:]:
         raise ShapeError(f"reference {tuple(reference.shape)} does not match slices {tuple(warped.image.shape)}")
+    if not census_threshold >= 0:
+        raise OptionError(f"census_threshold must be >= 0, got {census_threshold}")
     if cost == "census":
-        volume = _census(reference, warped.image, window)
+        volume = _census(reference, warped.image, window, census_threshold)
     elif cost == "sad":
         volume = (reference.unsqueeze(2) - warped.image).abs().mean(1)
     else:

@@ -111,7 +111,8 @@ def render_radiance(rig: BiPrismRig, scene: Scene, supersample: int = 1, channel
     ray misses the prism are black; samples that hit nothing get the scene's background.
 
     Example:
-        >>> small = thesis_setup1().replace(image_width=64, image_height=48)
+        >>> from prismstereo.synthetic import fronto_parallel_plane
+        >>> small = thesis_setup1().downscaled(16)
         >>> render_radiance(small, fronto_parallel_plane(small, 525.0)).shape
         torch.Size([1, 48, 64])
     """
@@ -206,7 +207,8 @@ def render(
         SceneError: a surface at or before the prism's back plane, or invalid options.
 
     Example:
-        >>> small = thesis_setup1().replace(image_width=64, image_height=48)
+        >>> from prismstereo.synthetic import fronto_parallel_plane
+        >>> small = thesis_setup1().downscaled(16)
         >>> cap = render(small, fronto_parallel_plane(small, 525.0), ImageFormation(supersample=1))
         >>> cap.image.shape, cap.depth.shape
         (torch.Size([1, 1, 48, 64]), torch.Size([1, 1, 48, 64]))

@@ -54,7 +54,7 @@ def feature_size_for_depth(rig: BiPrismRig, depth_mm: float, pixels: float = 3.0
 
     Example:
         >>> round(feature_size_for_depth(thesis_setup1(), 525.0), 4)
-        0.293
+        0.2929
     """
     if depth_mm <= 0 or pixels <= 0:
         raise SceneError(f"depth_mm and pixels must be positive, got {depth_mm}, {pixels}")

@@ -25,6 +25,21 @@ def test_warp_slices_samples_columns_and_flags_outside():
     assert w2.valid[0, 1, 0].tolist() == [True] * 4 + [False, False] + [True] * 2
 
 
+def test_shared_grid_matches_per_image_grids():
+    gen = torch.Generator().manual_seed(1)
+    other = torch.rand(3, 2, 10, 16, generator=gen, dtype=torch.float64)
+    mask = torch.rand(10, 16, generator=gen) > 0.1
+    grid = _shift_grid(10, 12, 16, [0.3, 1.7, 4.2])
+    shared = warp_slices(other, grid, mask, shared=True)
+    each = warp_slices(other, grid.expand(3, -1, -1, -1, -1), mask, shared=False)
+    assert shared.image.shape == (3, 2, 3, 10, 12) and shared.valid.shape == (3, 3, 10, 12)
+    torch.testing.assert_close(shared.image, each.image)
+    assert torch.equal(shared.valid, each.valid)
+    assert warp_slices(other, grid).valid.shape == (3, 3, 10, 12)  # batch-1 grid: shared by default
+    with pytest.raises(ShapeError, match="a shared grid must have batch 1"):
+        warp_slices(other, grid.expand(3, -1, -1, -1, -1), shared=True)
+
+
 @pytest.mark.parametrize("cost", ["sad", "zncc", "census"])
 def test_true_shift_has_the_lowest_cost(cost):
     gen = torch.Generator().manual_seed(0)
@@ -34,7 +49,8 @@ def test_true_shift_has_the_lowest_cost(cost):
     vol = sweep_cost(ref, warped, cost, 5)
     assert vol.shape == (2, 5, 20, 24)
     assert (vol.argmin(1) == 2).float().mean() > 0.97
-    assert vol[:, 2].abs().max() < 1e-9
+    # exact match: 0, except ZNCC's variance floor, 1 - var / (var + 1e-5) (var ~ 1/12 for uniform noise)
+    assert vol[:, 2].abs().max() < (3e-4 if cost == "zncc" else 1e-9)
 
 
 def test_invalid_samples_get_the_worst_cost_and_errors():

@@ -1,0 +1,317 @@
+"""ONNX export of :class:`~prismstereo.model.PrismStereo` and an onnxruntime runner for the exported graph.
+
+The graph (``export_onnx``):
+
+* input ``image``: (B, C, H, W) float32 in [0, 1], the full sensor image; B dynamic, C (1 or 3), H and W
+  static (the rig's sensor).
+* outputs ``depth_mm`` (B, 1, H, W_ref) float32, ``valid`` (B, 1, H, W_ref) bool, ``confidence``
+  (B, 1, H, W_ref) float32 in [0, 1] — the reference (left) half, W_ref = the columns left of the split.
+* ``metadata_props``: ``prismstereo.version``, ``prismstereo.rig`` (the rig's JSON), ``prismstereo.config``
+  (the model's resolved options as JSON: z range, hypotheses, costs, ...), ``prismstereo.num_hypotheses``,
+  ``prismstereo.z_range_mm``, ``prismstereo.input_shape``.
+
+Everything the model precomputes for a rig (the exact sweep polynomials, the prism masks, hypotheses) is
+stored as constants, so the graph is specific to one rig, sensor size, range and option set. Exported
+with the TorchScript-based exporter (``dynamo=False``) at opset 18: it traces the model once; the
+semi-global aggregation's scan loops are unrolled (one step per coarse row / column and direction).
+
+:class:`OnnxDepth` runs such a file in an ``onnxruntime.InferenceSession`` (2 intra-op threads, 1 inter-op
+thread, all graph optimisations by default) and checks its input; :func:`onnx_session` exports a model
+once per rig and options into a cache directory and returns the cached runner.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+import warnings
+from pathlib import Path
+from typing import Any, Literal, NamedTuple
+
+import numpy as np
+import torch
+from torch import nn
+
+from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_option
+
+__all__ = [
+    "DEFAULT_OPSET",
+    "DepthGraph",
+    "ExportError",
+    "OnnxDepth",
+    "OnnxDepthResult",
+    "cache_directory",
+    "export_onnx",
+    "onnx_session",
+]
+
+DEFAULT_OPSET = 18
+INPUT_NAME = "image"
+OUTPUT_NAMES = ("depth_mm", "valid", "confidence")
+Optimization = Literal["all", "extended", "basic", "disable"]
+OPTIMIZATIONS: tuple[str, ...] = ("all", "extended", "basic", "disable")
+
+
+class ExportError(PrismStereoError, ValueError):
+    """An ONNX model cannot be exported, loaded or run."""
+
+
+class OnnxDepthResult(NamedTuple):
+    """Outputs of the exported graph, as torch tensors.
+
+    Attributes:
+        depth: (B, 1, H, W_ref) depth Z (mm) of the reference half; meaningless where not valid.
+        valid: (B, 1, H, W_ref) bool.
+        confidence: (B, 1, H, W_ref) in [0, 1].
+    """
+
+    depth: torch.Tensor
+    valid: torch.Tensor
+    confidence: torch.Tensor
+
+
+class DepthGraph(nn.Module):
+    """The exported computation: a :class:`~prismstereo.model.PrismStereo` reduced to its three graph
+    outputs ``(depth_mm, valid, confidence)``.
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> graph = DepthGraph(PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0)))
+        >>> [t.shape for t in graph(torch.rand(1, 1, 96, 128))][0]
+        torch.Size([1, 1, 96, 64])
+    """
+
+    def __init__(self, model: nn.Module) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        result = self.model(image)
+        return result.depth, result.valid, result.confidence
+
+
+def _metadata(model: nn.Module, channels: int, opset: int) -> dict[str, str]:
+    from prismstereo import __version__
+
+    rig = model.rig
+    config = model.config()
+    return {
+        "prismstereo.version": __version__,
+        "prismstereo.rig": json.dumps(rig.to_dict(), sort_keys=True),
+        "prismstereo.config": json.dumps(config, sort_keys=True),
+        "prismstereo.num_hypotheses": str(config["num_hypotheses"]),
+        "prismstereo.z_range_mm": json.dumps(config["z_range_mm"]),
+        "prismstereo.input_shape": json.dumps(["B", channels, rig.image_height, rig.image_width]),
+        "prismstereo.opset": str(opset),
+    }
+
+
+def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset: int = DEFAULT_OPSET) -> Path:
+    """Export a :class:`~prismstereo.model.PrismStereo` to an ONNX file (checked with ``onnx.checker``).
+
+    Args:
+        model: the model (its rig, range and options are baked into the graph).
+        path: the ``.onnx`` file to write (parent directories are created).
+        channels: C of the graph's input, 1 (grey) or 3 (RGB).
+        opset: ONNX opset, >= 16 (GridSample).
+
+    Returns:
+        The written path.
+
+    Raises:
+        ExportError: bad channels / opset, or the exporter or the checker failed.
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> import tempfile; out = Path(tempfile.mkdtemp()) / "m.onnx"
+        >>> export_onnx(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), out).exists()
+        True
+    """
+    import onnx
+
+    from prismstereo.model import PrismStereo
+
+    if not isinstance(model, PrismStereo):
+        raise ExportError(f"model must be a PrismStereo, got {type(model).__name__}")
+    if channels not in (1, 3):
+        raise ExportError(f"channels must be 1 or 3, got {channels!r}")
+    if not isinstance(opset, int) or not 16 <= opset <= 20:
+        raise ExportError(f"opset must be an int in 16..20 (GridSample needs >= 16), got {opset!r}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rig = model.rig
+    example = torch.rand(1, channels, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(0))
+    graph = DepthGraph(model).eval()
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")  # tracer warnings about Python ints: shapes are static by design
+        try:
+            torch.onnx.export(graph, (example,), str(path), opset_version=opset, input_names=[INPUT_NAME],
+                              output_names=list(OUTPUT_NAMES), dynamo=False,
+                              dynamic_axes={INPUT_NAME: {0: "batch"}, **{n: {0: "batch"} for n in OUTPUT_NAMES}})
+        except Exception as exc:  # the exporter raises many types; report them as one
+            raise ExportError(f"ONNX export failed: {exc}") from exc
+    proto = onnx.load(str(path))
+    # the exporter's shape inference names the outputs' height axis after the batch axis: declare them exactly
+    for output in proto.graph.output:
+        dims = output.type.tensor_type.shape.dim
+        del dims[:]
+        for size in ("batch", 1, rig.image_height, rig.reference_width):
+            dim = dims.add()
+            if isinstance(size, str):
+                dim.dim_param = size
+            else:
+                dim.dim_value = size
+    for key, value in _metadata(model, channels, opset).items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    try:
+        onnx.checker.check_model(proto)
+    except onnx.checker.ValidationError as exc:
+        raise ExportError(f"exported graph fails onnx.checker: {exc}") from exc
+    onnx.save(proto, str(path))
+    return path
+
+
+class OnnxDepth:
+    """An exported depth graph in an ``onnxruntime.InferenceSession``.
+
+    Args:
+        path: a file written by :func:`export_onnx`.
+        threads: intra-op threads (inter-op: 1).
+        optimization: onnxruntime graph optimisation level: 'all' (default), 'extended', 'basic', 'disable'.
+
+    Attributes:
+        metadata: the ``prismstereo.*`` metadata_props (str -> str).
+        input_shape: (C, H, W) the graph expects.
+        load_seconds: time to build the session.
+
+    Raises:
+        ExportError: missing file, not an ONNX model, or not exported by prismstereo.
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> import tempfile; out = Path(tempfile.mkdtemp()) / "m.onnx"
+        >>> runner = OnnxDepth(export_onnx(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), out))
+        >>> runner(torch.rand(2, 1, 48, 64)).depth.shape
+        torch.Size([2, 1, 48, 32])
+    """
+
+    def __init__(self, path: str | Path, *, threads: int = 2, optimization: Optimization = "all") -> None:
+        import onnxruntime as ort
+
+        check_option(optimization, OPTIMIZATIONS, "optimization")
+        if not isinstance(threads, int) or threads < 1:
+            raise OptionError(f"threads must be an int >= 1, got {threads!r}")
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise ExportError(f"ONNX model not found: {self.path}")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        options.inter_op_num_threads = 1
+        options.log_severity_level = 3  # the exporter's stale intermediate shape annotations only warn
+        options.graph_optimization_level = {
+            "all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL,
+            "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED,
+            "basic": ort.GraphOptimizationLevel.ORT_ENABLE_BASIC,
+            "disable": ort.GraphOptimizationLevel.ORT_DISABLE_ALL,
+        }[optimization]
+        t0 = time.perf_counter()
+        try:
+            self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise ExportError(f"onnxruntime cannot load {self.path}: {exc}") from exc
+        self.load_seconds = time.perf_counter() - t0
+        meta = self.session.get_modelmeta().custom_metadata_map
+        self.metadata = {k: v for k, v in meta.items() if k.startswith("prismstereo.")}
+        if "prismstereo.input_shape" not in self.metadata:
+            raise ExportError(f"{self.path} was not exported by prismstereo (no prismstereo.* metadata)")
+        inputs = self.session.get_inputs()
+        if len(inputs) != 1 or inputs[0].name != INPUT_NAME:
+            raise ExportError(f"{self.path} must have one input named {INPUT_NAME!r}")
+        self.input_shape = tuple(int(d) for d in json.loads(self.metadata["prismstereo.input_shape"])[1:])
+
+    def __call__(self, image: torch.Tensor | np.ndarray) -> OnnxDepthResult:
+        """Depth of a batch ``image`` (B, C, H, W) in [0, 1] (any float dtype; run in float32)."""
+        array = image.detach().cpu().numpy() if isinstance(image, torch.Tensor) else np.asarray(image)
+        if array.ndim != 4 or tuple(array.shape[1:]) != self.input_shape:
+            c, h, w = self.input_shape
+            raise ShapeError(f"image must have shape (B, {c}, {h}, {w}) for {self.path.name}, "
+                             f"got {tuple(array.shape)}")
+        if not np.issubdtype(array.dtype, np.floating):
+            raise ShapeError(f"image must be floating point in [0, 1], got dtype {array.dtype}")
+        depth, valid, confidence = self.session.run(
+            list(OUTPUT_NAMES), {INPUT_NAME: np.ascontiguousarray(array, dtype=np.float32)})
+        return OnnxDepthResult(torch.from_numpy(depth), torch.from_numpy(valid).bool(), torch.from_numpy(confidence))
+
+
+def cache_directory() -> Path:
+    """Where :func:`onnx_session` keeps exported graphs: ``$PRISMSTEREO_CACHE`` or
+    ``~/.cache/prismstereo/onnx``.
+
+    Example:
+        >>> cache_directory().name
+        'onnx'
+    """
+    root = os.environ.get("PRISMSTEREO_CACHE")
+    return Path(root) / "onnx" if root else Path.home() / ".cache" / "prismstereo" / "onnx"
+
+
+_SESSIONS: dict[tuple[str, int], OnnxDepth] = {}
+
+
+def _cache_key(model: nn.Module, channels: int, opset: int) -> str:
+    meta = _metadata(model, channels, opset)
+    return hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OPSET, threads: int = 2,
+                 cache_dir: str | Path | None = None) -> OnnxDepth:
+    """The exported graph of ``model`` in onnxruntime, exported once per rig, options, channels, opset and
+    package version (a file ``<hash>.onnx`` in ``cache_dir``, default :func:`cache_directory`) and kept per
+    process.
+
+    Args:
+        model: a :class:`~prismstereo.model.PrismStereo`.
+        channels: input channels (1 or 3).
+        opset: ONNX opset of a new export.
+        threads: onnxruntime intra-op threads.
+        cache_dir: directory of cached exports.
+
+    Returns:
+        OnnxDepth.
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> import tempfile; cache = tempfile.mkdtemp()
+        >>> model = PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0))
+        >>> onnx_session(model, cache_dir=cache) is onnx_session(model, cache_dir=cache)
+        True
+    """
+    directory = Path(cache_dir) if cache_dir is not None else cache_directory()
+    path = directory / f"{_cache_key(model, channels, opset)}.onnx"
+    key = (str(path), threads)
+    if key in _SESSIONS:
+        return _SESSIONS[key]
+    if not path.is_file():
+        partial = path.with_suffix(f".{os.getpid()}.tmp")
+        export_onnx(model, partial, channels=channels, opset=opset)
+        partial.replace(path)  # atomic: a concurrent reader never sees half a file
+    runner = OnnxDepth(path, threads=threads)
+    _SESSIONS[key] = runner
+    return runner
+
+
+def describe(metadata: dict[str, Any]) -> str:
+    """One line summarising an exported graph's metadata (for the CLI).
+
+    Example:
+        >>> describe({"prismstereo.input_shape": '["B", 1, 48, 64]', "prismstereo.num_hypotheses": "9",
+        ...           "prismstereo.z_range_mm": "[400.0, 700.0]", "prismstereo.version": "0.1.0"})
+        'input (B, 1, 48, 64), 9 hypotheses over 400.0-700.0 mm, prismstereo 0.1.0'
+    """
+    shape = ", ".join(str(d) for d in json.loads(metadata["prismstereo.input_shape"]))
+    z = json.loads(metadata["prismstereo.z_range_mm"])
+    return (f"input ({shape}), {metadata['prismstereo.num_hypotheses']} hypotheses over {z[0]:.1f}-{z[1]:.1f} mm, "
+            f"prismstereo {metadata['prismstereo.version']}")
