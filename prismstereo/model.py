@@ -34,6 +34,7 @@ from torch import nn
 
 from prismstereo.depth.range import default_z_range
 from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients, sweep_to_depth
+from prismstereo.epipolar.table import band_positions, cubic_at, local_cubic, tabulate_sweep, valid_interval
 from prismstereo.errors import OptionError, check_option, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
@@ -41,7 +42,7 @@ from prismstereo.matching.aggregate import box_filter, sgm_aggregate
 from prismstereo.matching.cost import COSTS, Cost
 from prismstereo.matching.select import soft_argmin_local, subpixel_refine, uniqueness, winner_take_all
 from prismstereo.matching.split import SplitImage
-from prismstereo.matching.sweep_cost import sweep_cost, warp_slices, worst_cost
+from prismstereo.matching.sweep_cost import Warped, sample_slices, sweep_cost, warp_slices, worst_cost
 
 __all__ = ["DepthResult", "PrismStereo", "Refinement", "sweep_hypotheses"]
 
@@ -74,60 +75,6 @@ def _basis_grid(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
     n, h, w, _ = coefficients.shape
     basis = chebyshev_basis(s.to(coefficients), n)  # (D, N)
     return (basis @ coefficients.reshape(n, -1)).view(1, -1, h, w, 2)
-
-
-_TABLE_SIZES = (17, 33, 65)  # candidate numbers of tabulated sweep coordinates (2^k + 1)
-_TABLE_TOLERANCE_PX = 1e-3
-
-
-def _sweep_table(coefficients: torch.Tensor, tolerance_px: float = _TABLE_TOLERANCE_PX) -> torch.Tensor:
-    """Tabulate per-pixel sweep polynomials (N, H, W, 2) at K uniform sweep coordinates -> (K, H, W, 2), with
-    the smallest K of ``_TABLE_SIZES`` whose local cubics (:func:`_local_cubic`) stay within ``tolerance_px``
-    of the polynomials (checked on a pixel subset at 64 random coordinates; float64)."""
-    n = coefficients.shape[0]
-    probe = coefficients[:, ::8, ::8].to(torch.float64)
-    s = torch.rand(64, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 2 - 1
-    exact = _basis_grid(probe, s)[0]  # (64, h, w, 2)
-    for k in _TABLE_SIZES:
-        nodes = torch.linspace(-1.0, 1.0, k, dtype=torch.float64)
-        small = _basis_grid(probe, nodes)[0]
-        coef, u = _local_cubic(small, s.view(-1, 1, 1, 1).expand(-1, 1, *probe.shape[1:3]).contiguous())
-        error = (_cubic_at(coef, u) - exact.unsqueeze(1)).norm(dim=-1).amax()
-        if error <= tolerance_px or k == _TABLE_SIZES[-1]:
-            break
-    basis = chebyshev_basis(nodes.to(coefficients), n)  # (K, N)
-    return (basis @ coefficients.reshape(n, -1)).view(k, *coefficients.shape[1:])
-
-
-def _local_cubic(table: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The cubic through the 4 table entries around each pixel's sweep coordinate.
-
-    Args:
-        table: (K, H, W, 2) positions at K uniform coordinates over [-1, 1].
-        s: (B, 1, H, W) coordinates.
-
-    Returns:
-        (coef (4, B, 1, H, W, 2) monomial coefficients in the local variable u, u (B, 1, H, W) of s), with
-        u = 0 and 1 at the two table entries bracketing s (u in [-1, 2] near the ends).
-    """
-    k, h, w, _ = table.shape
-    b = s.shape[0]
-    t = (s + 1.0) * ((k - 1) / 2)
-    i = t.detach().floor().clamp(1, k - 3)
-    u = t - i
-    pixel = torch.arange(h * w, device=s.device).view(1, 1, h, w)
-    base = i.long() * (h * w) + pixel  # (B, 1, H, W) flat index of entry i
-    flat = table.reshape(k * h * w, 2)
-    pm, p0, p1, p2 = (flat.index_select(0, (base + o * h * w).reshape(-1)).view(b, 1, h, w, 2) for o in (-1, 0, 1, 2))
-    # Lagrange cubic through u = -1, 0, 1, 2 in monomial form
-    coef = torch.stack([p0, p1 - pm / 3 - p0 / 2 - p2 / 6, (pm + p1) / 2 - p0, (p2 - pm) / 6 + (p0 - p1) / 2])
-    return coef, u
-
-
-def _cubic_at(coef: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """Evaluate :func:`_local_cubic`'s coefficients (4, B, 1, H, W, 2) at u (B, J, H, W) -> (B, J, H, W, 2)."""
-    x = u.unsqueeze(-1)
-    return coef[0] + x * (coef[1] + x * (coef[2] + x * coef[3]))
 
 
 def _similarity(best: torch.Tensor, cost: str, channels: int, window: int) -> torch.Tensor:
@@ -278,9 +225,12 @@ class PrismStereo(nn.Module):
         self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, num_hypotheses, dtype=f64),
                                                       fit.z_range).float())
         # the fine level and the match output evaluate the sweep from a table of positions at K coordinates
-        # by local cubics (<= 1e-3 px from the polynomials; 4 gathers + a cubic instead of N basis terms);
-        # the single-level search keeps the polynomials (one matrix product for all hypotheses)
-        self.register_buffer("table", _sweep_table(fine).float())
+        # by local cubics (<= 1e-3 px from the polynomials; 4 gathers + one matrix product for the band
+        # instead of N basis terms per sample), and the band's validity from each pixel's interval of real
+        # samples; the single-level search keeps the polynomials (one matrix product for all hypotheses)
+        table = tabulate_sweep(fine)
+        self.register_buffer("table", table.float())
+        self.register_buffer("interval", valid_interval(table.float(), other_valid, self.split.split))
         if coarse_factor == 1:
             self.register_buffer("coefficients", self._normalised(fine, 1).float())
         if coarse_factor > 1:
@@ -294,6 +244,11 @@ class PrismStereo(nn.Module):
             pad = (0, math.ceil(w_o / fc) * fc - w_o, 0, hc * fc - h)
             valid_c = F.avg_pool2d(F.pad(other_valid.to(f64)[None, None], pad), fc)[0, 0] > 0.999
             self.register_buffer("coarse_other_valid", valid_c)
+            # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
+            s_c = torch.linspace(-1.0, 1.0, self.coarse_hypotheses, dtype=f64)
+            probe = torch.zeros(1, 1, valid_c.shape[0], valid_c.shape[1], dtype=f64)
+            grid_c = _basis_grid(self._normalised(coarse, fc), s_c)
+            self.register_buffer("coarse_valid", warp_slices(probe, grid_c, valid_c).valid[0])
 
     def config(self) -> dict[str, object]:
         """The constructor's options as resolved (defaults filled in), JSON-ready; with the rig
@@ -360,10 +315,16 @@ class PrismStereo(nn.Module):
         return subpixel_refine(local, index, method or ("parabola" if cost == "zncc" else "equiangular"))
 
     def full_search(self, reference: torch.Tensor, other: torch.Tensor, coefficients: torch.Tensor,
-                    other_valid: torch.Tensor, num: int, final: bool):
-        """One level over the whole range: (s (B, 1, H, W), valid, confidence) at that level's resolution."""
+                    other_valid: torch.Tensor, num: int, final: bool, valid: torch.Tensor | None = None):
+        """One level over the whole range: (s (B, 1, H, W), valid, confidence) at that level's resolution.
+        ``valid`` (D, H, W): the samples' validity when precomputed (else sampled from ``other_valid``)."""
         s_values = torch.linspace(-1.0, 1.0, num, dtype=reference.dtype, device=reference.device)
-        warped = warp_slices(other, _basis_grid(coefficients.to(reference), s_values), other_valid, shared=True)
+        grid = _basis_grid(coefficients.to(reference), s_values)
+        if valid is None:
+            warped = warp_slices(other, grid, other_valid, shared=True)
+        else:
+            b = reference.shape[0]
+            warped = Warped(sample_slices(other, grid, shared=True), valid.unsqueeze(0).expand(b, -1, -1, -1))
         volume = sweep_cost(reference, warped, self.cost, self.window, self.census_threshold)
         local, total = self._aggregate(volume, self.box)
         index, _ = winner_take_all(total.detach())
@@ -386,15 +347,17 @@ class PrismStereo(nn.Module):
             f = self.factor
             s_c, ok_c, _ = self.full_search(self._downsample(ref), self._downsample(other),
                                             self.coarse_coefficients, self.coarse_other_valid,
-                                            self.coarse_hypotheses, False)
+                                            self.coarse_hypotheses, False, self.coarse_valid)
             s0 = F.interpolate(s_c, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
             ok0 = F.interpolate(ok_c.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
-            offsets = torch.arange(-self.band, self.band + 1, device=ref.device).to(ref.dtype).view(1, -1, 1, 1)
-            s_band = (s0.detach() + offsets * step).clamp(-1.0, 1.0)  # (B, J, H, W)
-            coef, u0 = _local_cubic(self.table.to(ref), s0.detach().clamp(-1.0, 1.0))
-            coef = self._normalised(coef, 1)  # grid_sample coordinates: the cubic's constant term gets the offset
-            grid = _cubic_at(coef, u0 + (s_band - s0.detach()) * ((self.table.shape[0] - 1) / 2))
-            warped = warp_slices(other, grid, self.other_valid, shared=False)
+            offsets = torch.arange(-self.band, self.band + 1, device=ref.device).to(ref.dtype) * step  # (J,)
+            s0 = s0.detach().clamp(-1.0, 1.0)
+            s_band = s0 + offsets.view(1, -1, 1, 1)  # (B, J, H, W); beyond [-1, 1]: outside the interval
+            cubic = local_cubic(self.table.to(ref), s0)
+            cubic = cubic._replace(coefficients=self._normalised(cubic.coefficients, 1))  # grid_sample units
+            lo, hi = self.interval.to(ref).unbind(0)
+            warped = Warped(sample_slices(other, band_positions(cubic, offsets), shared=False),
+                            (s_band >= lo) & (s_band <= hi))
             volume = sweep_cost(ref, warped, self.fine_cost, self.window, self.census_threshold)
             local = box_filter(volume, self.fine_box)
             j, _ = winner_take_all(local.detach())  # no SGM: the coarse level already regularised the band
@@ -406,8 +369,8 @@ class PrismStereo(nn.Module):
         s = s.clamp(-1.0, 1.0)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
-        coef, u = _local_cubic(self.table.to(s), s)
-        match = _cubic_at(coef, u).squeeze(1).permute(0, 3, 1, 2)
+        cubic = local_cubic(self.table.to(s), s)
+        match = cubic_at(cubic, cubic.u).squeeze(1).permute(0, 3, 1, 2)
         valid = ok & self.reference_valid & (confidence >= self.min_confidence)
         if self.occlusion_tolerance is not None:
             valid = valid & self.visible(match, depth, valid)

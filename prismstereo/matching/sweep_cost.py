@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.matching.cost import COSTS, Cost
 
-__all__ = ["Warped", "warp_slices", "sweep_cost", "worst_cost"]
+__all__ = ["Warped", "sample_slices", "warp_slices", "sweep_cost", "worst_cost"]
 
 
 class Warped(NamedTuple):
@@ -43,19 +43,62 @@ class Warped(NamedTuple):
     valid: torch.Tensor
 
 
-def warp_slices(
-    other: torch.Tensor, grid: torch.Tensor, other_valid: torch.Tensor | None = None, shared: bool | None = None
-) -> Warped:
-    """Sample ``other`` at a plane-sweep grid with one bilinear ``grid_sample`` call.
+def sample_slices(other: torch.Tensor, grid: torch.Tensor, shared: bool | None = None) -> torch.Tensor:
+    """Sample ``other`` at a plane-sweep grid with one bilinear ``grid_sample`` call (border padding).
 
     Args:
         other: (B, C, H_o, W_o) the other half-image.
         grid: (B or 1, D, H, W, 2) sample positions normalised for ``grid_sample`` (align_corners=False:
             -1 and +1 are the outer edges of the first and last pixel).
-        other_valid: optional (H_o, W_o) bool, pixels of the other half that see through the prism.
         shared: the grid (batch 1) serves every image: the images are stacked in the channel axis of one
             ``grid_sample`` call instead of copying the grid per image. None: when the grid's batch is 1. Pass
             it explicitly in code that is traced for ONNX export (a traced batch of 1 would fix the choice).
+
+    Returns:
+        (B, C, D, H, W) samples.
+
+    Raises:
+        ShapeError: bad shapes, or a shared grid with batch > 1.
+
+    Example:
+        >>> sample_slices(torch.rand(2, 3, 10, 12), torch.zeros(1, 4, 10, 8, 2)).shape
+        torch.Size([2, 3, 4, 10, 8])
+    """
+    check_shape(other, ["B", "C", "H", "W"], "other")
+    check_shape(grid, ["B", "D", "H", "W", 2], "grid")
+    b = other.shape[0]
+    h_o, w_o = other.shape[-2:]
+    g = grid.to(other.dtype)
+    if g.shape[0] not in (1, b):
+        raise ShapeError(f"grid batch {g.shape[0]} must be 1 or the image batch {b}")
+    _, d, h, w, _ = g.shape
+    if shared is None:
+        shared = g.shape[0] == 1
+    # border padding: windows reaching past the edge see replicated pixels instead of black, which keeps
+    # matches near the other half's edges (whether the sample itself is real is decided by the caller)
+    if shared:  # one grid for the batch: the images go to the channel axis (no copy of the grid per image)
+        if g.shape[0] != 1:
+            raise ShapeError(f"a shared grid must have batch 1, got {g.shape[0]}")
+        return F.grid_sample(other.reshape(1, -1, h_o, w_o), g.reshape(1, d * h, w, 2), mode="bilinear",
+                             padding_mode="border", align_corners=False).view(b, -1, d, h, w)
+    return F.grid_sample(other, g.expand(b, -1, -1, -1, -1).reshape(b, d * h, w, 2), mode="bilinear",
+                         padding_mode="border", align_corners=False).view(b, -1, d, h, w)
+
+
+def warp_slices(
+    other: torch.Tensor, grid: torch.Tensor, other_valid: torch.Tensor | None = None, shared: bool | None = None
+) -> Warped:
+    """Sample ``other`` at a plane-sweep grid (:func:`sample_slices`) and flag the real samples.
+
+    A sample is valid when it lies between the first and last pixel centres of ``other`` (all bilinear taps
+    inside, 1e-3 px slack) and, with ``other_valid``, every tap with non-zero weight is a pixel that sees
+    through the prism (the mask is sampled as an extra channel of the same call).
+
+    Args:
+        other: (B, C, H_o, W_o) the other half-image.
+        grid: (B or 1, D, H, W, 2) normalised sample positions (see :func:`sample_slices`).
+        other_valid: optional (H_o, W_o) bool, pixels of the other half that see through the prism.
+        shared: see :func:`sample_slices`.
 
     Returns:
         Warped.
@@ -68,28 +111,13 @@ def warp_slices(
     check_shape(other, ["B", "C", "H", "W"], "other")
     check_shape(grid, ["B", "D", "H", "W", 2], "grid")
     b, c = other.shape[:2]
-    g = grid.to(other.dtype)
-    if g.shape[0] not in (1, b):
-        raise ShapeError(f"grid batch {g.shape[0]} must be 1 or the image batch {b}")
-    _, d, h, w, _ = g.shape
-    # border padding: windows reaching past the edge see replicated pixels instead of black, which keeps
-    # matches near the other half's edges; the sample itself must lie between the first and last pixel
-    # centres (all bilinear taps inside) on pixels that see through the prism
     h_o, w_o = other.shape[-2:]
+    g = grid.to(other.dtype)
     x, y = ((g[..., 0] + 1) * w_o - 1) / 2, ((g[..., 1] + 1) * h_o - 1) / 2  # pixel coordinates
     eps = 1e-3  # px: a centre exactly on the last pixel must not fall out by rounding
     inside = (x >= -eps) & (x <= w_o - 1 + eps) & (y >= -eps) & (y <= h_o - 1 + eps)
     stacked = other if other_valid is None else torch.cat([other, other_valid.to(other).expand(b, 1, -1, -1)], 1)
-    if shared is None:
-        shared = g.shape[0] == 1
-    if shared:  # one grid for the batch: the images go to the channel axis (no copy of the grid per image)
-        if g.shape[0] != 1:
-            raise ShapeError(f"a shared grid must have batch 1, got {g.shape[0]}")
-        sampled = F.grid_sample(stacked.reshape(1, -1, h_o, w_o), g.reshape(1, d * h, w, 2), mode="bilinear",
-                                padding_mode="border", align_corners=False).view(b, -1, d, h, w)
-    else:
-        sampled = F.grid_sample(stacked, g.expand(b, -1, -1, -1, -1).reshape(b, d * h, w, 2), mode="bilinear",
-                                padding_mode="border", align_corners=False).view(b, -1, d, h, w)
+    sampled = sample_slices(stacked, g, shared)
     valid = inside if other_valid is None else inside & (sampled[:, c] > 0.999)
     return Warped(sampled[:, :c], valid.expand(b, -1, -1, -1))
 

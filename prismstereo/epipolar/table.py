@@ -1,0 +1,233 @@
+"""The per-pixel sweep as a table: fast evaluation of m(u, v, s) near a per-pixel coordinate, and the
+interval of s where a reference pixel's correspondence is a real other-half sample.
+
+:mod:`prismstereo.epipolar.sweep` gives each reference pixel's correspondence m(s) (s linear in 1/Z) as a
+Chebyshev polynomial of degree N - 1; evaluating it costs N terms per sample. A coarse-to-fine search needs
+m at a few coordinates s0 + j step around a per-pixel estimate s0, for every pixel: here m is tabulated at K
+uniform coordinates (:func:`tabulate_sweep`), the 4 entries around s0 give a local cubic
+(:func:`local_cubic`; Lagrange through u = -1, 0, 1, 2 in table units), and the whole band is one matrix
+product of that cubic's coefficients with the powers of j (:func:`band_positions`). K is the smallest of
+17, 33, 65 keeping the cubics within ``tolerance_px`` of the polynomial: measured over 205-1511 mm at full
+resolution, K = 17 gives 4e-6 px for ``thesis_setup1``, K = 33 gives 7e-4 px for ``thesis_setup2`` (whose
+correspondences bend more; K = 65: 5e-5 px).
+
+:func:`valid_interval` finds, per reference pixel, the interval [s_lo, s_hi] of coordinates whose sample has
+every bilinear tap inside the other half on a pixel that sees through the prism (the test of
+:func:`~prismstereo.matching.sweep_cost.warp_slices`), so a band's validity is two comparisons instead of a
+second sampled channel.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+
+from prismstereo.epipolar.sweep import chebyshev_basis
+from prismstereo.errors import OptionError, ShapeError, check_shape
+
+__all__ = [
+    "LocalCubic", "TABLE_SIZES", "band_positions", "cubic_at", "local_cubic", "tabulate_sweep", "valid_interval",
+]
+
+TABLE_SIZES = (17, 33, 65)  # candidate numbers of tabulated coordinates (2^k + 1)
+
+
+class LocalCubic(NamedTuple):
+    """Each pixel's correspondence near its coordinate s, as a cubic in the local table variable u.
+
+    Attributes:
+        coefficients: (4, B, 1, H, W, 2) monomial coefficients c_0..c_3 of m(u) = sum c_k u^k.
+        u: (B, 1, H, W) the pixels' own coordinates in table units (u = 0 and 1 at the bracketing entries;
+            in [-1, 2] near the table's ends).
+        scale: du/ds = (K - 1) / 2.
+    """
+
+    coefficients: torch.Tensor
+    u: torch.Tensor
+    scale: float
+
+
+def _positions(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+    """(N, H, W, 2) polynomials at (S,) coordinates -> (S, H, W, 2), one matrix product."""
+    n = coefficients.shape[0]
+    basis = chebyshev_basis(s.to(coefficients), n)  # (S, N)
+    return (basis @ coefficients.reshape(n, -1)).view(-1, *coefficients.shape[1:])
+
+
+def tabulate_sweep(coefficients: torch.Tensor, tolerance_px: float = 1e-3) -> torch.Tensor:
+    """Tabulate per-pixel sweep polynomials at K uniform coordinates over [-1, 1].
+
+    Args:
+        coefficients: (N, H, W, 2) per-pixel Chebyshev coefficients in s (pixels), e.g.
+            ``sweep_coefficients(fit, uv).permute(2, 0, 1, 3)``.
+        tolerance_px: K is the smallest of :data:`TABLE_SIZES` whose local cubics stay within this of the
+            polynomials (checked in float64 on every 8th pixel at 64 seeded random coordinates); the largest
+            otherwise.
+
+    Returns:
+        (K, H, W, 2) positions, dtype of ``coefficients``.
+
+    Example:
+        >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
+        >>> uv = torch.stack(torch.meshgrid(torch.arange(8.0), torch.arange(6.0), indexing="xy"), -1).double()
+        >>> coef = sweep_coefficients(fit_sweep(thesis_setup1(), (300.0, 900.0)), uv).permute(2, 0, 1, 3)
+        >>> tabulate_sweep(coef).shape
+        torch.Size([17, 6, 8, 2])
+    """
+    check_shape(coefficients, ["N", "H", "W", 2], "coefficients")
+    if not tolerance_px > 0:
+        raise OptionError(f"tolerance_px must be > 0, got {tolerance_px}")
+    probe = coefficients[:, ::8, ::8].to(torch.float64)
+    s = torch.rand(64, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 2 - 1
+    exact = _positions(probe, s).unsqueeze(1)  # (64, 1, h, w, 2)
+    for k in TABLE_SIZES:
+        small = _positions(probe, torch.linspace(-1.0, 1.0, k, dtype=torch.float64))
+        cubic = local_cubic(small, s.view(-1, 1, 1, 1).expand(-1, 1, *probe.shape[1:3]))
+        if (cubic_at(cubic, cubic.u) - exact).norm(dim=-1).amax() <= tolerance_px:
+            break
+    return _positions(coefficients, torch.linspace(-1.0, 1.0, k, dtype=torch.float64))
+
+
+def local_cubic(table: torch.Tensor, s: torch.Tensor) -> LocalCubic:
+    """The cubic through the 4 table entries around each pixel's coordinate.
+
+    Args:
+        table: (K, H, W, 2) from :func:`tabulate_sweep` (any affine image of it, e.g. grid_sample units).
+        s: (B, 1, H, W) coordinates in [-1, 1] (clamp first); gradients flow through the cubic's u.
+
+    Returns:
+        LocalCubic.
+
+    Example:
+        >>> table = torch.linspace(-1.0, 1.0, 17).pow(2).view(17, 1, 1, 1).expand(17, 1, 1, 2)
+        >>> c = local_cubic(table, torch.tensor([0.3]).view(1, 1, 1, 1))
+        >>> round(float(cubic_at(c, c.u)[0, 0, 0, 0, 0]), 6)
+        0.09
+    """
+    check_shape(table, ["K", "H", "W", 2], "table")
+    check_shape(s, ["B", 1, "H", "W"], "s")
+    k, h, w, _ = table.shape
+    if k < 4 or s.shape[-2:] != (h, w):
+        raise ShapeError(f"table {tuple(table.shape)} needs K >= 4 and the pixels of s {tuple(s.shape)}")
+    b = s.shape[0]
+    scale = (k - 1) / 2
+    t = (s + 1.0) * scale
+    i = t.detach().floor().clamp(1, k - 3)
+    u = t - i
+    base = i.long() * (h * w) + torch.arange(h * w, device=s.device).view(1, 1, h, w)  # flat index of entry i
+    flat = table.reshape(k * h * w, 2)
+    pm, p0, p1, p2 = (flat.index_select(0, (base + o * h * w).reshape(-1)).view(b, 1, h, w, 2) for o in (-1, 0, 1, 2))
+    coefficients = torch.stack([p0, p1 - pm / 3 - p0 / 2 - p2 / 6, (pm + p1) / 2 - p0, (p2 - pm) / 6 + (p0 - p1) / 2])
+    return LocalCubic(coefficients, u, scale)
+
+
+def cubic_at(cubic: LocalCubic, u: torch.Tensor) -> torch.Tensor:
+    """Evaluate a :class:`LocalCubic` at local coordinates u (B, J, H, W) -> (B, J, H, W, 2).
+
+    Example:
+        >>> c = LocalCubic(torch.ones(4, 1, 1, 1, 1, 2), torch.zeros(1, 1, 1, 1), 8.0)
+        >>> cubic_at(c, torch.full((1, 1, 1, 1), 2.0))[0, 0, 0, 0].tolist()
+        [15.0, 15.0]
+    """
+    c = cubic.coefficients
+    x = u.unsqueeze(-1)
+    return c[0] + x * (c[1] + x * (c[2] + x * c[3]))
+
+
+def band_positions(cubic: LocalCubic, offsets: torch.Tensor) -> torch.Tensor:
+    """Positions at s = s0 + offsets_j for every pixel, by one matrix product.
+
+    The cubic in u, re-expanded around each pixel's u0 in powers of the offset, gives 4 per-pixel
+    coefficients (alpha, beta, gamma, delta); the band is [1, o, o^2, o^3] times them (o = offsets in table
+    units), the same numbers as :func:`cubic_at` at u0 + o up to rounding.
+
+    Args:
+        cubic: from :func:`local_cubic` at s0 (B, 1, H, W).
+        offsets: (J,) offsets in s.
+
+    Returns:
+        (B, J, H, W, 2) positions (units of the table).
+
+    Example:
+        >>> table = torch.linspace(-1.0, 1.0, 17).pow(3).view(17, 1, 1, 1).expand(17, 1, 1, 2)
+        >>> c = local_cubic(table, torch.tensor([0.2]).view(1, 1, 1, 1))
+        >>> band_positions(c, torch.tensor([-0.1, 0.0, 0.1]))[0, :, 0, 0, 0]
+        tensor([0.0010, 0.0080, 0.0270])
+    """
+    check_shape(offsets, ["J"], "offsets")
+    c0, c1, c2, c3 = cubic.coefficients.unbind(0)  # each (B, 1, H, W, 2)
+    u = cubic.u.unsqueeze(-1)
+    alpha = c0 + u * (c1 + u * (c2 + u * c3))
+    beta = c1 + u * (2 * c2 + 3 * u * c3)
+    gamma = c2 + 3 * u * c3
+    powers = torch.stack([torch.ones_like(c3), beta, gamma, c3], 1).squeeze(2)  # (B, 4, H, W, 2)
+    o = offsets.to(c3) * cubic.scale
+    m = torch.stack([torch.ones_like(o), o, o * o, o * o * o], 1)  # (J, 4)
+    b, _, h, w, _ = powers.shape
+    flat = torch.cat([alpha.reshape(b, 1, -1), powers[:, 1:].reshape(b, 3, -1)], 1)  # (B, 4, H W 2)
+    return (m @ flat).view(b, -1, h, w, 2)
+
+
+def valid_interval(table: torch.Tensor, other_valid: torch.Tensor, split: int, steps: int = 14) -> torch.Tensor:
+    """Per reference pixel, the interval [s_lo, s_hi] of coordinates whose correspondence is a real sample of
+    the other half: inside it (all bilinear taps between its first and last pixel centres, 1e-3 px slack) on
+    pixels that see through the prism (``other_valid``).
+
+    The largest contiguous valid run of the table's K coordinates is refined at both ends by ``steps``
+    bisections on the local cubics (to 2 / (K - 1) / 2^steps in s); pixels with no valid table entry get an
+    empty interval (s_lo = 2 > s_hi = -2). Valid sets that are not one interval (a hole in ``other_valid``
+    along the curve) keep their largest run: the interval never contains a coordinate found invalid.
+
+    Args:
+        table: (K, H, W, 2) :func:`tabulate_sweep` in full-sensor pixels.
+        other_valid: (H_o, W_o) bool mask of the other half.
+        split: the other half's first full-sensor column.
+        steps: bisection steps per end.
+
+    Returns:
+        (2, H, W) [s_lo, s_hi], dtype of ``table``.
+
+    Example:
+        >>> table = torch.stack([torch.linspace(0.0, 40.0, 17) + 20, torch.zeros(17)], -1).view(17, 1, 1, 2)
+        >>> lo, hi = valid_interval(table, torch.ones(1, 30, dtype=torch.bool), 20)
+        >>> round(float(lo), 3), round(float(hi), 3)
+        (-1.0, 0.45)
+    """
+    check_shape(table, ["K", "H", "W", 2], "table")
+    check_shape(other_valid, ["H", "W"], "other_valid")
+    if not isinstance(steps, int) or steps < 0:
+        raise OptionError(f"steps must be an int >= 0, got {steps!r}")
+    h_o, w_o = other_valid.shape
+    mask = other_valid.to(table)[None, None]
+    eps = 1e-3
+
+    def real(xy: torch.Tensor) -> torch.Tensor:  # (S, H, W, 2) full-sensor positions -> (S, H, W) bool
+        x, y = xy[..., 0] - split, xy[..., 1]
+        inside = (x >= -eps) & (x <= w_o - 1 + eps) & (y >= -eps) & (y <= h_o - 1 + eps)
+        grid = torch.stack([(2 * x + 1) / w_o - 1, (2 * y + 1) / h_o - 1], -1)
+        seen = F.grid_sample(mask.expand(xy.shape[0], -1, -1, -1), grid, mode="bilinear", padding_mode="border",
+                             align_corners=False)[:, 0] > 0.999
+        return inside & seen
+
+    k, h, w, _ = table.shape
+    good = real(table)  # (K, H, W): the table's own coordinates
+    run = torch.zeros(h, w, dtype=torch.long, device=table.device)
+    best_len, best_end = torch.zeros_like(run), torch.full_like(run, -1)
+    for i in range(k):  # longest run of consecutive valid entries per pixel
+        run = torch.where(good[i], run + 1, torch.zeros_like(run))
+        longer = run > best_len
+        best_len, best_end = torch.where(longer, run, best_len), torch.where(longer, torch.full_like(run, i), best_end)
+    first, last = best_end - best_len + 1, best_end
+    step = 2.0 / (k - 1)
+    inner = torch.stack([first, last]).clamp_min(0).to(table.dtype) * step - 1.0  # valid ends (2, H, W)
+    outer = inner + torch.tensor([-step, step], dtype=table.dtype, device=table.device).view(2, 1, 1)
+    for _ in range(steps):  # bisect both ends at once; coordinates beyond [-1, 1] count as invalid
+        mid = (inner + outer) / 2
+        cubic = local_cubic(table, mid.clamp(-1.0, 1.0).unsqueeze(1))
+        ok = real(cubic_at(cubic, cubic.u)[:, 0]) & (mid.abs() <= 1.0)
+        inner, outer = torch.where(ok, mid, inner), torch.where(ok, outer, mid)
+    found = best_len > 0
+    return torch.stack([torch.where(found, inner[0], torch.full_like(inner[0], 2.0)),
+                        torch.where(found, inner[1], torch.full_like(inner[1], -2.0))])
