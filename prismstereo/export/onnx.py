@@ -43,6 +43,7 @@ __all__ = [
     "OnnxDepth",
     "OnnxDepthResult",
     "cache_directory",
+    "describe",
     "export_onnx",
     "onnx_session",
 ]
