@@ -278,18 +278,21 @@ class PrismStereo(nn.Module):
 
     @staticmethod
     def default_coarse_factor(num_hypotheses: int, height: int, width: int) -> int:
-        """f = the largest power of two (<= 4) leaving >= 32 hypotheses and >= 32 rows and columns at the
+        """f = the largest power of two (<= 4) leaving >= 24 hypotheses and >= 32 rows and columns at the
         coarse level; 1 (a single full-resolution level) for small searches. (f = 8 on a 1024 x 768 sensor
         loses the pixels within ~40 px of the other half's edge: the coarse windows span 72 px.) A narrow range
-        at full resolution (~100 hypotheses) gets f = 2: a single level would run the semi-global scans over
-        every full-resolution pixel (~9x the time of the coarse-to-fine search, measured in torch).
+        at full resolution (600-1450 mm, 103 hypotheses) gets f = 4: onnxruntime 267 ms per frame at 0.048 %
+        mean error, against 506 ms (0.053 %) with f = 2 and ~9x the time with a single level
+        (``benchmarks/onnx_speed.py``).
 
         Example:
-            >>> PrismStereo.default_coarse_factor(368, 768, 512), PrismStereo.default_coarse_factor(40, 96, 64)
-            (4, 1)
+            >>> PrismStereo.default_coarse_factor(368, 768, 512), PrismStereo.default_coarse_factor(103, 768, 512)
+            (4, 4)
+            >>> PrismStereo.default_coarse_factor(40, 96, 64)
+            1
         """
         f = 1
-        while f < 4 and num_hypotheses / (2 * f) >= 32 and min(height, width) / (2 * f) >= 32:
+        while f < 4 and num_hypotheses / (2 * f) >= 24 and min(height, width) / (2 * f) >= 32:
             f *= 2
         return f
 

@@ -144,7 +144,8 @@ def test_model_buffers_batch_and_errors(setup1_model):
     with pytest.raises(RigError, match="beyond the prism's back plane"):
         PrismStereo(rig, (100.0, 800.0))
     assert PrismStereo.default_coarse_factor(382, 768, 512) == 4
-    assert PrismStereo.default_coarse_factor(100, 192, 128) == 2  # a narrow range: f = 2, not one level
+    assert PrismStereo.default_coarse_factor(100, 192, 128) == 4  # a narrow range: f = 4, not one level
+    assert PrismStereo.default_coarse_factor(60, 192, 128) == 2
     assert PrismStereo.default_coarse_factor(40, 96, 64) == 1
 
 
