@@ -84,6 +84,7 @@ import cv2
 import numpy as np
 import onnxruntime as ort
 import torch
+from _timing import times_ms  # benchmarks/_timing.py (scripts run from this folder)
 
 from prismstereo import thesis_setup1, trace_pixels
 from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients, sweep_to_depth
@@ -120,13 +121,8 @@ class Row(NamedTuple):
 
 
 def time_ms(fn, repeats: int) -> tuple[float, float]:
-    """(median, min) wall time (ms) of ``repeats`` calls after one warm-up call (as ``_timing.median_ms``)."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
+    """(median, min) wall time (ms) of ``repeats`` calls after one warm-up call."""
+    times = times_ms(fn, repeats)
     return statistics.median(times), min(times)
 
 
@@ -390,6 +386,16 @@ def reset():  # restart the high-water mark at the current RSS (Linux >= 4.0); N
         return rss()
     except OSError:
         return None
+
+def two_frames(out, frame):  # after loading: one frame, reset the mark, a second frame; prints the marks
+    out["loaded"] = hwm()
+    frame()
+    out["peak"] = hwm()
+    out["reset"] = reset()
+    frame()
+    out["frame"] = hwm()
+    out["ru_maxrss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps(out))
 """
 
 ORT_RSS = RSS_HELPERS + """
@@ -398,14 +404,7 @@ from prismstereo.export import OnnxDepth
 out = {"imports": hwm()}
 image = np.load(sys.argv[2])
 runner = OnnxDepth(sys.argv[1], threads=2)
-out["loaded"] = hwm()
-runner(image)
-out["peak"] = hwm()
-out["reset"] = reset()
-runner(image)
-out["frame"] = hwm()
-out["ru_maxrss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-print(json.dumps(out))
+two_frames(out, lambda: runner(image))
 """
 
 TORCH_RSS = RSS_HELPERS + """
@@ -418,15 +417,8 @@ torch.set_num_threads(2)
 image = torch.from_numpy(np.load(sys.argv[2]))
 config = json.loads(sys.argv[1])
 model = PrismStereo(thesis_setup1().downscaled(config["scale"]), tuple(config["z_range"])).eval()
-out["loaded"] = hwm()
 with torch.inference_mode():
-    model(image)
-    out["peak"] = hwm()
-    out["reset"] = reset()
-    model(image)
-out["frame"] = hwm()
-out["ru_maxrss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-print(json.dumps(out))
+    two_frames(out, lambda: model(image))
 """
 
 
