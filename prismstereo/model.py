@@ -34,8 +34,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.depth.range import default_z_range
-from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients, sweep_to_depth
-from prismstereo.epipolar.table import band_positions, cubic_at, local_cubic, tabulate_sweep, valid_interval
+from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
+from prismstereo.epipolar.table import (
+    band_positions,
+    cubic_at,
+    local_cubic,
+    positions_at,
+    tabulate_sweep,
+    valid_interval,
+)
 from prismstereo.errors import OptionError, check_option, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
@@ -71,13 +78,6 @@ class DepthResult(NamedTuple):
     match: torch.Tensor
 
 
-def _basis_grid(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
-    """(N, H, W, 2) coefficients at (D,) coordinates -> (1, D, H, W, 2) by one matrix product."""
-    n, h, w, _ = coefficients.shape
-    basis = chebyshev_basis(s.to(coefficients), n)  # (D, N)
-    return (basis @ coefficients.reshape(n, -1)).view(1, -1, h, w, 2)
-
-
 def _similarity(best: torch.Tensor, cost: str, channels: int, window: int) -> torch.Tensor:
     """Confidence in [0, 1] from the winner's (box-averaged) cost: the NCC for 'zncc', 1 - cost / worst
     otherwise."""
@@ -102,7 +102,7 @@ def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0) -> in
         raise OptionError(f"max_step_px must be > 0, got {max_step_px}")
     probe = torch.linspace(-1.0, 1.0, 257, dtype=coefficients.dtype, device=coefficients.device)
     sub = coefficients[:, ::4, ::4]
-    pos = _basis_grid(sub, probe)[0]  # (257, h, w, 2)
+    pos = positions_at(sub, probe)  # (257, h, w, 2)
     speed = (pos[1:] - pos[:-1]).norm(dim=-1).amax() * 256 / 2  # px per unit s (max over pixels)
     return max(2, math.ceil(float(speed) * 2 / max_step_px * 1.02) + 1)
 
@@ -255,7 +255,7 @@ class PrismStereo(nn.Module):
             # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
             s_c = torch.linspace(-1.0, 1.0, self.coarse_hypotheses, dtype=f64)
             probe = torch.zeros(1, 1, valid_c.shape[0], valid_c.shape[1], dtype=f64)
-            grid_c = _basis_grid(self._normalised(coarse, fc), s_c)
+            grid_c = positions_at(self._normalised(coarse, fc), s_c).unsqueeze(0)
             self.register_buffer("coarse_valid", warp_slices(probe, grid_c, valid_c).valid[0])
 
     def config(self) -> dict[str, object]:
@@ -332,7 +332,7 @@ class PrismStereo(nn.Module):
         """One level over the whole range: (s (B, 1, H, W), valid, confidence) at that level's resolution.
         ``valid`` (D, H, W): the samples' validity when precomputed (else sampled from ``other_valid``)."""
         s_values = torch.linspace(-1.0, 1.0, num, dtype=reference.dtype, device=reference.device)
-        grid = _basis_grid(coefficients.to(reference), s_values)
+        grid = positions_at(coefficients.to(reference), s_values).unsqueeze(0)
         if valid is None:
             warped = warp_slices(other, grid, other_valid, shared=True)
         else:

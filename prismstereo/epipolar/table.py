@@ -28,7 +28,8 @@ from prismstereo.epipolar.sweep import chebyshev_basis
 from prismstereo.errors import OptionError, ShapeError, check_shape
 
 __all__ = [
-    "LocalCubic", "TABLE_SIZES", "band_positions", "cubic_at", "local_cubic", "tabulate_sweep", "valid_interval",
+    "LocalCubic", "TABLE_SIZES", "band_positions", "cubic_at", "local_cubic", "positions_at", "tabulate_sweep",
+    "valid_interval",
 ]
 
 TABLE_SIZES = (17, 33, 65)  # candidate numbers of tabulated coordinates (2^k + 1)
@@ -49,8 +50,21 @@ class LocalCubic(NamedTuple):
     scale: float
 
 
-def _positions(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
-    """(N, H, W, 2) polynomials at (S,) coordinates -> (S, H, W, 2), one matrix product."""
+def positions_at(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+    """Per-pixel sweep polynomials at coordinates shared by all pixels, by one matrix product.
+
+    Args:
+        coefficients: (N, H, W, 2) per-pixel Chebyshev coefficients in s.
+        s: (S,) coordinates in [-1, 1].
+
+    Returns:
+        (S, H, W, 2) positions, dtype of ``coefficients``.
+
+    Example:
+        >>> positions_at(torch.ones(3, 4, 5, 2), torch.tensor([1.0, 0.0])).shape
+        torch.Size([2, 4, 5, 2])
+    """
+    check_shape(coefficients, ["N", "H", "W", 2], "coefficients")
     n = coefficients.shape[0]
     basis = chebyshev_basis(s.to(coefficients), n)  # (S, N)
     return (basis @ coefficients.reshape(n, -1)).view(-1, *coefficients.shape[1:])
@@ -81,13 +95,13 @@ def tabulate_sweep(coefficients: torch.Tensor, tolerance_px: float = 1e-3) -> to
         raise OptionError(f"tolerance_px must be > 0, got {tolerance_px}")
     probe = coefficients[:, ::8, ::8].to(torch.float64)
     s = torch.rand(64, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 2 - 1
-    exact = _positions(probe, s).unsqueeze(1)  # (64, 1, h, w, 2)
+    exact = positions_at(probe, s).unsqueeze(1)  # (64, 1, h, w, 2)
     for k in TABLE_SIZES:
-        small = _positions(probe, torch.linspace(-1.0, 1.0, k, dtype=torch.float64))
+        small = positions_at(probe, torch.linspace(-1.0, 1.0, k, dtype=torch.float64))
         cubic = local_cubic(small, s.view(-1, 1, 1, 1).expand(-1, 1, *probe.shape[1:3]))
         if (cubic_at(cubic, cubic.u) - exact).norm(dim=-1).amax() <= tolerance_px:
             break
-    return _positions(coefficients, torch.linspace(-1.0, 1.0, k, dtype=torch.float64))
+    return positions_at(coefficients, torch.linspace(-1.0, 1.0, k, dtype=torch.float64))
 
 
 def local_cubic(table: torch.Tensor, s: torch.Tensor) -> LocalCubic:
