@@ -49,3 +49,13 @@ def random_pixels(rig: BiPrismRig, n: int, dtype: torch.dtype, seed: int = 0) ->
     gen = torch.Generator().manual_seed(seed)
     scale = torch.tensor([rig.image_width - 1.0, rig.image_height - 1.0], dtype=dtype)
     return torch.rand(n, 2, generator=gen, dtype=dtype) * scale
+
+
+@pytest.fixture(scope="module")
+def one_thread():
+    """Small tensors: intra-op threads only add contention on a shared CPU (use per module with
+    ``pytestmark = pytest.mark.usefixtures("one_thread")``)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -14,13 +14,7 @@ from prismstereo.io import read_depth_png, read_image, write_image
 NEAR, FAR = 240.0, 525.0  # mm: the near plane fits the 16-bit PNG's 255.996 mm, the far one does not
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """Small tensors: intra-op threads only add contention on a shared CPU."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
