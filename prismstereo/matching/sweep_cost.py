@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.matching.cost import COSTS, Cost
 
-__all__ = ["Warped", "sample_slices", "warp_slices", "sweep_cost", "worst_cost"]
+__all__ = ["Warped", "sample_slices", "shift_cost", "sweep_cost", "warp_slices", "worst_cost"]
 
 
 class Warped(NamedTuple):
@@ -81,7 +81,9 @@ def sample_slices(other: torch.Tensor, grid: torch.Tensor, shared: bool | None =
             raise ShapeError(f"a shared grid must have batch 1, got {g.shape[0]}")
         return F.grid_sample(other.reshape(1, -1, h_o, w_o), g.reshape(1, d * h, w, 2), mode="bilinear",
                              padding_mode="border", align_corners=False).view(b, -1, d, h, w)
-    return F.grid_sample(other, g.expand(b, -1, -1, -1, -1).reshape(b, d * h, w, 2), mode="bilinear",
+    if g.shape[0] != b:  # (an Expand is a copy in onnxruntime: only when the grid really has batch 1)
+        g = g.expand(b, -1, -1, -1, -1)
+    return F.grid_sample(other, g.reshape(b, d * h, w, 2), mode="bilinear",
                          padding_mode="border", align_corners=False).view(b, -1, d, h, w)
 
 
@@ -158,20 +160,32 @@ def _census(reference: torch.Tensor, warped: torch.Tensor, window: int, threshol
     return count.sum(1) if count.shape[1] > 1 else count.squeeze(1)  # over channels once, at the end
 
 
-def _zncc(reference: torch.Tensor, warped: torch.Tensor, window: int) -> torch.Tensor:
-    # centred on 0.5 (ZNCC is offset-invariant): E[x^2] - E[x]^2 then cancels far less in float32, which keeps
-    # torch and onnxruntime within ~1e-6 of each other on low-contrast windows
-    ref = reference.mean(1, keepdim=True) - 0.5  # (B, 1, H, W)
-    wrp = warped.mean(1) - 0.5  # (B, D, H, W)
-    mean_r = _box(ref, window)
-    var_r = (_box(ref * ref, window) - mean_r * mean_r).clamp_min(0)
-    mean_w = _box(wrp, window)
-    var_w = (_box(wrp * wrp, window) - mean_w * mean_w).clamp_min(0)
-    cross = _box(wrp * ref, window) - mean_w * mean_r
+def _grey(x: torch.Tensor) -> torch.Tensor:
+    """Channel mean, keeping the channel axis (no ReduceMean, a copy in onnxruntime, for one channel)."""
+    return x if x.shape[1] == 1 else x.mean(1, keepdim=True)
+
+
+def _moments(x: torch.Tensor, window: int) -> tuple[torch.Tensor, torch.Tensor]:
+    mean = _box(x, window)
+    return mean, (_box(x * x, window) - mean * mean).clamp_min(0)
+
+
+def _ncc_cost(cross: torch.Tensor, var_r: torch.Tensor, var_w: torch.Tensor) -> torch.Tensor:
     # regularised by ~ the variance of 8-bit noise: windows without texture (e.g. the black pixels outside the
     # prism's view) get NCC ~ 0 instead of a ratio of rounding errors (torch and onnxruntime differed by 0.02)
     ncc = cross / torch.sqrt((var_r + _VAR_FLOOR) * (var_w + _VAR_FLOOR))
     return 1.0 - ncc.clamp(-1, 1)
+
+
+def _zncc(reference: torch.Tensor, warped: torch.Tensor, window: int) -> torch.Tensor:
+    # centred on 0.5 (ZNCC is offset-invariant): E[x^2] - E[x]^2 then cancels far less in float32, which keeps
+    # torch and onnxruntime within ~1e-6 of each other on low-contrast windows
+    ref = _grey(reference) - 0.5  # (B, 1, H, W)
+    wrp = _grey(warped).squeeze(1) - 0.5  # (B, D, H, W)
+    mean_r, var_r = _moments(ref, window)
+    mean_w, var_w = _moments(wrp, window)
+    cross = _box(wrp * ref, window) - mean_w * mean_r
+    return _ncc_cost(cross, var_r, var_w)
 
 
 def sweep_cost(
@@ -217,3 +231,94 @@ def sweep_cost(
         volume = _zncc(reference, warped.image, window)
     worst = torch.full_like(volume, worst_cost(cost, reference.shape[1], window))
     return torch.where(warped.valid, volume, worst)
+
+
+def shift_cost(
+    reference: torch.Tensor,
+    other: torch.Tensor,
+    index: torch.Tensor,
+    valid: torch.Tensor,
+    cost: Cost = "census",
+    window: int = 5,
+    census_threshold: float = 0.0,
+    transposed: bool = False,
+) -> torch.Tensor:
+    """Cost volume of a rectified pair by column shifts: hypothesis d compares reference column u with
+    column ``index[d, u]`` of ``other`` on the same row (one gather builds the slices).
+
+    Same costs and values as :func:`sweep_cost` on the gathered slices, except that ZNCC takes the window
+    moments of ``other`` once from the image and gathers them (a box of a shifted image is the shifted box):
+    one box filter over the volume instead of three. The window // 2 columns at each side of the reference,
+    whose windows are cut by its edge, are computed from the gathered slices as :func:`sweep_cost` does;
+    ``other``'s moments see its edge columns replicated, as the clamped gather (and ``grid_sample``'s border
+    padding) does.
+
+    The work happens on the transposed images (columns as rows): gathering whole rows of H values is a plain
+    copy, where gathering single columns into a (D, H, W) layout cost onnxruntime 35 ms + an 11 ms transpose
+    at 95 x 193 x 128 x 3. ``transposed=True`` returns that (B, D, W, H) layout as it is: box filters,
+    semi-global aggregation over 2, 4 or 8 directions and the winner search are symmetric in H and W, so a
+    caller can stay transposed until it has a per-pixel result.
+
+    Args:
+        reference: (B, C, H, W) rectified reference in [0, 1].
+        other: (B, C, H, W_o) rectified other image.
+        index: (D, W) long, columns of ``other`` (in [0, W_o)).
+        valid: (B or 1, D, H, W) bool, real samples ((B or 1, D, W, H) with ``transposed``).
+        cost: 'sad', 'zncc' or 'census'.
+        window: census / ZNCC window (odd).
+        census_threshold: see :func:`sweep_cost`.
+        transposed: return (B, D, W, H).
+
+    Returns:
+        (B, D, H, W) cost (or (B, D, W, H)), the worst value where not valid.
+
+    Raises:
+        OptionError / ShapeError: as :func:`sweep_cost`; an index or mask of the wrong shape.
+
+    Example:
+        >>> ref = torch.rand(1, 1, 8, 12); other = torch.roll(ref, 2, dims=-1)
+        >>> index = (torch.arange(12) + torch.arange(4).view(-1, 1)).clamp(max=11)
+        >>> vol = shift_cost(ref, other, index, torch.ones(1, 4, 8, 12, dtype=torch.bool), "sad")
+        >>> int(vol[..., :10].mean((0, 2, 3)).argmin())
+        2
+    """
+    check_option(cost, COSTS, "cost")
+    check_shape(reference, ["B", "C", "H", "W"], "reference")
+    check_shape(other, ["B", "C", "H", "W"], "other")
+    check_shape(index, ["D", "W"], "index")
+    b, _, h, w = reference.shape
+    if index.shape[1] != w or other.shape[:3] != reference.shape[:3]:
+        raise ShapeError(f"reference {tuple(reference.shape)}, other {tuple(other.shape)} and index "
+                         f"{tuple(index.shape)} disagree")
+    d = index.shape[0]
+    expected = (d, w, h) if transposed else (d, h, w)
+    if valid.dim() != 4 or tuple(valid.shape[1:]) != expected or valid.shape[0] not in (1, b):
+        raise ShapeError(f"valid must be (B or 1, {', '.join(map(str, expected))}), got {tuple(valid.shape)}")
+    valid_t = (valid if transposed else valid.transpose(-1, -2)).expand(b, -1, -1, -1)
+    ref_t, other_t = reference.transpose(-1, -2), other.transpose(-1, -2)  # (B, C, W, H): columns as rows
+
+    def gather(image_t: torch.Tensor) -> torch.Tensor:  # (B, C, W_o, H) -> (B, C, D, W, H)
+        return image_t[:, :, index]
+
+    if cost != "zncc":
+        volume = sweep_cost(ref_t, Warped(gather(other_t), valid_t), cost, window, census_threshold)
+        return volume if transposed else volume.transpose(-1, -2)
+    if not isinstance(window, int) or window < 1 or window % 2 == 0:
+        raise OptionError(f"window must be an odd int, got {window!r}")
+    r = window // 2
+    ref = _grey(ref_t) - 0.5
+    oth = _grey(other_t) - 0.5
+    mean_r, var_r = _moments(ref, window)
+    # the gather clamps columns, i.e. replicates the edge columns: so do the moments' windows
+    mean_o, var_o = (m[..., r:r + oth.shape[-2], :] for m in _moments(F.pad(oth, (0, 0, r, r), mode="replicate"),
+                                                                       window))
+    slices = gather(torch.cat([oth, mean_o, var_o], 1))  # (B, 3, D, W, H): one gather for all three
+    wrp, mean_w, var_w = slices.unbind(1)
+    cross = _box(wrp * ref, window) - mean_w * mean_r
+    volume = _ncc_cost(cross, var_r, var_w)
+    if r and w > 2 * r:  # edge columns: truncated windows on both sides, as sweep_cost computes them
+        left = _zncc(ref_t[..., :2 * r, :], wrp[..., :2 * r, :].unsqueeze(1) + 0.5, window)[..., :r, :]
+        right = _zncc(ref_t[..., -2 * r:, :], wrp[..., -2 * r:, :].unsqueeze(1) + 0.5, window)[..., -r:, :]
+        volume = torch.cat([left, volume[..., r:w - r, :], right], -2)
+    volume = torch.where(valid_t, volume, torch.full_like(volume, worst_cost("zncc", 1, window)))
+    return volume if transposed else volume.transpose(-1, -2)

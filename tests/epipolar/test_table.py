@@ -3,7 +3,14 @@ import torch
 
 from prismstereo import OptionError, ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients
-from prismstereo.epipolar.table import band_positions, cubic_at, local_cubic, tabulate_sweep, valid_interval
+from prismstereo.epipolar.table import (
+    band_positions,
+    column_to_sweep,
+    cubic_at,
+    local_cubic,
+    tabulate_sweep,
+    valid_interval,
+)
 from prismstereo.matching.sweep_cost import warp_slices
 from prismstereo.model import PrismStereo
 
@@ -51,6 +58,29 @@ def test_local_cubic_gradient():
     table = tabulate_sweep(coef)[:, :3, :4]
     s = torch.full((1, 1, 3, 4), 0.1234, dtype=F64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: cubic_at(local_cubic(table, x), local_cubic(table, x).u), (s,))
+
+
+@pytest.mark.parametrize("setup", [thesis_setup1, thesis_setup2])
+def test_column_to_sweep_inverts_the_sweep(setup):
+    """The column of the exact correspondence at s gives s back (to the table's 1e-3 px, ~1e-5 in s);
+    columns beyond the searched range give its ends; gradients are finite and pass gradcheck."""
+    coef = _coefficients(setup().downscaled(4))
+    table = tabulate_sweep(coef)
+    gen = torch.Generator().manual_seed(11)
+    s = torch.rand(2, 1, *coef.shape[1:3], generator=gen, dtype=F64) * 1.96 - 0.98
+    column = _exact(coef, s)[..., 0]
+    back = column_to_sweep(table, column)
+    speed = (table[-1, ..., 0] - table[0, ..., 0]).abs() / 2  # px per unit s
+    assert ((back - s).abs() * speed).max() < 2e-3  # in px along the row
+    beyond = column_to_sweep(table, torch.stack([table[0, ..., 0], table[-1, ..., 0]]).unsqueeze(1)
+                             + torch.stack([-5 * torch.sign(speed), 5 * torch.sign(speed)]).unsqueeze(1))
+    span_sign = torch.sign(table[-1, ..., 0] - table[0, ..., 0])
+    assert torch.equal(beyond[0, 0], torch.where(span_sign > 0, -1.0, 1.0).to(F64))
+    small = table[:, :2, :3]
+    x = column[:1, :, :2, :3].clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda c: column_to_sweep(small, c), (x,))
+    with pytest.raises(ShapeError, match="column"):
+        column_to_sweep(table, column[:, 0])
 
 
 @pytest.mark.parametrize("setup", [thesis_setup1, thesis_setup2])

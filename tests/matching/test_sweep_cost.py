@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
-from prismstereo.matching.sweep_cost import Warped, sweep_cost, warp_slices, worst_cost
+from prismstereo.matching.sweep_cost import Warped, shift_cost, sweep_cost, warp_slices, worst_cost
 
 
 def _shift_grid(h: int, w: int, w_o: int, shifts: list[float]) -> torch.Tensor:
@@ -76,3 +76,40 @@ def test_sad_and_zncc_are_differentiable():
     grid = _shift_grid(6, 8, 10, [0.3, 1.6])
     for cost in ("sad", "zncc"):
         torch.autograd.gradcheck(lambda a, b, c=cost: sweep_cost(a, warp_slices(b, grid), c, 3), (ref, other))
+
+
+@pytest.mark.parametrize("cost", ["zncc", "sad", "census"])
+@pytest.mark.parametrize("transposed", [False, True])
+def test_shift_cost_is_sweep_cost_on_shifted_slices(cost, transposed):
+    """ZNCC's shortcut (moments gathered from the image) and the transposed layout change nothing: the volume
+    equals sweep_cost on explicitly gathered slices, edges included; the true shift wins."""
+    gen = torch.Generator().manual_seed(4)
+    other = torch.rand(2, 1, 20, 40, generator=gen, dtype=torch.float64)
+    reference = other[..., 6:36]  # reference column u = other column u + 6
+    index = (torch.arange(30) + torch.arange(12).view(-1, 1)).clamp(max=39)
+    valid = (torch.rand(1, 12, 20, 30, generator=gen) > 0.1) & (torch.arange(30) + torch.arange(12).view(-1, 1) < 40
+                                                               ).view(1, 12, 1, 30)
+    slices = Warped(other[..., index].permute(0, 1, 3, 2, 4), valid.expand(2, -1, -1, -1))
+    expected = sweep_cost(reference, slices, cost, 5)
+    vol = shift_cost(reference, other, index, valid.transpose(-1, -2) if transposed else valid, cost, 5,
+                     transposed=transposed)
+    torch.testing.assert_close(vol.transpose(-1, -2) if transposed else vol, expected)
+    win = expected.masked_fill(~valid, 1e9).argmin(1)
+    assert (win == 6)[valid[:, 6].expand_as(win)].double().mean() > 0.95
+
+
+def test_shift_cost_gradients_and_errors():
+    gen = torch.Generator().manual_seed(5)
+    other = torch.rand(1, 1, 8, 14, generator=gen, dtype=torch.float64)
+    reference = other[..., 2:12].clone().requires_grad_(True)
+    index = (torch.arange(10) + torch.arange(4).view(-1, 1)).clamp(max=13)
+    valid = torch.ones(1, 4, 8, 10, dtype=torch.bool)
+    assert torch.autograd.gradcheck(lambda r: shift_cost(r, other, index, valid, "zncc", 3), (reference,))
+    with pytest.raises(ShapeError, match="disagree"):
+        shift_cost(reference, other, index[:, :5], valid)
+    with pytest.raises(ShapeError, match="valid must be"):
+        shift_cost(reference, other, index, valid, transposed=True)
+    with pytest.raises(OptionError, match="'census'"):
+        shift_cost(reference, other, index, valid, "ssd")
+    with pytest.raises(OptionError, match="window must be an odd int"):
+        shift_cost(reference, other, index, valid, "zncc", 4)
