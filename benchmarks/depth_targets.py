@@ -9,13 +9,16 @@ not co-visible (false positives) and the time of one forward pass. Targets: mean
 The searched range is the thesis working range with 10 % margins, 205-1511 mm, so no plane sits on a range
 end (where clamping would make the error artificially zero).
 
-``--compare`` also runs the single-level full search (``coarse_factor=1``) at half resolution on three
-planes, to measure what the coarse-to-fine default gives up or gains.
+``--sampling`` runs every capture through both coarse samplings of the model (the default 'rectified': a 1-D
+shift volume on row-rectified halves; 'sweep': the exact per-pixel plane sweep), same fine band.
+``--compare`` also runs single-level full searches (``coarse_factor=1``, sweep and rectified) at half
+resolution on three planes, to measure what the coarse-to-fine default gives up or gains and how exact the
+rectified volume is as a final level.
 
 Captures come from this package's renderer (:mod:`prismstereo.synthetic`): exact ray tracing checked against
 an independent closed form (``tests/geometry/test_optics.py``), textures on the surfaces, not in the image.
 
-Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--compare]
+Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--sampling] [--compare]
 """
 
 from __future__ import annotations
@@ -66,36 +69,48 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--setups", nargs="+", default=["1", "2"], choices=sorted(SETUPS))
     parser.add_argument("--scale", type=int, default=1, help="sensor downscale factor (1 = full resolution)")
-    parser.add_argument("--compare", action="store_true", help="also the single-level full search (half res)")
+    parser.add_argument("--sampling", action="store_true", help="also the coarse level as the exact sweep")
+    parser.add_argument("--compare", action="store_true", help="also single-level full searches (half res)")
     args = parser.parse_args()
     torch.set_num_threads(2)
     form = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
     for key in args.setups:
         rig = SETUPS[key]().downscaled(args.scale)
-        t0 = time.perf_counter()
-        model = PrismStereo(rig, Z_RANGE)
-        print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.num_hypotheses} hypotheses, "
-              f"coarse factor {model.factor} ({model.coarse_hypotheses if model.factor > 1 else '-'} coarse "
-              f"hypotheses), band +-{model.band}; model built in {time.perf_counter() - t0:.1f} s")
+        models = {}
+        for sampling in ("rectified", "sweep") if args.sampling else ("rectified",):
+            t0 = time.perf_counter()
+            model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling)
+            print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}, {sampling} coarse level: "
+                  f"{model.num_hypotheses} hypotheses, coarse factor {model.factor} "
+                  f"({model.coarse_hypotheses if model.factor > 1 else '-'} coarse hypotheses), band +-{model.band}; "
+                  f"model built in {time.perf_counter() - t0:.1f} s")
         print(HEADER)
-        results = []
+        results: dict[str, list[dict[str, float]]] = {name: [] for name in models}
+        tag = (lambda name: f" [{name}]") if len(models) > 1 else (lambda name: "")
         for i, z in enumerate(THESIS_DEPTHS):
-            r = evaluate(model, render(rig, fronto_parallel_plane(rig, z, seed=i), form))
-            results.append(r)
-            print(row(f"plane {z:g} mm", r), flush=True)
-        worst_mean = max(r["mean"] for r in results)
-        worst_cov = min(r["coverage"] for r in results)
-        print(f"{'planes: worst':28s} {worst_mean:8.3f} {'':8s} {'':7s} {worst_cov:8.1f}   "
-              f"(targets: mean <= 0.25 %, coverage >= 95 %)")
-        print(row("slanted 30 deg @ 500 mm", evaluate(model, render(rig, slanted_plane(rig, 500.0, 30.0, seed=11),
-                                                                      form))))
-        print(row("step 450 / 650 mm", evaluate(model, render(rig, step_scene(rig, 450.0, 650.0, seed=12), form))))
+            capture = render(rig, fronto_parallel_plane(rig, z, seed=i), form)
+            for name, model in models.items():
+                r = evaluate(model, capture)
+                results[name].append(r)
+                print(row(f"plane {z:g} mm{tag(name)}", r), flush=True)
+        for name, rs in results.items():
+            worst_mean = max(r["mean"] for r in rs)
+            worst_cov = min(r["coverage"] for r in rs)
+            print(f"{('planes: worst' + tag(name)):28s} {worst_mean:8.3f} {'':8s} {'':7s} {worst_cov:8.1f}   "
+                  f"(targets: mean <= 0.25 %, coverage >= 95 %)")
+        scenes = (("slanted 30 deg @ 500 mm", slanted_plane(rig, 500.0, 30.0, seed=11)),
+                  ("step 450 / 650 mm", step_scene(rig, 450.0, 650.0, seed=12)))
+        for label, scene in scenes:
+            capture = render(rig, scene, form)
+            for name, model in models.items():
+                print(row(f"{label}{tag(name)}", evaluate(model, capture)), flush=True)
         if args.compare:
             half = rig.downscaled(2)
             print(f"\nthesis_setup{key} at half resolution: coarse-to-fine (default) vs single-level full search")
             print(HEADER)
             models = {"coarse-to-fine": PrismStereo(half, Z_RANGE),
-                      "full search": PrismStereo(half, Z_RANGE, coarse_factor=1)}
+                      "single sweep": PrismStereo(half, Z_RANGE, coarse_factor=1),
+                      "single rectified": PrismStereo(half, Z_RANGE, coarse_factor=1, sampling="rectified")}
             for z in (312.0, 625.0, 1192.0):
                 cap = render(half, fronto_parallel_plane(half, z, seed=3), form)
                 for name, m in models.items():

@@ -307,12 +307,14 @@ def _cmd_match(args: argparse.Namespace) -> int:
     left, right = read_image(args.left), read_image(args.right)
     if left.shape != right.shape:
         raise PrismStereoError(f"left {tuple(left.shape)} and right {tuple(right.shape)} images differ in size")
-    options = MatchOptions(cost=args.cost, aggregation=args.aggregation)
+    options = MatchOptions(cost=args.cost, aggregation=args.aggregation, fill=not args.no_fill)
     res = match_rectified(left[None], right[None], args.disparities, options)
-    disparity = torch.where(res.valid, res.disparity, torch.full_like(res.disparity, float("nan")))[0, 0]
+    written = res.valid | res.filled  # the dense map benchmarks/middlebury.py scores
+    disparity = torch.where(written, res.disparity, torch.full_like(res.disparity, float("nan")))[0, 0]
     out.parent.mkdir(parents=True, exist_ok=True)
     np.save(out, disparity.numpy().astype(np.float32))
-    print(f"wrote {out}: {res.valid.float().mean():.1%} of pixels valid")
+    print(f"wrote {out}: {written.float().mean():.1%} of pixels have a disparity ({res.valid.float().mean():.1%} "
+          f"passed the checks, {res.filled.float().mean():.1%} filled from their background)")
     return 0
 
 
@@ -380,7 +382,10 @@ def build_parser() -> argparse.ArgumentParser:
     match.add_argument("left", metavar="LEFT", help="left image (8/16-bit PNG/TIFF/JPEG)")
     match.add_argument("right", metavar="RIGHT", help="right image")
     match.add_argument("--disparities", type=int, required=True, help="search disparities 0..N-1")
-    match.add_argument("--out", required=True, help="output .npy: float32 left-view disparity, NaN where invalid")
+    match.add_argument("--out", required=True, help="output .npy: float32 left-view disparity, NaN where invalid "
+                       "(pixels rejected by the checks get the background fill unless --no-fill)")
+    match.add_argument("--no-fill", action="store_true", help="NaN for every pixel that failed the left-right / "
+                       "uniqueness checks instead of the background fill")
     match.add_argument("--cost", choices=("census", "sad", "zncc"), default="census")
     match.add_argument("--aggregation", choices=("sgm", "box"), default="sgm")
     match.set_defaults(func=_cmd_match)

@@ -308,7 +308,8 @@ class PrismStereo(nn.Module):
         """
         return {
             "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses, "cost": self.cost,
-            "fine_cost": self.fine_cost, "sampling": self.sampling, "window": self.window, "census_threshold": self.census_threshold,
+            "fine_cost": self.fine_cost, "sampling": self.sampling, "window": self.window,
+            "census_threshold": self.census_threshold,
             "box": self.box, "fine_box": self.fine_box, "aggregation": self.aggregation,
             "directions": self.directions, "p1": self.p1, "p2": self.p2, "coarse_factor": self.factor,
             "band": self.band, "refinement": self.refinement, "min_confidence": self.min_confidence,

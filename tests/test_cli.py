@@ -149,8 +149,15 @@ def test_match_writes_disparity(tmp_path, capsys):
                  str(out)]) == 0
     disp = np.load(out)
     assert disp.shape == (40, 100) and disp.dtype == np.float32
-    assert np.isnan(disp).any() and abs(np.nanmedian(disp[5:-5, 20:-5]) - 5.0) < 0.1
-    assert "valid" in capsys.readouterr().out
+    assert abs(np.nanmedian(disp[5:-5, 20:-5]) - 5.0) < 0.1
+    assert "passed the checks" in capsys.readouterr().out
+    # --no-fill: NaN wherever the checks failed (the 5 columns the right view cannot see among them)
+    checked = tmp_path / "checked.npy"
+    assert main(["match", str(tmp_path / "l.png"), str(tmp_path / "r.png"), "--disparities", "12", "--out",
+                 str(checked), "--no-fill"]) == 0
+    only = np.load(checked)
+    assert np.isnan(only[:, :5]).mean() > 0.9 and np.isnan(only).sum() > np.isnan(disp).sum()
+    assert abs(np.nanmedian(only[5:-5, 20:-5]) - 5.0) < 0.1
 
 
 def test_match_errors(tmp_path, capsys):

@@ -29,9 +29,8 @@ gives 0.008 / 0.53 px, degree 6 no better than 4. The warps themselves reach 1.5
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
-
 import math
+from typing import Literal, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -220,7 +219,8 @@ def source_rows(rect: RowRectification, u: torch.Tensor, r: torch.Tensor, side: 
         >>> from prismstereo.epipolar.sweep import fit_sweep
         >>> rig = thesis_setup1().downscaled(4)
         >>> rect = fit_row_rectification(rig, fit_sweep(rig, (300.0, 900.0)))
-        >>> u = torch.tensor([5.0], dtype=torch.float64); v = source_rows(rect, u, torch.tensor([40.0]).double(), "reference")
+        >>> u, r = torch.tensor([5.0], dtype=torch.float64), torch.tensor([40.0], dtype=torch.float64)
+        >>> v = source_rows(rect, u, r, "reference")
         >>> round(float(rectified_rows(rect, torch.stack([u, v], -1), "reference")), 8)
         40.0
     """

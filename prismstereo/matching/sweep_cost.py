@@ -25,6 +25,7 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.cost import COSTS, Cost
 
 __all__ = ["Warped", "sample_slices", "shift_cost", "sweep_cost", "warp_slices", "worst_cost"]
@@ -138,8 +139,7 @@ def worst_cost(cost: Cost, channels: int, window: int) -> float:
 _VAR_FLOOR = 1e-5  # (0.8 / 255)^2: below the variance of 8-bit read noise of 1 level
 
 
-def _box(volume: torch.Tensor, window: int) -> torch.Tensor:
-    return F.avg_pool2d(volume, window, stride=1, padding=window // 2, count_include_pad=False)
+_box = box_filter  # (B, D, H, W) window mean, separable
 
 
 def _census(reference: torch.Tensor, warped: torch.Tensor, window: int, threshold: float) -> torch.Tensor:

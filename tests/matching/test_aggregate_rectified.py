@@ -50,6 +50,28 @@ def test_sgm_matches_reference_recursion():
     torch.testing.assert_close(sgm_aggregate(cost, 0.3, 1.1, 2), expected2)
 
 
+def test_box_and_sgm_exported_graphs_match_eager(tmp_path):
+    """The ONNX forms (AveragePool for the box, MaxPool for SGM's neighbour term) compute what the eager forms
+    (depthwise convolutions, Slice / Maximum / Concat) compute, and the box is the k x k mean of the pixels
+    inside the image."""
+    ort = pytest.importorskip("onnxruntime")
+    gen = torch.Generator().manual_seed(3)
+    cost = torch.rand(2, 7, 9, 11, generator=gen)
+    ref = torch.nn.functional.avg_pool2d(cost.double(), 5, 1, 2, count_include_pad=False)
+    torch.testing.assert_close(box_filter(cost.double(), 5), ref)
+
+    class Graph(torch.nn.Module):
+        def forward(self, volume: torch.Tensor) -> torch.Tensor:
+            return sgm_aggregate(box_filter(volume, 5), 0.3, 1.1, 8)
+
+    path = tmp_path / "agg.onnx"
+    torch.onnx.export(Graph(), (cost,), str(path), input_names=["volume"], opset_version=18, dynamo=False)
+    ops = {node.op_type for node in __import__("onnx").load(str(path)).graph.node}
+    assert {"AveragePool", "MaxPool"} <= ops and "Conv" not in ops
+    out = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"volume": cost.numpy()})[0]
+    torch.testing.assert_close(torch.from_numpy(out), Graph()(cost), rtol=1e-5, atol=1e-5)
+
+
 def test_guided_sgm_matches_reference_recursion():
     gen = torch.Generator().manual_seed(1)
     cost = torch.rand(1, 5, 5, 6, generator=gen, dtype=F64)
