@@ -214,6 +214,25 @@ def test_occlusion_test_rejects_pixels_hidden_from_the_right_half():
     assert bad(checked) < bad(plain)
 
 
+def test_left_right_check_rejects_occluded_pixels_of_a_step_scene():
+    """The rectified level's left-right check alone (no z-buffer test, no confidence / uniqueness) removes
+    most reference pixels the other half does not see next to the step, and keeps the co-visible ones."""
+    rig = scaled_rig(thesis_setup1(), 4)
+    cap = render(rig, step_scene(rig, 450.0, 650.0, seed=1), FORM)
+    w = rig.reference_width
+    hidden = cap.valid[..., :w] & ~cap.covisible[..., :w]
+    cov = cap.covisible[..., :w]
+    options = dict(occlusion_tolerance=None, min_confidence=0.0, min_uniqueness=0.0, sampling="rectified")
+    with torch.no_grad():
+        plain = PrismStereo(rig, (400.0, 700.0), lr_threshold=None, **options)(cap.image)
+        checked = PrismStereo(rig, (400.0, 700.0), lr_threshold=1.0, **options)(cap.image)
+    assert hidden.sum() > 100 and plain.valid[hidden].float().mean() > 0.5
+    assert checked.valid[hidden].float().mean() < 0.6 * plain.valid[hidden].float().mean()
+    assert checked.valid[cov].float().mean() > 0.8
+    with pytest.raises(OptionError, match="lr_threshold"):
+        PrismStereo(rig, (400.0, 700.0), lr_threshold=0.0)
+
+
 def test_uniqueness_threshold_removes_false_matches_of_pixels_the_other_half_does_not_see():
     rig = scaled_rig(thesis_setup1(), 8)
     cap = render(rig, fronto_parallel_plane(rig, 228.0, seed=0), FORM)  # only ~30 % co-visible

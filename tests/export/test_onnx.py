@@ -87,6 +87,20 @@ def test_onnxruntime_matches_torch(exported, model, captures, batch):
         assert abs(float(med) / DEPTHS[k] - 1) < 0.01
 
 
+@pytest.mark.parametrize("options", [dict(sampling="sweep"), dict(lr_threshold=1.0)], ids=["sweep", "lr-check"])
+def test_other_graphs_match_torch(model, captures, options, tmp_path):
+    """The coarse level's other forms export too: the exact-sweep sampling (one GridSample of every
+    hypothesis) and the rectified level's left-right check."""
+    variant = PrismStereo(model.rig, (300.0, 900.0), coarse_factor=2, **options).eval()
+    got = OnnxDepth(export_onnx(variant, tmp_path / "variant.onnx"))(captures[:2])
+    with torch.no_grad():
+        want = variant(captures[:2])
+    both = got.valid & want.valid
+    assert both.float().mean() > 0.3 and (got.valid == want.valid).float().mean() >= 0.999
+    rel = ((got.depth - want.depth).abs() / want.depth)[both]
+    assert float((rel > 1e-4).double().mean()) <= 2e-3 and float(rel.max()) <= 1e-3
+
+
 def test_runner_accepts_numpy_and_float64(exported, captures):
     runner = OnnxDepth(exported)
     a = runner(captures[:1].double())
