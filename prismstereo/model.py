@@ -532,9 +532,12 @@ class PrismStereo(nn.Module):
         # the band is centred on each pixel's own coarse estimate, not rounded to the hypothesis grid: rounding
         # made the parabola fits pixel-lock (quarter-res plane at 600 mm: 0.19 % -> 0.49 % mean error)
         s_band = s0 + offsets.view(1, -1, 1, 1)  # (B, J, H, W); beyond [-1, 1]: outside the interval
-        cubic = local_cubic(self.table[:, top:bottom].to(reference), s0)
+        whole = (top, bottom) == (0, self.table.shape[1])  # (a sliced constant would be a second copy in ONNX)
+        table = self.table if whole else self.table[:, top:bottom]
+        interval = self.interval if whole else self.interval[:, top:bottom]
+        cubic = local_cubic(table.to(reference), s0)
         cubic = cubic._replace(coefficients=self._normalised(cubic.coefficients, 1))  # grid_sample units
-        lo, hi = self.interval[:, top:bottom].to(reference).unbind(0)
+        lo, hi = interval.to(reference).unbind(0)
         warped = Warped(sample_slices(other, band_positions(cubic, offsets), shared=False),
                         (s_band >= lo) & (s_band <= hi))
         volume = sweep_cost(reference, warped, self.fine_cost, self.window, self.census_threshold)
