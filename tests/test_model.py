@@ -206,8 +206,13 @@ def test_occlusion_test_rejects_pixels_hidden_from_the_right_half():
     with torch.no_grad():
         plain = PrismStereo(rig, (400.0, 700.0), occlusion_tolerance=None, min_confidence=0.0,
                             min_uniqueness=0.0)(cap.image)
-        checked = PrismStereo(rig, (400.0, 700.0), min_confidence=0.0, min_uniqueness=0.0)(cap.image)
+        checked = PrismStereo(rig, (400.0, 700.0), min_confidence=0.0, min_uniqueness=0.0,
+                              occluder_confidence=None)(cap.image)
+        confident = PrismStereo(rig, (400.0, 700.0), min_confidence=0.0, min_uniqueness=0.0)(cap.image)
     assert checked.valid[hidden].float().mean() < 0.6 * plain.valid[hidden].float().mean()
+    # only confident pixels occlude by default: fewer hidden pixels go, but a good part still does
+    assert confident.valid[hidden].float().mean() < 0.8 * plain.valid[hidden].float().mean()
+    assert confident.valid[cov].float().mean() >= checked.valid[cov].float().mean()
     assert checked.valid[cov].float().mean() > 0.85
     rel = lambda r: ((r.depth - cap.depth[..., :w]).abs() / cap.depth[..., :w])  # noqa: E731
     bad = lambda r: ((rel(r) > 0.02) & r.valid).float().sum() / r.valid.float().sum()  # noqa: E731
@@ -229,6 +234,8 @@ def test_left_right_check_rejects_occluded_pixels_of_a_step_scene():
     assert hidden.sum() > 100 and plain.valid[hidden].float().mean() > 0.5
     assert checked.valid[hidden].float().mean() < 0.6 * plain.valid[hidden].float().mean()
     assert checked.valid[cov].float().mean() > 0.8
+    with pytest.raises(OptionError, match="occluder_confidence"):
+        PrismStereo(rig, (400.0, 700.0), occluder_confidence=1.5)
     with pytest.raises(OptionError, match="lr_threshold"):
         PrismStereo(rig, (400.0, 700.0), lr_threshold=0.0)
 
