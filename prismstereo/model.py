@@ -45,6 +45,7 @@ the sweep's 0.11 % / 95.3 %. So a single level (f = 1) uses the sweep by default
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Literal, NamedTuple
 
@@ -55,29 +56,14 @@ from torch import nn
 from prismstereo.depth.range import default_z_range
 from prismstereo.epipolar.row_rectify import fit_row_rectification, rectified_level
 from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
-from prismstereo.epipolar.table import (
-    band_positions,
-    column_to_sweep,
-    cubic_at,
-    local_cubic,
-    positions_at,
-    tabulate_sweep,
-    valid_interval,
-)
+from prismstereo.epipolar.table import cubic_at, local_cubic, positions_at, tabulate_sweep, valid_interval
 from prismstereo.errors import OptionError, check_option, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.matching.aggregate import box_filter, sgm_aggregate
 from prismstereo.matching.cost import COSTS, Cost
-from prismstereo.matching.select import (
-    left_right_check,
-    soft_argmin_local,
-    subpixel_refine,
-    uniqueness,
-    winner_take_all,
-)
+from prismstereo.matching.levels import FineBand, RectifiedSearch, SearchOptions, SweepSearch
 from prismstereo.matching.split import SplitImage
-from prismstereo.matching.sweep_cost import Warped, sample_slices, shift_cost, sweep_cost, warp_slices, worst_cost
+from prismstereo.matching.sweep_cost import warp_slices
 
 __all__ = ["DepthResult", "PrismStereo", "Refinement", "Sampling", "sweep_hypotheses"]
 
@@ -85,8 +71,6 @@ Refinement = Literal["equiangular", "parabola", "soft_argmin"]
 Sampling = Literal["sweep", "rectified"]
 SAMPLINGS: tuple[str, ...] = ("sweep", "rectified")
 REFINEMENTS: tuple[str, ...] = ("equiangular", "parabola", "soft_argmin")
-_STRIP_VOXELS = 400_000  # fine band voxels per strip in torch eager (~1.6 MB per float32 volume: cache-sized)
-_TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05}  # soft-argmin temperature per cost's units
 
 
 class DepthResult(NamedTuple):
@@ -106,13 +90,6 @@ class DepthResult(NamedTuple):
     confidence: torch.Tensor
     index: torch.Tensor
     match: torch.Tensor
-
-
-def _similarity(best: torch.Tensor, cost: str, channels: int, window: int) -> torch.Tensor:
-    """Confidence in [0, 1] from the winner's (box-averaged) cost: the NCC for 'zncc', 1 - cost / worst
-    otherwise."""
-    worst = worst_cost(cost, channels, window)
-    return (1.0 - best / (1.0 if cost == "zncc" else worst)).clamp(0.0, 1.0)
 
 
 def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0) -> int:
@@ -300,42 +277,36 @@ class PrismStereo(nn.Module):
         table = tabulate_sweep(fine)
         self.register_buffer("table", table.float())
         self.register_buffer("interval", valid_interval(table.float(), other_valid, self.split.split))
+        options = SearchOptions(cost=cost, window=window, census_threshold=self.census_threshold, box=box,
+                                aggregation=aggregation, directions=directions, p1=p1, p2=p2, refinement=refinement,
+                                min_uniqueness=min_uniqueness)
         if self.sampling == "rectified":  # the coarse (or single) level as a 1-D shift volume on row-rectified halves
             rect = fit_row_rectification(rig, fit)
             self.rectification_residual_px = rect.max_residual_px
             level = rectified_level(rect, fit, coarse_factor, other_valid)
-            for name in ("reference_grid", "other_grid", "shifts", "back_grid", "table"):
-                self.register_buffer(f"rect_{name}", getattr(level, name).float())
-            self.register_buffer("rect_index", level.index)
-            self.register_buffer("rect_valid", level.valid.transpose(-1, -2).contiguous())  # (D, W_l, H_r)
-            # the other half's view of the same volume, for the left-right check: entry (k, x) is (k, x - k)
-            d, w_l, _ = self.rect_valid.shape
-            w_ol = level.other_grid.shape[1]
-            ref_col = torch.arange(w_ol).view(1, -1) - level.shifts.long().view(-1, 1)  # (D, W_ol)
-            inside = (ref_col >= 0) & (ref_col < w_l)
-            ref_col = ref_col.clamp(0, w_l - 1)
-            self.register_buffer("rect_right_index", (torch.arange(d).view(-1, 1) * w_l + ref_col).reshape(-1))
-            right_valid = self.rect_valid.gather(1, ref_col.unsqueeze(-1).expand(-1, -1, self.rect_valid.shape[2]))
-            self.register_buffer("rect_right_valid", right_valid & inside.unsqueeze(-1))  # (D, W_ol, H_r)
-            self.coarse_hypotheses = int(level.shifts.numel())
+            self.search: nn.Module = RectifiedSearch(options, level, coarse_factor, self.split.split, lr_threshold)
         elif coarse_factor == 1:
-            self.register_buffer("coefficients", self._normalised(fine, 1).float())
+            self.search = SweepSearch(options, self._normalised(fine, 1).float(), num_hypotheses,
+                                      other_valid=other_valid)
         else:
             fc = coarse_factor
             hc, wc = math.ceil(h / fc), math.ceil(w_ref / fc)
             uvc = (torch.stack(torch.meshgrid(torch.arange(wc, dtype=f64), torch.arange(hc, dtype=f64),
                                               indexing="xy"), -1) + 0.5) * fc - 0.5
             coarse = sweep_coefficients(fit, uvc).permute(2, 0, 1, 3)
-            self.register_buffer("coarse_coefficients", self._normalised(coarse, fc).float())
-            self.coarse_hypotheses = sweep_hypotheses(coarse / fc)
             pad = (0, math.ceil(w_o / fc) * fc - w_o, 0, hc * fc - h)
             valid_c = F.avg_pool2d(F.pad(other_valid.to(f64)[None, None], pad), fc)[0, 0] > 0.999
-            self.register_buffer("coarse_other_valid", valid_c)
             # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
-            s_c = torch.linspace(-1.0, 1.0, self.coarse_hypotheses, dtype=f64)
+            num_c = sweep_hypotheses(coarse / fc)
             probe = torch.zeros(1, 1, valid_c.shape[0], valid_c.shape[1], dtype=f64)
-            grid_c = positions_at(self._normalised(coarse, fc), s_c).unsqueeze(0)
-            self.register_buffer("coarse_valid", warp_slices(probe, grid_c, valid_c).valid[0])
+            grid_c = positions_at(self._normalised(coarse, fc), torch.linspace(-1.0, 1.0, num_c, dtype=f64))
+            self.search = SweepSearch(options, self._normalised(coarse, fc).float(), num_c,
+                                      valid=warp_slices(probe, grid_c.unsqueeze(0), valid_c).valid[0])
+        self.coarse_hypotheses = self.search.num_hypotheses
+        if coarse_factor > 1:
+            scale, offset = self._grid_map(torch.zeros((), dtype=torch.float32), 1)
+            self.fine = FineBand(dataclasses.replace(options, cost=fine_cost, box=fine_box), self.band,
+                                 2.0 / (num_hypotheses - 1), scale, offset)
 
     def config(self) -> dict[str, object]:
         """The constructor's options as resolved (defaults filled in), JSON-ready; with the rig
@@ -398,81 +369,6 @@ class PrismStereo(nn.Module):
         padded = F.pad(image, (0, math.ceil(w / f) * f - w, 0, math.ceil(h / f) * f - h), mode="replicate")
         return F.avg_pool2d(padded, f)
 
-    def _aggregate(self, cost: torch.Tensor, box: int) -> tuple[torch.Tensor, torch.Tensor]:
-        local = box_filter(cost, box)
-        return local, sgm_aggregate(local, self.p1, self.p2, self.directions) if self.aggregation == "sgm" else local
-
-    def _select(self, local: torch.Tensor, total: torch.Tensor, index: torch.Tensor, cost: str, final: bool):
-        method = self.refinement if final and self.refinement is not None else None
-        if method == "soft_argmin":
-            return soft_argmin_local(total, index, radius=2, temperature=_TEMPERATURE[cost])
-        return subpixel_refine(local, index, method or ("parabola" if cost == "zncc" else "equiangular"))
-
-    def full_search(self, reference: torch.Tensor, other: torch.Tensor, coefficients: torch.Tensor,
-                    other_valid: torch.Tensor, num: int, final: bool, valid: torch.Tensor | None = None):
-        """One level over the whole range: (s (B, 1, H, W), valid, confidence) at that level's resolution.
-        ``valid`` (D, H, W): the samples' validity when precomputed (else sampled from ``other_valid``)."""
-        s_values = torch.linspace(-1.0, 1.0, num, dtype=reference.dtype, device=reference.device)
-        grid = positions_at(coefficients.to(reference), s_values).unsqueeze(0)
-        if valid is None:
-            warped = warp_slices(other, grid, other_valid, shared=True)
-        else:
-            b = reference.shape[0]
-            warped = Warped(sample_slices(other, grid, shared=True), valid.unsqueeze(0).expand(b, -1, -1, -1))
-        volume = sweep_cost(reference, warped, self.cost, self.window, self.census_threshold)
-        local, total = self._aggregate(volume, self.box)
-        index, _ = winner_take_all(total.detach())
-        refined = self._select(local, total, index, self.cost, final)
-        confidence = _similarity(local.gather(1, index), self.cost, reference.shape[1], self.window)
-        unique = uniqueness(total.detach(), index, 1.0)[1] >= self.min_uniqueness
-        ok = warped.valid.gather(1, index) & unique
-        return -1.0 + refined * (2.0 / (num - 1)), ok, confidence
-
-    def rectified_search(self, reference: torch.Tensor, other: torch.Tensor, final: bool):
-        """One level as a 1-D shift volume on the row-rectified halves (``sampling='rectified'``,
-        :mod:`prismstereo.epipolar.row_rectify`): (s (B, 1, H, W), valid, confidence) at the level's resolution.
-
-        Both level images are rectified by one ``grid_sample`` each (vertical warps); shift k compares
-        rectified column u with column u + k of the other (one gather builds the volume); cost, box + SGM,
-        winner and sub-pixel refinement as in :meth:`full_search`; the shift becomes the sweep coordinate
-        exactly (:func:`~prismstereo.epipolar.table.column_to_sweep` on each rectified pixel's own sweep) and is
-        resampled onto the unrectified level pixels (bilinear; validity nearest)."""
-        b = reference.shape[0]
-        ref_r = sample_slices(reference, self.rect_reference_grid.to(reference)[None, None], shared=True)[:, :, 0]
-        oth_r = sample_slices(other, self.rect_other_grid.to(other)[None, None], shared=True)[:, :, 0]
-        # the volume stays transposed, (B, D, W_l, H_r), until the winner (see shift_cost) unless the aggregation
-        # is not symmetric in H and W (2-direction SGM scans rows only)
-        t = not (self.aggregation == "sgm" and self.directions == 2)
-        valid = self.rect_valid if t else self.rect_valid.transpose(-1, -2)
-        volume = shift_cost(ref_r, oth_r, self.rect_index, valid.unsqueeze(0), self.cost, self.window,
-                            self.census_threshold, transposed=t)
-        local, total = self._aggregate(volume, self.box)
-        index, _ = winner_take_all(total.detach())
-        refined = self._select(local, total, index, self.cost, final)
-        confidence = _similarity(local.gather(1, index), self.cost, reference.shape[1], self.window)
-        unique = uniqueness(total.detach(), index, 1.0)[1] >= self.min_uniqueness
-        ok = valid.unsqueeze(0).expand(b, -1, -1, -1).gather(1, index) & unique
-        if t:
-            refined, ok, confidence = refined.transpose(-1, -2), ok.transpose(-1, -2), confidence.transpose(-1, -2)
-        if self.lr_threshold is not None:  # the other half's winners over the same aggregated volume
-            vol = (total if t else total.transpose(-1, -2)).detach()  # (B, D, W_l, H_r)
-            d, w_l, h_r = vol.shape[1:]
-            right = vol.reshape(b, d * w_l, h_r).index_select(1, self.rect_right_index).view(b, d, -1, h_r)
-            right = torch.where(self.rect_right_valid, right, torch.full_like(right, float("inf")))
-            k_right = winner_take_all(right)[0].transpose(-1, -2).to(reference.dtype)  # (B, 1, H_r, W_ol)
-            # disparity in left_right_check's convention (other column = reference column - d): d = -shift
-            first = self.rect_shifts[0].to(reference)
-            ok = ok & left_right_check(-(first + refined.detach()), -(first + k_right), self.lr_threshold)
-        w_l, f = reference.shape[-1], self.factor
-        u = (torch.arange(w_l, device=reference.device).to(reference.dtype) + 0.5) * f - 0.5
-        column = u + self.split.split + (self.rect_shifts[0].to(reference) + refined) * f  # the match's column
-        s = column_to_sweep(self.rect_table.to(reference), column)
-        grid = self.rect_back_grid.to(reference).unsqueeze(0).expand(b, -1, -1, -1)
-        s = F.grid_sample(s, grid, mode="bilinear", padding_mode="border", align_corners=False)
-        confidence = F.grid_sample(confidence, grid, mode="bilinear", padding_mode="border", align_corners=False)
-        ok = F.grid_sample(ok.to(reference.dtype), grid, mode="nearest", padding_mode="zeros", align_corners=False)
-        return s, ok > 0.5, confidence
-
     def forward(self, image: torch.Tensor) -> DepthResult:
         """Depth of the reference half of ``image`` (B, C, H, W) in [0, 1], C = 1 or 3.
 
@@ -492,18 +388,13 @@ class PrismStereo(nn.Module):
         h, w_ref = ref.shape[-2:]
         step = 2.0 / (self.num_hypotheses - 1)
         if self.factor == 1:
-            s, ok, confidence = self.rectified_search(ref, other, True) if self.sampling == "rectified" else \
-                self.full_search(ref, other, self.coefficients, self.other_valid, self.num_hypotheses, True)
+            s, ok, confidence = self.search(ref, other, final=True)
         else:
             f = self.factor
-            ref_c, other_c = self._downsample(ref), self._downsample(other)
-            s_c, ok_c, _ = self.rectified_search(ref_c, other_c, False) if self.sampling == "rectified" else \
-                self.full_search(ref_c, other_c, self.coarse_coefficients, self.coarse_other_valid,
-                                 self.coarse_hypotheses, False, self.coarse_valid)
+            s_c, ok_c, _ = self.search(self._downsample(ref), self._downsample(other), final=False)
             s0 = F.interpolate(s_c, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
             ok0 = F.interpolate(ok_c.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
-            s0 = s0.detach().clamp(-1.0, 1.0)
-            s, ok, confidence = self._fine_in_strips(ref, other, s0, ok0)
+            s, ok, confidence = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), ok0, self.table, self.interval)
         s = s.clamp(-1.0, 1.0)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
@@ -516,52 +407,6 @@ class PrismStereo(nn.Module):
         confidence = torch.where(valid, confidence, torch.zeros_like(confidence))
         index = (s + 1.0) / step
         return DepthResult(depth, valid, confidence, index, match)
-
-    def _fine_in_strips(self, ref: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor):
-        """The fine band over horizontal strips (torch eager), or in one piece (tracing / ONNX export).
-
-        The band's cost and box filters see ``window // 2 + fine_box // 2`` rows beyond each strip (the halo),
-        so the strips give the whole image's numbers (bitwise, measured); strips of ~64 rows at 1024 x 768
-        keep the band's (11, rows, W) volumes (~1.6 MB) in cache instead of 17 MB ones in DRAM."""
-        if torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
-            return self._fine(ref, other, s0, ok0, 0, ref.shape[-2])
-        h = ref.shape[-2]
-        halo = self.window // 2 + self.fine_box // 2
-        rows = max(16, _STRIP_VOXELS // ((2 * self.band + 1) * ref.shape[0] * ref.shape[-1]))
-        strips = []
-        for top in range(0, h, rows):
-            lo, hi = max(0, top - halo), min(h, top + rows + halo)
-            res = self._fine(ref[..., lo:hi, :], other, s0[..., lo:hi, :], ok0[..., lo:hi, :], lo, hi)
-            keep = slice(top - lo, top - lo + min(rows, h - top))
-            strips.append([t[..., keep, :] for t in res])
-        return tuple(torch.cat(ts, -2) for ts in zip(*strips, strict=True))
-
-    def _fine(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor, top: int,
-              bottom: int):
-        """The fine band of reference rows top..bottom - 1 (``reference``, ``s0``, ``ok0`` cut to them):
-        (s, valid, confidence)."""
-        step = 2.0 / (self.num_hypotheses - 1)
-        offsets = torch.arange(-self.band, self.band + 1, device=reference.device).to(reference.dtype) * step
-        # the band is centred on each pixel's own coarse estimate, not rounded to the hypothesis grid: rounding
-        # made the parabola fits pixel-lock (quarter-res plane at 600 mm: 0.19 % -> 0.49 % mean error)
-        s_band = s0 + offsets.view(1, -1, 1, 1)  # (B, J, H, W); beyond [-1, 1]: outside the interval
-        whole = (top, bottom) == (0, self.table.shape[1])  # (a sliced constant would be a second copy in ONNX)
-        table = self.table if whole else self.table[:, top:bottom]
-        interval = self.interval if whole else self.interval[:, top:bottom]
-        cubic = local_cubic(table.to(reference), s0)
-        cubic = cubic._replace(coefficients=self._normalised(cubic.coefficients, 1))  # grid_sample units
-        lo, hi = interval.to(reference).unbind(0)
-        warped = Warped(sample_slices(other, band_positions(cubic, offsets), shared=False),
-                        (s_band >= lo) & (s_band <= hi))
-        volume = sweep_cost(reference, warped, self.fine_cost, self.window, self.census_threshold)
-        local = box_filter(volume, self.fine_box)
-        j, _ = winner_take_all(local.detach())  # no SGM: the coarse level already regularised the band
-        refined = self._select(local, local, j, self.fine_cost, True)
-        inside = (j > 0) & (j < 2 * self.band)
-        s = s_band.gather(1, j) + (refined - j.to(reference.dtype)) * step
-        ok = ok0 & inside & warped.valid.gather(1, j)
-        confidence = _similarity(local.gather(1, j), self.fine_cost, reference.shape[1], self.window)
-        return s, ok, confidence
 
     def visible(
         self, match: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, occluders: torch.Tensor | None = None

@@ -4,6 +4,7 @@ import torch
 from prismstereo import OptionError, RigError, ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.epipolar import exact_sampling_grid
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients
+from prismstereo.matching.levels import RectifiedSearch, SweepSearch
 from prismstereo.model import PrismStereo, sweep_hypotheses
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, step_scene
 from tests.conftest import scaled_rig
@@ -106,7 +107,8 @@ def test_both_samplings_behind_one_interface(setup):
     assert models["rectified"].sampling == "rectified"
     assert PrismStereo(rig, (450.0, 900.0), coarse_factor=1).sampling == "sweep"
     buffers = set(dict(models["rectified"].named_buffers()))
-    assert {"rect_index", "rect_valid", "rect_table", "rect_back_grid"} <= buffers and "coarse_valid" not in buffers
+    assert {"search.index", "search.valid", "search.table", "search.back_grid"} <= buffers
+    assert isinstance(models["rectified"].search, RectifiedSearch) and isinstance(models["sweep"].search, SweepSearch)
     assert models["rectified"].rectification_residual_px < (1e-3 if setup is thesis_setup1 else 0.05)
     results, coverages = {}, {}
     for name, model in models.items():
@@ -163,8 +165,8 @@ def test_model_buffers_batch_and_errors(setup1_model):
     rig, model = setup1_model
     buffers = dict(model.named_buffers())
     assert {"table", "reference_valid", "other_valid", "depths"} <= set(buffers)
-    assert ("coefficients" in buffers) == (model.factor == 1)
-    assert ("coarse_coefficients" in buffers) == (model.factor > 1 and model.sampling == "sweep")
+    assert ("search.coefficients" in buffers) == (model.sampling == "sweep")
+    assert ("fine.grid_scale" in buffers) == (model.factor > 1) and hasattr(model, "fine") == (model.factor > 1)
     assert model.depths.shape == (model.num_hypotheses,)
     x = torch.rand(2, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():
