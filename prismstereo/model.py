@@ -35,8 +35,9 @@ Why the rectified coarse level by default (``benchmarks/depth_targets.py --sampl
 thesis setups, 205-1511 mm): the final depth comes from the same exact fine band either way, and the
 rectified coarse level lands inside it more often: coverage at 228 mm 94.8 -> 95.5 % (setup 1) and
 94.5 -> 96.1 % (setup 2), the only thesis depth where the sweep missed the 95 % target, and >= the sweep's on
-most other captures (setup 2's mean errors are 0.00-0.02 points higher, all <= 0.092 %); onnxruntime runs the frame faster (1024 x 768, 228-1374 mm: ~300-330 ms vs ~360-410 ms;
-the volume is a gather of rows instead of a bilinear ``grid_sample`` of 2.3 M samples). It is not exact as a
+most other captures (setup 2's mean errors are 0.00-0.02 points higher, all <= 0.092 %); onnxruntime runs
+the frame faster (1024 x 768, 228-1374 mm: ~300-330 ms vs ~360-410 ms; the volume is a gather of rows instead
+of a bilinear ``grid_sample`` of 2.3 M samples). It is not exact as a
 *final* level: a shift compares windows of equal width, while the other half's image of a surface is
 stretched or squeezed across the window (anamorphic virtual cameras), which the per-pixel sweep follows.
 Measured as a single level at half resolution, setup 2, 1192 mm: 0.26 % mean error / 88.9 % coverage against
