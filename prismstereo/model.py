@@ -374,10 +374,10 @@ class PrismStereo(nn.Module):
         """Depth of the reference half of ``image`` (B, C, H, W) in [0, 1], C = 1 or 3.
 
         In torch eager a batch is evaluated image by image (one graph for the whole batch when traced or
-        exported). Measured at 1024 x 768 (2 threads): one image keeps ~1.7 cores busy and its volumes in
-        cache; a batch of 8 as one tensor cost 1.3x per image (coarse level 107 -> 193 ms per image, 0.9 M
-        minor page faults per call: every volume of 8 images is a fresh mmap), so there is nothing to gain
-        from batched tensors here and the loop keeps throughput at batch 1's."""
+        exported). Measured at 1024 x 768 (2 threads, ``benchmarks/onnx_speed.py``): one image keeps ~1.7
+        cores busy and its volumes in cache; a batch of 8 as one tensor gave 0.91x batch 1's images/s (the
+        coarse level alone 107 -> 193 ms per image; 0.9 M minor page faults per call: every volume of 8 images
+        is a fresh mmap), image by image 1.07x."""
         check_shape(image, ["B", "C", "H", "W"], "image")
         if image.shape[0] > 1 and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
             parts = [self._forward(image[i:i + 1]) for i in range(image.shape[0])]
