@@ -17,14 +17,17 @@ def plane():
     return rig, cap
 
 
-@pytest.mark.parametrize("sampling", ["rectified", "sweep"])
-def test_searches_share_one_interface_and_find_the_plane(plane, sampling):
+@pytest.mark.parametrize("sampling, directions", [("rectified", 4), ("rectified", 2), ("sweep", 4)])
+def test_searches_share_one_interface_and_find_the_plane(plane, sampling, directions):
     """Both coarse searches: the same call, a LevelResult at the level's resolution, the plane's sweep
-    coordinate at most pixels the other half sees."""
+    coordinate at most pixels the other half sees (the rectified volume stays transposed except with
+    2-direction SGM, which scans rows only)."""
     rig, cap = plane
-    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, sampling=sampling)
+    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, sampling=sampling, directions=directions)
     search = model.search
     assert isinstance(search, RectifiedSearch if sampling == "rectified" else SweepSearch)
+    if sampling == "rectified":
+        assert search.transposed == (directions != 2)
     ref, other = model.split(cap.image)
     with torch.no_grad():
         res = search(model._downsample(ref), model._downsample(other), final=False)
