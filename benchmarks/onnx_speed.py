@@ -20,6 +20,8 @@ soon as another process is busy, onnxruntime and OpenCV much less, so only trust
    and its depth conversion are not timed. Columns: ms per frame (median, fastest), the ratio to SGBM's median,
    the mean (and median) relative depth error % over the valid co-visible reference pixels, and the coverage,
    % of co-visible reference pixels that are valid, as in ``benchmarks/depth_targets.py``.
+   ``--sampling`` adds torch and onnxruntime rows for the same model with the exact-sweep coarse level
+   (``sampling='sweep'``; the default is the rectified shift volume).
 2. **Narrow range** 600-1450 mm: the same with ``PrismStereo(rig, (600, 1450))`` (its default coarse factor,
    printed; ``--narrow-coarse-factor F`` forces one), numDisparities 96 / K and ``slanted_plane(rig, 900, 30)``
    (Z 878-923 mm). (A single full-resolution level, ``--narrow-coarse-factor 1``, what the model picked for
@@ -61,7 +63,7 @@ OpenCV on bi-prism halves:
 
 Run (from the repository root; the default run takes a few minutes on a quiet 2-core machine, most of it the
 two full-resolution ONNX exports of ~25-70 s each):
-    .venv/bin/python benchmarks/onnx_speed.py [--scale 1] [--repeats 5] [--narrow-coarse-factor F]
+    .venv/bin/python benchmarks/onnx_speed.py [--scale 1] [--repeats 5] [--narrow-coarse-factor F] [--sampling]
 """
 
 from __future__ import annotations
@@ -291,8 +293,10 @@ def machine_line() -> str:
 
 
 # ----------------------------------------------------------------------------------------------- parts
-def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_factor: int | None, tmp: Path):
-    """Parts 1 / 2: the table of one range. Returns (model, onnx path, capture)."""
+def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_factor: int | None, tmp: Path,
+             sweep_too: bool = False):
+    """Parts 1 / 2: the table of one range (with ``sweep_too`` also the model with the exact-sweep coarse
+    level, in torch and onnxruntime). Returns (model, onnx path, capture)."""
     t0 = time.perf_counter()
     capture = render(rig, slanted_plane(rig, case.depth_mm, case.slant_deg), FORMATION)
     t_render = time.perf_counter() - t0
@@ -321,6 +325,9 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
           f"{100 * float(check.max()):.1e} %")
 
     image = capture.image
+    if sweep_too:  # the same model with the other coarse sampling (default: rectified), built and exported first
+        sweep_model = PrismStereo(rig, case.z_range, coarse_factor=coarse_factor, sampling="sweep").eval()
+        sweep_runner = OnnxDepth(export_onnx(sweep_model, tmp / f"{case.name}_sweep.onnx"), threads=2)
     rows = []
     other = OtherLoad().__enter__()
     with torch.inference_mode():
@@ -330,6 +337,14 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
     ms = time_ms(lambda: runner(image), repeats)
     res = runner(image)
     rows.append(Row("onnxruntime (2 threads)", *ms, *score(res.depth, res.valid, capture, split)))
+    if sweep_too:
+        with torch.inference_mode():
+            ms = time_ms(lambda: sweep_model(image), repeats)
+            res = sweep_model(image)
+        rows.append(Row("torch eager, sweep coarse level", *ms, *score(res.depth, res.valid, capture, split)))
+        ms = time_ms(lambda: sweep_runner(image), repeats)
+        res = sweep_runner(image)
+        rows.append(Row("onnxruntime, sweep coarse level", *ms, *score(res.depth, res.valid, capture, split)))
     left, right = opencv_halves(image, split, mirror)
     nd = disparity_count(case.disparities, scale)
     matchers = {
@@ -499,6 +514,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scale", type=int, default=1, help="sensor downscale factor (1 = 1024 x 768)")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per row (median), >= 5 recommended")
+    parser.add_argument("--sampling", action="store_true",
+                        help="wide range: also the model with the exact-sweep coarse level (torch and onnxruntime)")
     parser.add_argument("--narrow-coarse-factor", type=int, default=0,
                         help="coarse_factor of the narrow-range model (0 = the model's default)")
     args = parser.parse_args()
@@ -509,7 +526,7 @@ def main() -> None:
     rig = thesis_setup1().downscaled(args.scale)
     with tempfile.TemporaryDirectory(prefix="onnx_speed_") as tmp_name:
         tmp = Path(tmp_name)
-        model, path, capture = run_case(WIDE, rig, args.scale, args.repeats, None, tmp)
+        model, path, capture = run_case(WIDE, rig, args.scale, args.repeats, None, tmp, args.sampling)
         run_case(NARROW, rig, args.scale, args.repeats, args.narrow_coarse_factor or None, tmp)
         batching(model, capture.image, args.repeats)
         peak_rss(path, capture.image, args.scale, tmp)
