@@ -325,26 +325,22 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
           f"{100 * float(check.max()):.1e} %")
 
     image = capture.image
+    variants = [("torch eager", "onnxruntime (2 threads)", model, runner)]
     if sweep_too:  # the same model with the other coarse sampling (default: rectified), built and exported first
         sweep_model = PrismStereo(rig, case.z_range, coarse_factor=coarse_factor, sampling="sweep").eval()
         sweep_runner = OnnxDepth(export_onnx(sweep_model, tmp / f"{case.name}_sweep.onnx"), threads=2)
+        variants.append(("torch eager, sweep coarse level", "onnxruntime, sweep coarse level", sweep_model,
+                         sweep_runner))
     rows = []
     other = OtherLoad().__enter__()
-    with torch.inference_mode():
-        ms = time_ms(lambda: model(image), repeats)
-        res = model(image)
-    rows.append(Row("torch eager", *ms, *score(res.depth, res.valid, capture, split)))
-    ms = time_ms(lambda: runner(image), repeats)
-    res = runner(image)
-    rows.append(Row("onnxruntime (2 threads)", *ms, *score(res.depth, res.valid, capture, split)))
-    if sweep_too:
+    for torch_name, ort_name, torch_model, ort_runner in variants:
         with torch.inference_mode():
-            ms = time_ms(lambda: sweep_model(image), repeats)
-            res = sweep_model(image)
-        rows.append(Row("torch eager, sweep coarse level", *ms, *score(res.depth, res.valid, capture, split)))
-        ms = time_ms(lambda: sweep_runner(image), repeats)
-        res = sweep_runner(image)
-        rows.append(Row("onnxruntime, sweep coarse level", *ms, *score(res.depth, res.valid, capture, split)))
+            ms = time_ms(lambda m=torch_model: m(image), repeats)
+            res = torch_model(image)
+        rows.append(Row(torch_name, *ms, *score(res.depth, res.valid, capture, split)))
+        ms = time_ms(lambda r=ort_runner: r(image), repeats)
+        res = ort_runner(image)
+        rows.append(Row(ort_name, *ms, *score(res.depth, res.valid, capture, split)))
     left, right = opencv_halves(image, split, mirror)
     nd = disparity_count(case.disparities, scale)
     matchers = {
