@@ -1,26 +1,5 @@
 """ONNX deployment of the depth model: :func:`export_onnx`, :class:`OnnxDepth`, :func:`onnx_session`
-(see :mod:`prismstereo.export.onnx`)."""
+(see :mod:`prismstereo.export.onnx`, whose ``__all__`` is this package's)."""
 
-from prismstereo.export.onnx import (
-    DEFAULT_OPSET,
-    DepthGraph,
-    ExportError,
-    OnnxDepth,
-    OnnxDepthResult,
-    cache_directory,
-    describe,
-    export_onnx,
-    onnx_session,
-)
-
-__all__ = [
-    "DEFAULT_OPSET",
-    "DepthGraph",
-    "ExportError",
-    "OnnxDepth",
-    "OnnxDepthResult",
-    "cache_directory",
-    "describe",
-    "export_onnx",
-    "onnx_session",
-]
+from prismstereo.export.onnx import *  # noqa: F403 (the one module's public names, listed once, in its __all__)
+from prismstereo.export.onnx import __all__  # noqa: F401
