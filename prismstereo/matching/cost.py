@@ -234,7 +234,8 @@ def census_volume(
         ShapeError: bad shapes. OptionError: fractional offsets, bad window or threshold.
 
     Example:
-        >>> left = torch.rand(1, 1, 12, 20); right = torch.roll(left, -3, dims=-1)
+        >>> left = torch.rand(1, 1, 12, 20, generator=torch.Generator().manual_seed(0))
+        >>> right = torch.roll(left, -3, dims=-1)
         >>> vol = census_volume(left, right, -torch.arange(6), 5)
         >>> int(vol.cost[0, :, 6, 10].argmin()), float(vol.cost[0, 3, 6, 10])
         (3, 0.0)
