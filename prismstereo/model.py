@@ -55,14 +55,14 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.depth.range import default_z_range
-from prismstereo.epipolar.row_rectify import fit_row_rectification, rectified_level
+from prismstereo.epipolar.row_rectify import fit_row_rectification, level_coverage, rectified_level
 from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.epipolar.table import cubic_at, local_cubic, positions_at, tabulate_sweep, valid_interval
 from prismstereo.errors import OptionError, check_option, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.cost import COSTS, Cost
-from prismstereo.matching.levels import FineBand, RectifiedSearch, SearchOptions, SweepSearch
+from prismstereo.matching.levels import FineBand, RectifiedSearch, SearchOptions, SweepSearch, affine_coefficients
 from prismstereo.matching.split import SplitImage
 from prismstereo.matching.sweep_cost import warp_slices
 
@@ -295,13 +295,13 @@ class PrismStereo(nn.Module):
             uvc = (torch.stack(torch.meshgrid(torch.arange(wc, dtype=f64), torch.arange(hc, dtype=f64),
                                               indexing="xy"), -1) + 0.5) * fc - 0.5
             coarse = sweep_coefficients(fit, uvc).permute(2, 0, 1, 3)
-            pad = (0, math.ceil(w_o / fc) * fc - w_o, 0, hc * fc - h)
-            valid_c = F.avg_pool2d(F.pad(other_valid.to(f64)[None, None], pad), fc)[0, 0] > 0.999
+            valid_c = level_coverage(other_valid, fc) > 0.999
             # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
             num_c = sweep_hypotheses(coarse / fc)
             probe = torch.zeros(1, 1, valid_c.shape[0], valid_c.shape[1], dtype=f64)
-            grid_c = positions_at(self._normalised(coarse, fc), torch.linspace(-1.0, 1.0, num_c, dtype=f64))
-            self.search = SweepSearch(options, self._normalised(coarse, fc).float(), num_c,
+            coarse = self._normalised(coarse, fc)  # grid_sample units of the coarse other image
+            grid_c = positions_at(coarse, torch.linspace(-1.0, 1.0, num_c, dtype=f64))
+            self.search = SweepSearch(options, coarse.float(), num_c,
                                       valid=warp_slices(probe, grid_c.unsqueeze(0), valid_c).valid[0])
         self.coarse_hypotheses = self.search.num_hypotheses
         if coarse_factor > 1:
@@ -351,9 +351,8 @@ class PrismStereo(nn.Module):
 
     def _normalised(self, coefficients: torch.Tensor, factor: int) -> torch.Tensor:
         """Map pixel-unit polynomials to grid_sample coordinates of the other half (padded to a multiple of
-        ``factor``): the map is affine, so only T_0's coefficient gets the offset."""
-        scale, offset = self._grid_map(coefficients, factor)
-        return torch.cat([coefficients[:1] * scale + offset, coefficients[1:] * scale])
+        ``factor``)."""
+        return affine_coefficients(coefficients, *self._grid_map(coefficients, factor))
 
     def _grid_map(self, like: torch.Tensor, factor: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
         """(scale, offset) (2,) mapping full-sensor pixel positions to grid_sample coordinates (align_corners=

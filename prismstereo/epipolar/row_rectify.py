@@ -41,8 +41,8 @@ from prismstereo.errors import OptionError, RigError, check_option
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["RectifiedLevel", "RowRectification", "fit_row_rectification", "rectified_level", "rectified_rows",
-           "source_rows"]
+__all__ = ["RectifiedLevel", "RowRectification", "fit_row_rectification", "level_coverage", "rectified_level",
+           "rectified_rows", "source_rows"]
 
 Side = Literal["reference", "other"]
 SIDES: tuple[str, ...] = ("reference", "other")
@@ -232,6 +232,26 @@ def source_rows(rect: RowRectification, u: torch.Tensor, r: torch.Tensor, side: 
     return v
 
 
+def level_coverage(mask: torch.Tensor, factor: int) -> torch.Tensor:
+    """Share of real pixels in each ``factor`` x ``factor`` block of a mask zero-padded to whole blocks: the
+    validity of a pyramid level's box-downsampled pixels (a level pixel is real where this is ~1).
+
+    Args:
+        mask: (H, W) bool, e.g. the other half's pixels that see through the prism.
+        factor: f >= 1.
+
+    Returns:
+        (ceil(H / f), ceil(W / f)) float64 in [0, 1].
+
+    Example:
+        >>> level_coverage(torch.tensor([[True, True, False]]), 2)
+        tensor([[0.5000, 0.0000]], dtype=torch.float64)
+    """
+    h, w = mask.shape
+    pad = (0, math.ceil(w / factor) * factor - w, 0, math.ceil(h / factor) * factor - h)
+    return F.avg_pool2d(F.pad(mask.to(torch.float64)[None, None], pad), factor)[0, 0]
+
+
 def rectified_level(
     rect: RowRectification, fit: SweepFit, factor: int, other_valid: torch.Tensor
 ) -> RectifiedLevel:
@@ -284,8 +304,7 @@ def rectified_level(
     y_src = source_rows(rect, (x + w_ref).view(1, -1), r.view(-1, 1), "other")  # (H_r, W_ol)
     other_grid = torch.stack([level(x, w_ol).expand_as(y_src), level(y_src, h_l)], -1)
     ref_ok = (v_src >= -0.5) & (v_src <= h - 0.5)
-    pad = (0, w_ol * f - w_o, 0, h_l * f - h)
-    mask = F.avg_pool2d(F.pad(other_valid.to(f64)[None, None], pad), f)
+    mask = level_coverage(other_valid, f)[None, None]
     sampled = F.grid_sample(mask, other_grid.unsqueeze(0), mode="bilinear", padding_mode="zeros", align_corners=False)
     other_ok = (sampled[0, 0] > 0.999) & (y_src >= -0.5) & (y_src <= h - 0.5)  # (H_r, W_ol)
 
