@@ -309,7 +309,7 @@ def bands_for_tolerance(
     Example:
         >>> small = thesis_setup1().downscaled(8)
         >>> sb, res = bands_for_tolerance(small, depth_hypotheses(300.0, 1200.0, 16))
-        >>> res.max_px < 0.1 and res.mean_px < 0.01
+        >>> res.max_px < 0.05 and res.mean_px < 0.01  # the default tolerance holds by construction
         True
     """
     exact = exact_sampling_grid(rig, depths, rows)
