@@ -305,9 +305,8 @@ class PrismStereo(nn.Module):
                                       valid=warp_slices(probe, grid_c.unsqueeze(0), valid_c).valid[0])
         self.coarse_hypotheses = self.search.num_hypotheses
         if coarse_factor > 1:
-            scale, offset = self._grid_map(torch.zeros((), dtype=torch.float32), 1)
             self.fine = FineBand(dataclasses.replace(options, cost=fine_cost, box=fine_box), self.band,
-                                 2.0 / (num_hypotheses - 1), scale, offset)
+                                 2.0 / (num_hypotheses - 1), self.split.split)
 
     def config(self) -> dict[str, object]:
         """The constructor's options as resolved (defaults filled in), JSON-ready; with the rig

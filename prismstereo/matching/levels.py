@@ -34,7 +34,15 @@ from prismstereo.matching.select import (
     uniqueness,
     winner_take_all,
 )
-from prismstereo.matching.sweep_cost import Warped, sample_slices, shift_cost, sweep_cost, warp_slices, worst_cost
+from prismstereo.matching.sweep_cost import (
+    Warped,
+    sample_points,
+    sample_slices,
+    shift_cost,
+    sweep_cost,
+    warp_slices,
+    worst_cost,
+)
 
 __all__ = ["FineBand", "LevelResult", "RectifiedSearch", "SearchOptions", "SweepSearch", "affine_coefficients"]
 
@@ -272,8 +280,7 @@ class FineBand(nn.Module):
             refinement).
         band: R.
         step: hypothesis spacing in s.
-        grid_scale, grid_offset: (2,) the affine map of full-sensor positions to ``grid_sample`` units of the
-            other half.
+        split: the other half's first full-sensor column.
 
     Example:
         >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
@@ -282,19 +289,16 @@ class FineBand(nn.Module):
         >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1).double()
         >>> table = tabulate_sweep(sweep_coefficients(fit, uv).permute(2, 0, 1, 3)).float()
         >>> interval = valid_interval(table, torch.ones(96, 64, dtype=torch.bool), 64)
-        >>> fine = FineBand(SearchOptions(box=7), 2, 0.05, torch.tensor([2 / 64, 2 / 96]), torch.tensor([-3.0, -1.0]))
+        >>> fine = FineBand(SearchOptions(box=7), 2, 0.05, 64)
         >>> res = fine(torch.rand(1, 1, 96, 64), torch.rand(1, 1, 96, 64), torch.zeros(1, 1, 96, 64),
         ...            torch.ones(1, 1, 96, 64, dtype=torch.bool), table, interval)
         >>> res.s.shape
         torch.Size([1, 1, 96, 64])
     """
 
-    def __init__(self, options: SearchOptions, band: int, step: float, grid_scale: torch.Tensor,
-                 grid_offset: torch.Tensor) -> None:
+    def __init__(self, options: SearchOptions, band: int, step: float, split: int) -> None:
         super().__init__()
-        self.options, self.band, self.step = options, band, step
-        self.register_buffer("grid_scale", grid_scale)
-        self.register_buffer("grid_offset", grid_offset)
+        self.options, self.band, self.step, self.split = options, band, step, split
 
     def forward(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
                 table: torch.Tensor, interval: torch.Tensor) -> LevelResult:
@@ -320,12 +324,12 @@ class FineBand(nn.Module):
         o, step = self.options, self.step
         offsets = torch.arange(-self.band, self.band + 1, device=reference.device).to(reference.dtype) * step
         s_band = s0 + offsets.view(1, -1, 1, 1)  # (B, J, H, W); beyond [-1, 1]: outside the interval
-        cubic = local_cubic(table.to(reference), s0)
-        cubic = cubic._replace(coefficients=affine_coefficients(  # grid_sample units
-            cubic.coefficients, self.grid_scale.to(reference), self.grid_offset.to(reference)))
+        x, y = band_positions(local_cubic(table.to(reference), s0), offsets).unbind(-1)  # full-sensor pixels
+        channels = reference.shape[1]
+        if o.cost == "zncc" and channels > 1:  # ZNCC compares grey windows: sample the grey image (linear)
+            reference, other = reference.mean(1, keepdim=True), other.mean(1, keepdim=True)
         lo, hi = interval.to(reference).unbind(0)
-        warped = Warped(sample_slices(other, band_positions(cubic, offsets), shared=False),
-                        (s_band >= lo) & (s_band <= hi))
+        warped = Warped(sample_points(other, x - self.split, y), (s_band >= lo) & (s_band <= hi))
         volume = sweep_cost(reference, warped, o.cost, o.window, o.census_threshold)
         local = box_filter(volume, o.box)
         j, _ = winner_take_all(local.detach())
@@ -333,4 +337,4 @@ class FineBand(nn.Module):
         inside = (j > 0) & (j < 2 * self.band)
         s = s_band.gather(1, j) + (refined - j.to(reference.dtype)) * step
         ok = ok0 & inside & warped.valid.gather(1, j)
-        return LevelResult(s, ok, similarity(local.gather(1, j), o.cost, reference.shape[1], o.window))
+        return LevelResult(s, ok, similarity(local.gather(1, j), o.cost, channels, o.window))

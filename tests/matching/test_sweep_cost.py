@@ -2,7 +2,15 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
-from prismstereo.matching.sweep_cost import Warped, shift_cost, sweep_cost, warp_slices, worst_cost
+from prismstereo.matching.sweep_cost import (
+    Warped,
+    _gather_bilinear,
+    sample_points,
+    shift_cost,
+    sweep_cost,
+    warp_slices,
+    worst_cost,
+)
 
 
 def _shift_grid(h: int, w: int, w_o: int, shifts: list[float]) -> torch.Tensor:
@@ -113,3 +121,72 @@ def test_shift_cost_gradients_and_errors():
         shift_cost(reference, other, index, valid, "ssd")
     with pytest.raises(OptionError, match="window must be an odd int"):
         shift_cost(reference, other, index, valid, "zncc", 4)
+
+
+def _bilinear_reference(image: torch.Tensor, x: float, y: float) -> torch.Tensor:
+    """Textbook bilinear interpolation of (C, H, W) at a clamped pixel position."""
+    h, w = image.shape[-2:]
+    x, y = min(max(x, 0.0), w - 1.0), min(max(y, 0.0), h - 1.0)
+    x0, y0 = int(x), int(y)
+    x1, y1 = min(x0 + 1, w - 1), min(y0 + 1, h - 1)
+    ax, ay = x - x0, y - y0
+    top = (1 - ax) * image[:, y0, x0] + ax * image[:, y0, x1]
+    bottom = (1 - ax) * image[:, y1, x0] + ax * image[:, y1, x1]
+    return (1 - ay) * top + ay * bottom
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_sample_points_both_forms_are_bilinear_with_border_clamping(channels):
+    gen = torch.Generator().manual_seed(3)
+    image = torch.rand(2, channels, 7, 9, generator=gen, dtype=torch.float64)
+    # inside, on the last row / column, and beyond every edge (border padding clamps)
+    x = torch.rand(2, 3, 4, 5, generator=gen, dtype=torch.float64) * 12 - 2
+    y = torch.rand(2, 3, 4, 5, generator=gen, dtype=torch.float64) * 10 - 2
+    x[0, 0, 0, :3] = torch.tensor([8.0, 0.0, 8.0], dtype=torch.float64)
+    y[0, 0, 0, :3] = torch.tensor([6.0, 6.0, 0.0], dtype=torch.float64)
+    eager = sample_points(image, x, y)
+    assert eager.shape == (2, channels, 3, 4, 5)
+    gathered = _gather_bilinear(image, x, y)  # the ONNX form, run eagerly
+    torch.testing.assert_close(gathered, eager)
+    for b, j, r, c in [(0, 0, 0, 0), (0, 0, 0, 1), (0, 0, 0, 2), (1, 2, 3, 4), (1, 1, 2, 0)]:
+        expected = _bilinear_reference(image[b], float(x[b, j, r, c]), float(y[b, j, r, c]))
+        torch.testing.assert_close(eager[b, :, j, r, c], expected)
+
+
+def test_sample_points_gradients_and_errors():
+    gen = torch.Generator().manual_seed(4)
+    image = torch.rand(1, 2, 5, 6, generator=gen, dtype=torch.float64, requires_grad=True)
+    # positions away from pixel centres (bilinear is not differentiable across them)
+    x = (torch.rand(1, 2, 3, 3, generator=gen, dtype=torch.float64) * 0.8 + 0.1 + torch.arange(3.0).view(1, 1, 1, 3)
+         ).requires_grad_()
+    y = (torch.rand(1, 2, 3, 3, generator=gen, dtype=torch.float64) * 0.8 + 1.1).requires_grad_()
+    assert torch.autograd.gradcheck(sample_points, (image, x, y))
+    assert torch.autograd.gradcheck(_gather_bilinear, (image, x, y))
+    with pytest.raises(ShapeError, match="must match"):
+        sample_points(image, x, y[:, :1])
+    with pytest.raises(ShapeError, match="batch"):
+        sample_points(image.detach().expand(2, -1, -1, -1), x, y)
+    with pytest.raises(ShapeError, match="x"):
+        sample_points(image, x[0], y[0])
+
+
+def test_sample_points_exported_graph_matches_eager(tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    onnx = pytest.importorskip("onnx")
+
+    class Graph(torch.nn.Module):
+        def forward(self, image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+            return sample_points(image, x, y)
+
+    gen = torch.Generator().manual_seed(5)
+    image = torch.rand(2, 1, 12, 16, generator=gen)
+    x = torch.rand(2, 5, 12, 10, generator=gen) * 18 - 1
+    y = torch.rand(2, 5, 12, 10, generator=gen) * 14 - 1
+    path = tmp_path / "sample.onnx"
+    torch.onnx.export(Graph(), (image, x, y), str(path), input_names=["image", "x", "y"], opset_version=18,
+                      dynamo=False)
+    ops = {node.op_type for node in onnx.load(str(path)).graph.node}
+    assert "GridSample" not in ops and "Gather" in ops  # the gather form
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    out = session.run(None, {"image": image.numpy(), "x": x.numpy(), "y": y.numpy()})[0]
+    torch.testing.assert_close(torch.from_numpy(out), sample_points(image, x, y), atol=1e-6, rtol=1e-6)
