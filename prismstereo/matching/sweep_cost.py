@@ -206,6 +206,17 @@ _VAR_FLOOR = 1e-5  # (0.8 / 255)^2: below the variance of 8-bit read noise of 1 
 _box = box_filter  # (B, D, H, W) window mean, separable
 
 
+def _fill(volume: torch.Tensor, valid: torch.Tensor, value: float) -> torch.Tensor:
+    """``volume`` where ``valid`` (broadcastable bool), ``value`` elsewhere. In an ONNX export as
+    volume m + value (1 - m) with the mask m as 0 / 1 (the same numbers for finite costs, which all costs here
+    are): onnxruntime's Where against a full tensor of the fill took 6.8 ms on (1, 11, 768, 512), the product
+    form ~5 ms less (torch eager keeps ``where``, faster there)."""
+    if torch.onnx.is_in_onnx_export():
+        m = valid.to(volume.dtype)
+        return volume * m + (1.0 - m) * value
+    return torch.where(valid, volume, torch.full_like(volume, value))
+
+
 def _census(reference: torch.Tensor, warped: torch.Tensor, window: int, threshold: float) -> torch.Tensor:
     r = window // 2
     h, w = reference.shape[-2:]
@@ -293,8 +304,7 @@ def sweep_cost(
         volume = (reference.unsqueeze(2) - warped.image).abs().mean(1)
     else:
         volume = _zncc(reference, warped.image, window)
-    worst = torch.full_like(volume, worst_cost(cost, reference.shape[1], window))
-    return torch.where(warped.valid, volume, worst)
+    return _fill(volume, warped.valid, worst_cost(cost, reference.shape[1], window))
 
 
 def shift_cost(
@@ -384,5 +394,5 @@ def shift_cost(
         left = _zncc(ref_t[..., :2 * r, :], wrp[..., :2 * r, :].unsqueeze(1) + 0.5, window)[..., :r, :]
         right = _zncc(ref_t[..., -2 * r:, :], wrp[..., -2 * r:, :].unsqueeze(1) + 0.5, window)[..., -r:, :]
         volume = torch.cat([left, volume[..., r:w - r, :], right], -2)
-    volume = torch.where(valid_t, volume, torch.full_like(volume, worst_cost("zncc", 1, window)))
+    volume = _fill(volume, valid_t, worst_cost("zncc", 1, window))
     return volume if transposed else volume.transpose(-1, -2)
