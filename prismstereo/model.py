@@ -83,7 +83,7 @@ class DepthResult(NamedTuple):
         confidence: (B, 1, H, W_ref) in [0, 1] (0 where invalid).
         index: (B, 1, H, W_ref) fractional index into the model's ``depths`` (uniform in 1/Z).
         match: (B, 2, H, W_ref) (u, v) of each pixel's match in the other half, full-sensor pixels (the
-            generalised disparity).
+            generalised disparity); like the depth, meaningful where valid.
     """
 
     depth: torch.Tensor
@@ -387,18 +387,20 @@ class PrismStereo(nn.Module):
         h, w_ref = ref.shape[-2:]
         step = 2.0 / (self.num_hypotheses - 1)
         if self.factor == 1:
-            s, ok, confidence = self.search(ref, other, final=True)
+            s, ok, confidence, match = self.search(ref, other, final=True)
         else:
             f = self.factor
-            s_c, ok_c, _ = self.search(self._downsample(ref), self._downsample(other), final=False)
-            s0 = F.interpolate(s_c, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
-            ok0 = F.interpolate(ok_c.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
-            s, ok, confidence = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), ok0, self.table, self.interval)
+            coarse = self.search(self._downsample(ref), self._downsample(other), final=False)
+            s0 = F.interpolate(coarse.s, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
+            ok0 = F.interpolate(coarse.valid.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
+            s, ok, confidence, match = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), ok0, self.table,
+                                                 self.interval)
         s = s.clamp(-1.0, 1.0)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
-        cubic = local_cubic(self.table.to(s), s)
-        match = cubic_at(cubic, cubic.u).squeeze(1).permute(0, 3, 1, 2)
+        if match is None:  # the fine band interpolates its samples; otherwise from the table at s
+            cubic = local_cubic(self.table.to(s), s)
+            match = cubic_at(cubic, cubic.u).squeeze(1).permute(0, 3, 1, 2)
         valid = ok & self.reference_valid & (confidence >= self.min_confidence)
         if self.occlusion_tolerance is not None:
             occluders = None if self.occluder_confidence is None else valid & (confidence >= self.occluder_confidence)

@@ -4,6 +4,7 @@ import torch
 import prismstereo.matching.levels as levels
 from prismstereo import thesis_setup1
 from prismstereo.epipolar.sweep import depth_to_sweep
+from prismstereo.epipolar.table import cubic_at, local_cubic
 from prismstereo.matching.levels import FineBand, LevelResult, RectifiedSearch, SweepSearch, similarity
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
@@ -61,6 +62,10 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     err = (whole.s - truth).abs()[whole.valid & cap.covisible[..., :rig.reference_width]]
     assert err.numel() > 0.95 * cap.covisible[..., :rig.reference_width].sum()
     assert err.median() < 0.005 and err.quantile(0.9) < 0.02
+    # the band's match (interpolated between its samples) is the exact sweep's position at s
+    cubic = local_cubic(model.table, whole.s)
+    exact = cubic_at(cubic, cubic.u).squeeze(1).permute(0, 3, 1, 2)
+    assert (whole.match - exact).abs().amax(1)[whole.valid].max() < 1e-3
 
 
 def test_similarity_reference_values():
