@@ -65,7 +65,7 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     # the band's match (interpolated between its samples) is the exact sweep's position at s
     cubic = local_cubic(model.table, whole.s)
     exact = cubic_at(cubic, cubic.u).squeeze(1).permute(0, 3, 1, 2)
-    assert (whole.match - exact).abs().amax(1)[whole.valid].max() < 1e-3
+    assert (whole.match - exact).abs().amax(1, keepdim=True)[whole.valid].max() < 1e-3
 
 
 def test_similarity_reference_values():
