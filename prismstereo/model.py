@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from concurrent.futures import ThreadPoolExecutor
 from typing import Literal, NamedTuple
 
 import torch
@@ -371,14 +372,30 @@ class PrismStereo(nn.Module):
     def forward(self, image: torch.Tensor) -> DepthResult:
         """Depth of the reference half of ``image`` (B, C, H, W) in [0, 1], C = 1 or 3.
 
-        In torch eager a batch is evaluated image by image (one graph for the whole batch when traced or
-        exported). Measured at 1024 x 768 (2 threads, ``benchmarks/onnx_speed.py``): one image keeps ~1.7
-        cores busy and its volumes in cache; a batch of 8 as one tensor gave 0.91x batch 1's images/s (the
-        coarse level alone 107 -> 193 ms per image; 0.9 M minor page faults per call: every volume of 8 images
-        is a fresh mmap), image by image 1.07x."""
+        In torch eager a batch is evaluated image by image, ``torch.get_num_threads()`` images at a time on
+        worker threads (each inherits the caller's grad / inference mode); traced or exported it is one graph
+        for the whole batch. Measured at 1024 x 768 (2 threads, ``benchmarks/onnx_speed.py`` and a scratch run
+        of 5 alternating repeats): one image keeps only ~1.2-1.7 of 2 cores busy (the semi-global scans are
+        ~2500 small kernels launched from Python), so two images in flight fill them: batch 8 gave 3.2-3.8
+        images/s against batch 1's 1.7-2.8 (image after image: 2.1-2.6). A batch of 8 as one tensor was slower
+        still (0.91x batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page faults per call,
+        every volume of 8 images a fresh mmap).
+        """
         check_shape(image, ["B", "C", "H", "W"], "image")
-        if image.shape[0] > 1 and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
-            parts = [self._forward(image[i:i + 1]) for i in range(image.shape[0])]
+        b = image.shape[0]
+        if b > 1 and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
+            grad, inference = torch.is_grad_enabled(), torch.is_inference_mode_enabled()
+
+            def one(i: int) -> DepthResult:  # grad and inference mode are thread-local: carry the caller's
+                with torch.inference_mode(inference), torch.set_grad_enabled(grad):
+                    return self._forward(image[i:i + 1])
+
+            workers = min(b, max(1, torch.get_num_threads()))
+            if workers == 1:
+                parts = [one(i) for i in range(b)]
+            else:
+                with ThreadPoolExecutor(workers) as pool:
+                    parts = list(pool.map(one, range(b)))
             return DepthResult(*(torch.cat(ts, 0) for ts in zip(*parts, strict=True)))
         return self._forward(image)
 

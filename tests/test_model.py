@@ -1,3 +1,5 @@
+import threading
+
 import pytest
 import torch
 
@@ -188,6 +190,44 @@ def test_model_buffers_batch_and_errors(setup1_model):
         both = model(x)
         one = model(x[1:])
     torch.testing.assert_close(both.depth[1:], one.depth)
+
+
+def test_batch_on_worker_threads_equals_single_images_and_keeps_grad_mode(setup1_model, monkeypatch):
+    """An eager batch runs on worker threads: the same numbers as image by image, under the caller's grad and
+    inference mode (both are thread-local in torch)."""
+    rig, model = setup1_model
+    x = torch.rand(3, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(1))
+    with torch.inference_mode():
+        batch = model(x)
+        singles = [model(x[i:i + 1]) for i in range(3)]
+    for name in ("depth", "valid", "confidence", "match"):
+        assert torch.equal(getattr(batch, name), torch.cat([getattr(r, name) for r in singles]))
+    seen = []
+    forward = model._forward
+
+    def spy(image):
+        seen.append((threading.current_thread() is threading.main_thread(), torch.is_grad_enabled(),
+                     torch.is_inference_mode_enabled()))
+        return forward(image)
+
+    monkeypatch.setattr(model, "_forward", spy)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)  # two workers
+    try:
+        with torch.no_grad():
+            model(x[:2])
+        with torch.inference_mode():
+            model(x[:2])
+        model(x[:2])
+    finally:
+        torch.set_num_threads(threads)
+    assert seen == [(False, False, False)] * 2 + [(False, False, True)] * 2 + [(False, True, False)] * 2
+    monkeypatch.undo()
+    image = x[:2].clone().requires_grad_()
+    res = model(image)
+    assert res.depth.grad_fn is not None and not res.depth.is_inference()
+    res.depth[res.valid].sum().backward()
+    assert image.grad is not None and image.grad.abs().sum() > 0
     with pytest.raises(ShapeError, match="but the rig's sensor is"):
         model(torch.rand(1, 1, 10, 10))
     with pytest.raises(OptionError, match="num_hypotheses must be an int >= 2"):
