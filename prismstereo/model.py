@@ -36,7 +36,7 @@ thesis setups, 205-1511 mm): the final depth comes from the same exact fine band
 rectified coarse level lands inside it more often: coverage at 228 mm 94.8 -> 95.5 % (setup 1) and
 94.5 -> 96.1 % (setup 2), the only thesis depth where the sweep missed the 95 % target, and >= the sweep's on
 most other captures (setup 2's mean errors are 0.00-0.02 points higher, all <= 0.092 %); onnxruntime runs
-the frame faster (1024 x 768, 228-1374 mm: ~300-330 ms vs ~360-410 ms; the volume is a gather of rows instead
+the frame faster (1024 x 768, 228-1374 mm, one run: 187 ms vs 220 ms; the volume is a gather of rows instead
 of a bilinear ``grid_sample`` of 2.3 M samples). It is not exact as a
 *final* level: a shift compares windows of equal width, while the other half's image of a surface is
 stretched or squeezed across the window (anamorphic virtual cameras), which the per-pixel sweep follows.
@@ -336,7 +336,7 @@ class PrismStereo(nn.Module):
         loses the pixels within ~40 px of the other half's edge: the coarse windows span 72 px.) A narrow range
         at full resolution (600-1450 mm, 103 hypotheses) gets f = 4: onnxruntime 267 ms per frame at 0.048 %
         mean error, against 506 ms (0.053 %) with f = 2 and ~9x the time with a single level
-        (``benchmarks/onnx_speed.py``).
+        (``benchmarks/onnx_speed.py``, measured before the onnxruntime tuning that brought f = 4 to 156-220 ms).
 
         Example:
             >>> PrismStereo.default_coarse_factor(368, 768, 512), PrismStereo.default_coarse_factor(103, 768, 512)

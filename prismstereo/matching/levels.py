@@ -344,8 +344,8 @@ class FineBand(nn.Module):
         frac = refined - j.to(reference.dtype)
         s = s_band.gather(1, j) + frac * step
         ok = ok0 & inside & warped.valid.gather(1, j)
-        # the match between the two band samples around s (<= 1 px apart on a smooth curve: linear
-        # interpolation is within ~1e-5 px of the cubic, far below the table's 1e-3 px)
+        # the match between the two band samples around s (<= 1 px apart on a smooth curve): within 2e-4 px of
+        # the local cubic at s on valid pixels (measured, float32; the table itself is within 1e-3 px)
         k = (j + torch.where(frac < 0, -1, 1)).clamp(0, 2 * self.band)
         weight = frac.abs()
         match = torch.cat([p.gather(1, j) + weight * (p.gather(1, k) - p.gather(1, j)) for p in (x, y)], 1)

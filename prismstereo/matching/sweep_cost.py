@@ -143,7 +143,9 @@ def _gather_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> t
         index = (y0 * w + x0).to(torch.int32)
     else:
         index = y0.to(torch.int32) * w + x0.to(torch.int32)
-    index = index + (torch.arange(b, device=x.device, dtype=torch.int32) * (h * w)).view(b, 1, 1, 1)
+    # NaN positions (a NaN image upstream) cast to garbage: clamped they read a pixel and stay NaN through the
+    # weights, where onnxruntime would abort the whole frame on an out-of-range index
+    index = index.clamp(0, h * w - 1) + (torch.arange(b, device=x.device, dtype=torch.int32) * (h * w)).view(b, 1, 1, 1)
     taps = table.index_select(0, index.reshape(-1)).view(b, d, hs, ws, c, 4)
     taps = taps.view(b, 1, d, hs, ws, 4) if c == 1 else taps.permute(0, 4, 1, 2, 3, 5)
     tl, tr, bl, br = taps.unbind(-1)

@@ -1,3 +1,4 @@
+import numpy as np
 import pytest
 import torch
 
@@ -190,3 +191,6 @@ def test_sample_points_exported_graph_matches_eager(tmp_path):
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     out = session.run(None, {"image": image.numpy(), "x": x.numpy(), "y": y.numpy()})[0]
     torch.testing.assert_close(torch.from_numpy(out), sample_points(image, x, y), atol=1e-6, rtol=1e-6)
+    x[0, 0, 0, 0] = float("nan")  # a NaN position gives a NaN sample, not an out-of-range gather
+    out = session.run(None, {"image": image.numpy(), "x": x.numpy(), "y": y.numpy()})[0]
+    assert np.isnan(out[0, 0, 0, 0, 0]) and np.isfinite(out).sum() == out.size - 1
