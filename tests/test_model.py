@@ -308,3 +308,29 @@ def test_uniqueness_threshold_removes_false_matches_of_pixels_the_other_half_doe
     false = lambda r: (r.valid & ~cov).float().sum() / r.valid.float().sum()  # noqa: E731
     assert false(strict) < 0.8 * false(loose)
     assert (strict.valid & cov).float().sum() > 0.8 * (loose.valid & cov).float().sum()
+
+
+def test_downsample_matches_the_binned_capture_on_the_full_grid():
+    """downsample=2 is the model of the binned rig on the 2 x 2-averaged capture, each full-resolution pixel
+    getting its block's values (match in full-sensor pixels), accurate on a plane."""
+    rig = scaled_rig(thesis_setup1(), 2)  # 512 x 384 -> binned 256 x 192
+    model = PrismStereo(rig, (400.0, 800.0), downsample=2)
+    small = PrismStereo(rig.binned(2), (400.0, 800.0))
+    cap = render(rig, fronto_parallel_plane(rig, 560.0, seed=6), FORM)
+    with torch.no_grad():
+        res = model(cap.image)
+        ref = small(torch.nn.functional.avg_pool2d(cap.image, 2))
+    assert res.depth.shape == res.valid.shape == (1, 1, rig.image_height, rig.reference_width)
+    assert res.match.shape == (1, 2, rig.image_height, rig.reference_width)
+    for dy in (0, 1):
+        for dx in (0, 1):
+            block = (..., slice(dy, None, 2), slice(dx, None, 2))
+            assert torch.equal(res.depth[block], ref.depth) and torch.equal(res.valid[block], ref.valid)
+            assert torch.equal(res.match[block], ref.match * 2 + 0.5)
+    rel, coverage = _errors(rig, res, cap)
+    assert coverage > 0.9 and rel.median() < 0.002
+    assert PrismStereo(rig, **model.config()).downsample == 2
+    with pytest.raises(OptionError, match="downsample must be an int >= 1"):
+        PrismStereo(rig, (400.0, 800.0), downsample=0)
+    with pytest.raises(ShapeError, match="but the rig's sensor is"):
+        model(torch.rand(1, 1, 192, 256))

@@ -121,7 +121,7 @@ def _design(sizes: tuple[int, int, int], u: torch.Tensor, v: torch.Tensor, side:
 
 
 def fit_row_rectification(
-    rig: BiPrismRig, fit: SweepFit, degree: int = 4, step: int = 8, depths: int = 33
+    rig: BiPrismRig, fit: SweepFit, degree: int = 4, step: int | None = None, depths: int = 33
 ) -> RowRectification:
     """Fit the row warps of both halves to the exact sweep (see the module docstring).
 
@@ -129,7 +129,10 @@ def fit_row_rectification(
         rig: the rig.
         fit: :func:`~prismstereo.epipolar.sweep.fit_sweep` over the depth range to rectify for.
         degree: polynomial degree of a and b in each variable.
-        step: reference pixel grid spacing (px) of the fitting samples.
+        step: reference pixel grid spacing (px) of the fitting samples; None: 8, halved while either axis of
+            the reference half would get fewer than degree + 2 sample positions (with 4 x 6 positions on a
+            64 x 48 sensor the degree-4 warp was underdetermined in (u, v): a solution with rows moved by
+            ~1500 px fitted the samples to 2e-12 px).
         depths: number of sweep coordinates per pixel (uniform in s over [-1, 1]).
 
     Returns:
@@ -145,11 +148,15 @@ def fit_row_rectification(
         >>> rect.max_residual_px < 0.01
         True
     """
-    for name, value, low in (("degree", degree, 1), ("step", step, 1), ("depths", depths, 2)):
+    h, w_ref, w = rig.image_height, rig.reference_width, rig.image_width
+    for name, value, low in (("degree", degree, 1), ("step", 1 if step is None else step, 1), ("depths", depths, 2)):
         if not isinstance(value, int) or value < low:
             raise OptionError(f"{name} must be an int >= {low}, got {value!r}")
+    if step is None:
+        step = 8
+        while step > 1 and min(math.ceil(w_ref / step), math.ceil(h / step)) < degree + 2:
+            step //= 2
     f64 = torch.float64
-    h, w_ref, w = rig.image_height, rig.reference_width, rig.image_width
     uv = torch.stack(torch.meshgrid(torch.arange(0, w_ref, step, dtype=f64), torch.arange(0, h, step, dtype=f64),
                                     indexing="xy"), -1)  # (h', w', 2)
     coef = sweep_coefficients(fit, uv).permute(2, 0, 1, 3)

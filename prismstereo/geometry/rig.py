@@ -295,6 +295,27 @@ class BiPrismRig:
         return self.replace(image_width=self.image_width // factor, image_height=self.image_height // factor,
                             pixel_size_mm=self.pixel_size_mm * factor, principal_point=None)
 
+    def binned(self, factor: int) -> BiPrismRig:
+        """The rig that sees the capture box-averaged over ``factor`` x ``factor`` pixel blocks
+        (``F.avg_pool2d(image, factor)``): pixels ``factor`` times larger, image size divided and rounded down
+        (the last W mod factor columns and H mod factor rows dropped, as the pooling drops them), principal
+        point mapped exactly: block i covers pixels factor i .. factor i + factor - 1, so its centre is full
+        pixel factor i + (factor - 1) / 2 and c_binned = (c - (factor - 1) / 2) / factor. (:meth:`downscaled`
+        re-centres the principal point instead.)
+
+        Example:
+            >>> rig = thesis_setup1().replace(principal_point=(500.0, 380.0))
+            >>> rig.binned(2).principal_point, rig.binned(2).image_width
+            ((249.75, 189.75), 512)
+        """
+        if not isinstance(factor, int) or factor < 1:
+            raise RigError(f"factor must be a positive int, got {factor!r}")
+        cx, cy = self.principal_point  # type: ignore[misc]
+        shift = (factor - 1) / 2
+        return self.replace(image_width=self.image_width // factor, image_height=self.image_height // factor,
+                            pixel_size_mm=self.pixel_size_mm * factor,
+                            principal_point=((cx - shift) / factor, (cy - shift) / factor))
+
     def replace(self, **changes: Any) -> BiPrismRig:
         """Return a validated copy with some fields changed.
 

@@ -91,3 +91,18 @@ def test_errors():
         rectified_level(rect, fit, 0, torch.ones(96, 64, dtype=torch.bool))
     with pytest.raises(OptionError, match="other_valid"):
         rectified_level(rect, fit, 1, torch.ones(10, 10, dtype=torch.bool))
+
+
+def test_tiny_sensor_gets_a_denser_sample_grid():
+    """On a 64 x 48 sensor the default 8 px grid would leave 4 x 6 sample positions for a degree-4 warp in
+    (u, v): underdetermined, the least squares found warps moving rows by ~1500 px (the rectified level then
+    had 2367 rows for a 48-row sensor). The default step shrinks there, and the warps stay small."""
+    rig = thesis_setup1().downscaled(16)
+    fit = fit_sweep(rig, (300.0, 900.0))
+    rect = fit_row_rectification(rig, fit)
+    uv = torch.stack(torch.meshgrid(torch.arange(rig.reference_width, dtype=F64),
+                                    torch.arange(rig.image_height, dtype=F64), indexing="xy"), -1)
+    assert (rectified_rows(rect, uv, "reference") - uv[..., 1]).abs().max() < 3.0
+    assert rect.max_residual_px < 1e-3
+    loose = fit_row_rectification(rig, fit, step=8)  # the old default: an exact fit of a useless warp
+    assert (rectified_rows(loose, uv, "reference") - uv[..., 1]).abs().max() > 100

@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from prismstereo import BiPrismRig, RigError, RigParameters, thesis_setup1, thesis_setup2
+from prismstereo.geometry.optics import trace_pixels
 
 CONTRACT_FIELDS = [
     "alpha_deg",
@@ -211,3 +212,21 @@ def test_load_rig_from_preset_name_or_json_path(tmp_path):
     assert load_rig(path).prism_offset_x_mm == 1.5
     with pytest.raises(RigError, match="rig file not found"):
         load_rig(tmp_path / "missing.json")
+
+
+def test_binned_maps_pixels_exactly():
+    """A k x k block's centre is full pixel k i + (k - 1) / 2: principal point and apex column map that way, and
+    a scene point projects to the binned pixel of its full-resolution position."""
+    rig = thesis_setup1().replace(principal_point=(500.0, 380.0), prism_offset_x_mm=0.3)
+    for k in (2, 3):
+        b = rig.binned(k)
+        assert (b.image_width, b.image_height) == (rig.image_width // k, rig.image_height // k)
+        assert b.pixel_size_mm == pytest.approx(rig.pixel_size_mm * k)
+        assert b.principal_point == pytest.approx(((500.0 - (k - 1) / 2) / k, (380.0 - (k - 1) / 2) / k))
+        assert b.apex_column == pytest.approx((rig.apex_column - (k - 1) / 2) / k, abs=1e-9)
+        ij = torch.tensor([[3.0, 5.0], [100.0, 40.0], [b.image_width - 2.0, b.image_height - 3.0]], dtype=torch.float64)
+        coarse, full = trace_pixels(b, ij), trace_pixels(rig, ij * k + (k - 1) / 2)
+        torch.testing.assert_close(coarse.directions, full.directions)
+        torch.testing.assert_close(coarse.origins, full.origins)
+    with pytest.raises(RigError, match="positive int"):
+        rig.binned(0)
