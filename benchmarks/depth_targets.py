@@ -18,7 +18,11 @@ rectified volume is as a final level.
 Captures come from this package's renderer (:mod:`prismstereo.synthetic`): exact ray tracing checked against
 an independent closed form (``tests/geometry/test_optics.py``), textures on the surfaces, not in the image.
 
+``--downsample K`` evaluates the models that match on K x K-binned captures (the speed knob of
+``PrismStereo``; depth on the full reference grid, each pixel its block's value).
+
 Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--sampling] [--compare]
+[--downsample K]
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ def evaluate(model: PrismStereo, capture) -> dict[str, float]:
     with torch.inference_mode():
         res = model(capture.image)
     ms = (time.perf_counter() - t0) * 1e3
-    w = model.split.split
+    w = model.rig.reference_width
     gt, cov = capture.depth[..., :w], capture.covisible[..., :w]
     ok = res.valid & cov
     rel = ((res.depth.double() - gt).abs() / gt)[ok]
@@ -71,6 +75,8 @@ def main() -> None:
     parser.add_argument("--scale", type=int, default=1, help="sensor downscale factor (1 = full resolution)")
     parser.add_argument("--sampling", action="store_true", help="also the coarse level as the exact sweep")
     parser.add_argument("--compare", action="store_true", help="also single-level full searches (half res)")
+    parser.add_argument("--downsample", type=int, default=1, metavar="K",
+                        help="the models match on KxK-binned captures (PrismStereo(downsample=K))")
     args = parser.parse_args()
     torch.set_num_threads(2)
     form = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
@@ -79,8 +85,9 @@ def main() -> None:
         models = {}
         for sampling in ("rectified", "sweep") if args.sampling else ("rectified",):
             t0 = time.perf_counter()
-            model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling)
-            print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}, {sampling} coarse level: "
+            model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling, downsample=args.downsample)
+            binned = f", matching {args.downsample}x{args.downsample}-binned" if args.downsample > 1 else ""
+            print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}{binned}, {sampling} coarse level: "
                   f"{model.num_hypotheses} hypotheses, coarse factor {model.factor} "
                   f"({model.coarse_hypotheses if model.factor > 1 else '-'} coarse hypotheses), band +-{model.band}; "
                   f"model built in {time.perf_counter() - t0:.1f} s")

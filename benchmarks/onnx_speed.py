@@ -21,7 +21,11 @@ soon as another process is busy, onnxruntime and OpenCV much less, so only trust
    the mean (and median) relative depth error % over the valid co-visible reference pixels, and the coverage,
    % of co-visible reference pixels that are valid, as in ``benchmarks/depth_targets.py``.
    ``--sampling`` adds torch and onnxruntime rows for the same model with the exact-sweep coarse level
-   (``sampling='sweep'``; the default is the rectified shift volume).
+   (``sampling='sweep'``; the default is the rectified shift volume). Both ranges also time the model with
+   ``downsample=2`` (matching on the 2 x 2-binned capture, depth on the full reference grid: the speed knob)
+   and, for context, StereoSGBM on the same binned halves (numDisparities halved, depth converted with the
+   binned rig's exact sweep and given to each pixel of the block as the model does); SGBM on the full-resolution
+   halves stays the reference of the "x SGBM" column.
 2. **Narrow range** 600-1450 mm: the same with ``PrismStereo(rig, (600, 1450))`` (its default coarse factor,
    printed; ``--narrow-coarse-factor F`` forces one), numDisparities 96 / K and ``slanted_plane(rig, 900, 30)``
    (Z 878-923 mm). (A single full-resolution level, ``--narrow-coarse-factor 1``, what the model picked for
@@ -232,6 +236,13 @@ def opencv_depth(sweep: PixelSweep, disparity: np.ndarray, mirror: bool) -> tupl
     return match_column_to_depth(sweep, u_match), valid
 
 
+def upsampled(t: torch.Tensor, width: int, height: int) -> torch.Tensor:
+    """(H / 2, W / 2) values of 2 x 2 blocks -> (height, width), each pixel its block's (as the model's
+    ``downsample``), zero beyond."""
+    t = t.repeat_interleave(2, 0).repeat_interleave(2, 1)[:height, :width]
+    return torch.nn.functional.pad(t, (0, width - t.shape[1], 0, height - t.shape[0]))
+
+
 def disparity_count(full: int, scale: int) -> int:
     return 16 * math.ceil(full / scale / 16)
 
@@ -307,7 +318,7 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
     path = export_onnx(model, tmp / f"{case.name}.onnx")
     t_export = time.perf_counter() - t0
     runner = OnnxDepth(path, threads=2)
-    split = model.split.split
+    split = model.rig.reference_width
     coarse = f"coarse factor {model.factor} ({model.coarse_hypotheses} coarse hypotheses, band +-{model.band})" \
         if model.factor > 1 else "coarse factor 1 (single full-resolution level)"
     print(f"\n== {case.name} range {case.z_range[0]:g}-{case.z_range[1]:g} mm: thesis_setup1 "
@@ -331,6 +342,10 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
         sweep_runner = OnnxDepth(export_onnx(sweep_model, tmp / f"{case.name}_sweep.onnx"), threads=2)
         variants.append(("torch eager, sweep coarse level", "onnxruntime, sweep coarse level", sweep_model,
                          sweep_runner))
+    # the speed knob: matching on the 2 x 2-binned capture, depth on the full reference grid
+    binned_model = PrismStereo(rig, case.z_range, downsample=2).eval()
+    binned_runner = OnnxDepth(export_onnx(binned_model, tmp / f"{case.name}_binned.onnx"), threads=2)
+    variants.append(("torch eager, downsample 2", "onnxruntime, downsample 2", binned_model, binned_runner))
     rows = []
     other = OtherLoad().__enter__()
     for torch_name, ort_name, torch_model, ort_runner in variants:
@@ -352,6 +367,17 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
         ms = time_ms(lambda matcher=matcher: matcher.compute(left, right), repeats)
         depth, valid = opencv_depth(sweep, matcher.compute(left, right), mirror)
         rows.append(Row(name, *ms, *score(depth, valid, capture, split)))
+    # SGBM on the same 2 x 2-binned capture as the downsample-2 model (context: not the issue's reference row)
+    binned_rig = rig.binned(2)
+    split_b = binned_rig.reference_width
+    left_b, right_b = opencv_halves(torch.nn.functional.avg_pool2d(image, 2), split_b, mirror)
+    nd_b = disparity_count(case.disparities, 2 * scale)
+    sgbm_b = cv2.StereoSGBM_create(minDisparity=0, numDisparities=nd_b, blockSize=5)
+    ms = time_ms(lambda: sgbm_b.compute(left_b, right_b), repeats)
+    depth_b, valid_b = opencv_depth(pixel_sweep(binned_rig, case.z_range), sgbm_b.compute(left_b, right_b), mirror)
+    depth_b, valid_b = (upsampled(t, split, rig.image_height) for t in (depth_b, valid_b.double()))
+    rows.append(Row(f"OpenCV StereoSGBM, 2x2-binned ({nd_b} disp)", *ms,
+                    *score(depth_b, valid_b > 0.5, capture, split)))
     other.__exit__()
     print(table(f"-- {case.name} range: median (and fastest) of {repeats} runs after a warm-up; {other}", rows))
     return model, path, capture

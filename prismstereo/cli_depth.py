@@ -92,13 +92,16 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig):
 
     if args.hypotheses is not None and args.hypotheses < 2:
         raise PrismStereoError(f"--hypotheses must be >= 2, got {args.hypotheses}")
+    if args.downsample < 1:
+        raise PrismStereoError(f"--downsample must be >= 1, got {args.downsample}")
     if args.z_range is None:
         z_range, how = default_z_range(rig), "default for this rig"
     else:
         z_range, how = check_z_range(rig, args.z_range), "--z-range"
-    model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses).eval()
+    model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses, downsample=args.downsample).eval()
+    binned = f", matching on {args.downsample}x{args.downsample}-binned pixels" if args.downsample > 1 else ""
     return model, (f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.num_hypotheses} "
-                   "hypotheses")
+                   f"hypotheses{binned}")
 
 
 def _read_capture(path: Path, rig: BiPrismRig) -> torch.Tensor:
@@ -184,6 +187,8 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
                             "(prismstereo.depth.default_z_range)")
     depth.add_argument("--hypotheses", type=int, default=None, metavar="N",
                        help="number of depth hypotheses (default: neighbours <= 1 px apart)")
+    depth.add_argument("--downsample", type=int, default=1, metavar="K",
+                       help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser)")
     depth.add_argument("--backend", choices=BACKENDS, default="torch", help="inference backend")
     depth.add_argument("--batch-size", type=int, default=1, metavar="B", help="images processed together")
     depth.add_argument("--format", choices=DEPTH_FORMATS, default=None,
@@ -224,6 +229,8 @@ def add_export_parser(sub: argparse._SubParsersAction) -> None:
                         help="depths searched (mm); default as for `prismstereo depth`")
     export.add_argument("--hypotheses", type=int, default=None, metavar="N",
                         help="number of depth hypotheses (default: neighbours <= 1 px apart)")
+    export.add_argument("--downsample", type=int, default=1, metavar="K",
+                        help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser)")
     export.add_argument("--opset", type=int, default=DEFAULT_OPSET, metavar="K",
                         help=f"ONNX opset (16-20, default {DEFAULT_OPSET})")
     export.add_argument("--channels", type=int, choices=(1, 3), default=1,

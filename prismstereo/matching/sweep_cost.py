@@ -111,7 +111,8 @@ def sample_points(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torc
 
     Example:
         >>> image = torch.arange(12.0).view(1, 1, 3, 4)
-        >>> sample_points(image, torch.tensor([[[[0.5, 9.0]]]]), torch.tensor([[[[1.0, 0.0]]]])).flatten().tolist()
+        >>> out = sample_points(image, torch.tensor([[[[0.5, 9.0]]]]), torch.tensor([[[[1.0, 0.0]]]]))
+        >>> [round(v, 4) for v in out.flatten().tolist()]  # (0.5, 1) between 4 and 5; (9, 0) clamped to (3, 0)
         [4.5, 3.0]
     """
     check_shape(image, ["B", "C", "H", "W"], "image")
