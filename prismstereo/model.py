@@ -392,9 +392,10 @@ class PrismStereo(nn.Module):
         In torch eager a batch is evaluated image by image, ``torch.get_num_threads()`` images at a time on
         worker threads (each inherits the caller's grad / inference mode); traced or exported it is one graph
         for the whole batch. Measured at 1024 x 768 (2 threads, ``benchmarks/onnx_speed.py`` and a scratch run
-        of 5 alternating repeats): one image keeps only ~1.2-1.7 of 2 cores busy (the semi-global scans are
-        ~2500 small kernels launched from Python), so two images in flight fill them: batch 8 gave 3.2-3.8
-        images/s against batch 1's 1.7-2.8 (image after image: 2.1-2.6). A batch of 8 as one tensor was slower
+        of 5 alternating repeats): one image keeps only ~1.2-1.8 of 2 cores busy (the semi-global scans are
+        ~5000 small kernels launched from Python), so two images in flight fill them: batch 8 gave 3.2-3.8
+        images/s against batch 1's 1.7-2.8 (image after image: 2.1-2.6) in the scratch run, 1.17-1.30x batch 1
+        in two benchmark runs. A batch of 8 as one tensor was slower
         still (0.91x batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page faults per call,
         every volume of 8 images a fresh mmap).
         """
