@@ -314,8 +314,10 @@ class FineBand(nn.Module):
         exporting = torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()
         h = reference.shape[-2]
         halo = self.options.window // 2 + self.options.box // 2
-        budget = _EXPORT_STRIP_VOXELS if exporting else _STRIP_VOXELS
-        rows = max(16, budget // ((2 * self.band + 1) * reference.shape[0] * reference.shape[-1]))
+        # per image when exporting: the graph's batch axis is dynamic, and a traced batch size in this
+        # arithmetic made the strips' slices depend on it (a batch of 4 failed in onnxruntime)
+        voxels = (2 * self.band + 1) * int(reference.shape[-1]) * (1 if exporting else int(reference.shape[0]))
+        rows = max(16, (_EXPORT_STRIP_VOXELS if exporting else _STRIP_VOXELS) // voxels)
         strips = []
         for top in range(0, h, rows):
             lo, hi = max(0, top - halo), min(h, top + rows + halo)
