@@ -36,7 +36,9 @@ soon as another process is busy, onnxruntime and OpenCV much less, so only trust
    largest vertical offset of the match from the pixel's row, and the ground-truth disparities of the capture.
 3. **Batching**: torch eager images/s at batch 8 (and 2) vs batch 1, wide model, the sizes timed alternately,
    with the CPU time split into user and system and the minor page faults per call (fresh large temporaries
-   are page-faulted in on every call; that is system time).
+   are page-faulted in on every call; that is system time). The ratio is printed from the medians and from the
+   fastest runs: on this shared VM a single image's time swings by up to 2x between host phases (it keeps
+   ~1.2-1.9 of the 2 cores busy), and the ratio with it (0.99-1.30x in five runs).
 4. **Peak RSS** of a fresh process (``subprocess`` + ``sys.executable``) that loads the exported wide graph
    with ``OnnxDepth`` and runs one frame, and of one that builds the torch model and runs one frame in eager
    mode: the high-water mark VmHWM of /proc/self/status after the imports, after loading / building, after
@@ -408,7 +410,9 @@ def batching(model: PrismStereo, image: torch.Tensor, repeats: int, sizes: tuple
         ips[b] = b / wall
         print(f"batch {b}: {1e3 * wall:9.1f} ms/batch {ips[b]:6.2f} images/s {ips[b] / ips[sizes[0]]:5.2f}x  (CPU "
               f"user {user:.2f} s, system {system:.2f} s, {faults / 1e3:.0f} k minor page faults per batch)")
-    print(f"batch 8 / batch 1 throughput: {ips[8] / ips[1]:.2f}x (target >= 1.3x)")
+    fastest = {b: b / min(t[0] for t in times[b]) for b in sizes}  # noise only ever slows a run down
+    print(f"batch 8 / batch 1 throughput: {ips[8] / ips[1]:.2f}x from the medians, {fastest[8] / fastest[1]:.2f}x "
+          f"from the fastest runs (target >= 1.3x)")
 
 
 RSS_HELPERS = """

@@ -391,13 +391,13 @@ class PrismStereo(nn.Module):
 
         In torch eager a batch is evaluated image by image, ``torch.get_num_threads()`` images at a time on
         worker threads (each inherits the caller's grad / inference mode); traced or exported it is one graph
-        for the whole batch. Measured at 1024 x 768 (2 threads, ``benchmarks/onnx_speed.py`` and a scratch run
-        of 5 alternating repeats): one image keeps only ~1.2-1.8 of 2 cores busy (the semi-global scans are
-        ~5000 small kernels launched from Python), so two images in flight fill them: batch 8 gave 3.2-3.8
-        images/s against batch 1's 1.7-2.8 (image after image: 2.1-2.6) in the scratch run, 1.17-1.30x batch 1
-        in two benchmark runs. A batch of 8 as one tensor was slower
-        still (0.91x batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page faults per call,
-        every volume of 8 images a fresh mmap).
+        for the whole batch. Measured at 1024 x 768 (2 threads, ``benchmarks/onnx_speed.py``, five runs): batch 8
+        gave 0.99-1.30x the images/s of batch 1 (image after image, before: 0.93-1.07x). One image keeps ~1.2-1.9
+        of the 2 cores busy depending on the host's phase (its semi-global scans are ~5000 small kernels
+        launched from Python); a second image in flight fills the gaps when there are gaps, at the price of
+        ~0.05 s of system time per image (page faults of the worker threads' fresh allocations). A batch of 8 as
+        one tensor was slower (0.91x batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page
+        faults per call, every volume of 8 images a fresh mmap).
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
         b = image.shape[0]
