@@ -308,13 +308,10 @@ class BiPrismRig:
             >>> rig.binned(2).principal_point, rig.binned(2).image_width
             ((249.75, 189.75), 512)
         """
-        if not isinstance(factor, int) or factor < 1:
-            raise RigError(f"factor must be a positive int, got {factor!r}")
+        coarse = self.downscaled(factor)  # the sizes and the pixel pitch (and the check of factor)
         cx, cy = self.principal_point  # type: ignore[misc]
         shift = (factor - 1) / 2
-        return self.replace(image_width=self.image_width // factor, image_height=self.image_height // factor,
-                            pixel_size_mm=self.pixel_size_mm * factor,
-                            principal_point=((cx - shift) / factor, (cy - shift) / factor))
+        return coarse.replace(principal_point=((cx - shift) / factor, (cy - shift) / factor))
 
     def replace(self, **changes: Any) -> BiPrismRig:
         """Return a validated copy with some fields changed.

@@ -350,5 +350,6 @@ class FineBand(nn.Module):
         # the local cubic at s on valid pixels (measured, float32; the table itself is within 1e-3 px)
         k = (j + torch.where(frac < 0, -1, 1)).clamp(0, 2 * self.band)
         weight = frac.abs()
-        match = torch.cat([p.gather(1, j) + weight * (p.gather(1, k) - p.gather(1, j)) for p in (x, y)], 1)
+        at_j = [p.gather(1, j) for p in (x, y)]
+        match = torch.cat([a + weight * (p.gather(1, k) - a) for a, p in zip(at_j, (x, y), strict=True)], 1)
         return LevelResult(s, ok, similarity(local.gather(1, j), o.cost, channels, o.window), match)

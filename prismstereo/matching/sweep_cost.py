@@ -120,13 +120,11 @@ def sample_points(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torc
     if y.shape != x.shape or x.shape[0] != image.shape[0]:
         raise ShapeError(f"x {tuple(x.shape)} and y {tuple(y.shape)} must match, with the image's batch "
                          f"{image.shape[0]}")
-    b, c, h, w = image.shape
-    d, hs, ws = x.shape[1:]
+    h, w = image.shape[-2:]
     x, y = x.to(image.dtype), y.to(image.dtype)
     if not torch.onnx.is_in_onnx_export():
-        grid = torch.stack([(2.0 * x + 1.0) / w - 1.0, (2.0 * y + 1.0) / h - 1.0], -1).view(b, d * hs, ws, 2)
-        return F.grid_sample(image, grid, mode="bilinear", padding_mode="border",
-                             align_corners=False).view(b, c, d, hs, ws)
+        return sample_slices(image, torch.stack([(2.0 * x + 1.0) / w - 1.0, (2.0 * y + 1.0) / h - 1.0], -1),
+                             shared=False)
     return _gather_bilinear(image, x, y)
 
 
