@@ -390,30 +390,37 @@ class PrismStereo(nn.Module):
         """Depth of the reference half of ``image`` (B, C, H, W) in [0, 1], C = 1 or 3.
 
         In torch eager a batch is evaluated image by image, ``torch.get_num_threads()`` images at a time on
-        worker threads (each inherits the caller's grad / inference mode); traced or exported it is one graph
-        for the whole batch. Measured at 1024 x 768 (2 threads, ``benchmarks/onnx_speed.py``, five runs): batch 8
-        gave 0.99-1.30x the images/s of batch 1 (image after image, before: 0.93-1.07x). One image keeps ~1.2-1.9
-        of the 2 cores busy depending on the host's phase (its semi-global scans are ~5000 small kernels
-        launched from Python); a second image in flight fills the gaps when there are gaps, at the price of
-        ~0.05 s of system time per image (page faults of the worker threads' fresh allocations). A batch of 8 as
-        one tensor was slower (0.91x batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page
-        faults per call, every volume of 8 images a fresh mmap).
+        worker threads, each with its share of the caller's intra-op threads (one each with the default 2) and
+        the caller's grad / inference mode; the caller's thread count is restored afterwards (``torch.
+        set_num_threads`` also sets torch's process-wide default). Traced or exported it is one graph for the
+        whole batch. Why threads of one intra-op thread each (1024 x 768, 2 cores): one image with 2 threads
+        spends part of its time in kernels that do not scale (OpenMP threads spin or wait), two images with
+        2 threads each oversubscribe the cores (A/B in one process: 254 ms per image at batch 8 against
+        222 ms with one thread per worker; batch 1 254 ms). A batch of 8 as one tensor was slower (0.91x
+        batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page faults per call, every volume
+        of 8 images a fresh mmap). The images/s of batch 8 vs batch 1 are in ``benchmarks/onnx_speed.py``.
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
         b = image.shape[0]
         if b > 1 and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
             grad, inference = torch.is_grad_enabled(), torch.is_inference_mode_enabled()
+            threads = torch.get_num_threads()
+            workers = min(b, threads)
 
             def one(i: int) -> DepthResult:  # grad and inference mode are thread-local: carry the caller's
+                if workers > 1:  # the caller's threads split between the images in flight
+                    torch.set_num_threads(threads // workers)
                 with torch.inference_mode(inference), torch.set_grad_enabled(grad):
                     return self._forward(image[i:i + 1])
 
-            workers = min(b, max(1, torch.get_num_threads()))
             if workers == 1:
                 parts = [one(i) for i in range(b)]
             else:
-                with ThreadPoolExecutor(workers) as pool:
-                    parts = list(pool.map(one, range(b)))
+                try:
+                    with ThreadPoolExecutor(workers) as pool:
+                        parts = list(pool.map(one, range(b)))
+                finally:  # the workers' setting also reached torch's process-wide default: restore it
+                    torch.set_num_threads(threads)
             return DepthResult(*(torch.cat(ts, 0) for ts in zip(*parts, strict=True)))
         return self._forward(image)
 

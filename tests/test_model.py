@@ -194,7 +194,7 @@ def test_model_buffers_batch_and_errors(setup1_model):
 
 def test_batch_on_worker_threads_equals_single_images_and_keeps_grad_mode(setup1_model, monkeypatch):
     """An eager batch runs on worker threads: the same numbers as image by image, under the caller's grad and
-    inference mode (both are thread-local in torch)."""
+    inference mode (both are thread-local in torch), each worker with its share of the caller's threads."""
     rig, model = setup1_model
     x = torch.rand(3, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(1))
     with torch.inference_mode():
@@ -207,7 +207,7 @@ def test_batch_on_worker_threads_equals_single_images_and_keeps_grad_mode(setup1
 
     def spy(image):
         seen.append((threading.current_thread() is threading.main_thread(), torch.is_grad_enabled(),
-                     torch.is_inference_mode_enabled()))
+                     torch.is_inference_mode_enabled(), torch.get_num_threads()))
         return forward(image)
 
     monkeypatch.setattr(model, "_forward", spy)
@@ -219,9 +219,12 @@ def test_batch_on_worker_threads_equals_single_images_and_keeps_grad_mode(setup1
         with torch.inference_mode():
             model(x[:2])
         model(x[:2])
+        after = torch.get_num_threads()
     finally:
         torch.set_num_threads(threads)
-    assert seen == [(False, False, False)] * 2 + [(False, False, True)] * 2 + [(False, True, False)] * 2
+    # each worker runs its image on one of the caller's two threads; the caller's setting is restored
+    assert seen == [(False, False, False, 1)] * 2 + [(False, False, True, 1)] * 2 + [(False, True, False, 1)] * 2
+    assert after == 2
     monkeypatch.undo()
     image = x[:2].clone().requires_grad_()
     res = model(image)

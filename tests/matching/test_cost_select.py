@@ -50,6 +50,18 @@ def test_box_filter_is_a_mean():
         box_filter(vol, 4)
 
 
+@pytest.mark.parametrize("size", [(1, 1), (2, 3), (3, 2), (6, 17), (13, 9)])
+@pytest.mark.parametrize("window", [3, 7])
+def test_box_filter_matches_avg_pool_and_its_export_form(size, window):
+    """The eager in-place shifted sums equal avg_pool2d without the padding (the exported form), also on
+    volumes smaller than the window; float64 gradcheck."""
+    vol = torch.rand(2, 3, *size, dtype=F64, generator=torch.Generator().manual_seed(3))
+    reference = torch.nn.functional.avg_pool2d(vol, window, stride=1, padding=window // 2, count_include_pad=False)
+    torch.testing.assert_close(box_filter(vol, window), reference, rtol=1e-12, atol=1e-12)
+    assert box_filter(vol, 1) is vol
+    torch.autograd.gradcheck(lambda v: box_filter(v, window), (vol[:1, :2].clone().requires_grad_(),))
+
+
 def test_census_bits():
     img = torch.tensor([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]).view(1, 1, 3, 3)
     bits = census_transform(img, 3)
