@@ -450,7 +450,8 @@ class PrismStereo(nn.Module):
             s, ok, confidence, match = self.search(ref, other, final=True)
         else:
             f = self.factor
-            coarse = self.search(self._downsample(ref), self._downsample(other), final=False)
+            with torch.no_grad():  # the coarse level only places the fine band (its s0 is detached)
+                coarse = self.search(self._downsample(ref), self._downsample(other), final=False)
             s0 = F.interpolate(coarse.s, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
             ok0 = F.interpolate(coarse.valid.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
             s, ok, confidence, match = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), ok0, self.table,

@@ -50,9 +50,25 @@ def test_sgm_matches_reference_recursion():
     torch.testing.assert_close(sgm_aggregate(cost, 0.3, 1.1, 2), expected2)
 
 
+@pytest.mark.parametrize("directions", [2, 4, 8])
+def test_sgm_without_autograd_equals_the_differentiable_form(directions):
+    """Without autograd the scans write into preallocated buffers and sum in place; with autograd they stay
+    functional: bitwise the same values (plain and guided), and float64 gradcheck of the functional form."""
+    gen = torch.Generator().manual_seed(4)
+    cost = torch.rand(2, 6, 9, 7, generator=gen, dtype=F64, requires_grad=True)
+    guide = torch.rand(2, 1, 9, 7, generator=gen, dtype=F64)
+    with_grad = sgm_aggregate(cost, 0.3, 1.1, directions)
+    guided = sgm_aggregate_guided(cost, guide, 0.3, 1.1, 0.1, directions)
+    assert with_grad.requires_grad and guided.requires_grad
+    with torch.no_grad():
+        assert torch.equal(sgm_aggregate(cost, 0.3, 1.1, directions), with_grad)
+        assert torch.equal(sgm_aggregate_guided(cost, guide, 0.3, 1.1, 0.1, directions), guided)
+    torch.autograd.gradcheck(lambda c: sgm_aggregate(c, 0.3, 1.1, directions), (cost[:1, :4, :5, :4],))
+
+
 def test_box_and_sgm_exported_graphs_match_eager(tmp_path):
     """The ONNX forms (AveragePool for the box, MaxPool for SGM's neighbour term) compute what the eager forms
-    (depthwise convolutions, Slice / Maximum / Concat) compute, and the box is the k x k mean of the pixels
+    (in-place shifted sums, -inf-padded Maximum) compute, and the box is the k x k mean of the pixels
     inside the image."""
     ort = pytest.importorskip("onnxruntime")
     gen = torch.Generator().manual_seed(3)
