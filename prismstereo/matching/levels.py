@@ -322,17 +322,18 @@ class FineBand(nn.Module):
         for top in range(0, h, rows):
             lo, hi = max(0, top - halo), min(h, top + rows + halo)
             res = self._rows(reference[..., lo:hi, :], other, s0[..., lo:hi, :], ok0[..., lo:hi, :],
-                             table[:, lo:hi], interval[:, lo:hi])
+                             table, lo, interval[:, lo:hi])
             keep = slice(top - lo, top - lo + min(rows, h - top))
             strips.append([t[..., keep, :] for t in res])
         return LevelResult(*(torch.cat(ts, -2) for ts in zip(*strips, strict=True)))
 
     def _rows(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
-              table: torch.Tensor, interval: torch.Tensor) -> LevelResult:
+              table: torch.Tensor, top: int, interval: torch.Tensor) -> LevelResult:
+        """The band on rows ``top`` ... of the image (``table`` whole, ``interval`` of these rows)."""
         o, step = self.options, self.step
         offsets = torch.arange(-self.band, self.band + 1, device=reference.device).to(reference.dtype) * step
         s_band = s0 + offsets.view(1, -1, 1, 1)  # (B, J, H, W); beyond [-1, 1]: outside the interval
-        x, y = band_positions(local_cubic(table.to(reference), s0), offsets).unbind(-1)  # full-sensor pixels
+        x, y = band_positions(local_cubic(table.to(reference), s0, top), offsets).unbind(-1)  # full-sensor pixels
         channels = reference.shape[1]
         if o.cost == "zncc" and channels > 1:  # ZNCC compares grey windows: sample the grey image (linear)
             reference, other = reference.mean(1, keepdim=True), other.mean(1, keepdim=True)

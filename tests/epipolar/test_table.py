@@ -37,6 +37,9 @@ def test_local_cubics_match_the_polynomials(setup):
     s = torch.rand(2, 1, *coef.shape[1:3], generator=gen, dtype=F64) * 2 - 1
     cubic = local_cubic(table, s)
     assert (cubic_at(cubic, cubic.u) - _exact(coef, s)).norm(dim=-1).max() < 2e-3
+    band_of_rows = local_cubic(table, s[..., 5:12, :], top=5)  # rows of the whole table, as the fine band's strips
+    assert torch.equal(band_of_rows.coefficients, cubic.coefficients[..., 5:12, :, :])
+    assert torch.equal(band_of_rows.u, cubic.u[..., 5:12, :])
     # the band by one matrix product = the cubic at shifted coordinates = the polynomial
     offsets = torch.linspace(-0.03, 0.03, 7, dtype=F64)
     band = band_positions(cubic, offsets)
@@ -108,6 +111,10 @@ def test_errors():
         local_cubic(torch.zeros(3, 3, 4, 2), torch.zeros(1, 1, 3, 4))
     with pytest.raises(ShapeError, match="s must have shape"):
         local_cubic(table, torch.zeros(1, 2, 3, 4))
+    with pytest.raises(ShapeError, match="from row 2"):
+        local_cubic(table, torch.zeros(1, 1, 2, 4), top=2)  # rows 2-3 of a 3-row table
+    with pytest.raises(ShapeError, match="needs K >= 4"):
+        local_cubic(table, torch.zeros(1, 1, 3, 5))
     with pytest.raises(OptionError, match="tolerance_px must be > 0"):
         tabulate_sweep(torch.zeros(5, 3, 4, 2), 0.0)
     with pytest.raises(OptionError, match="steps must be an int >= 0"):
