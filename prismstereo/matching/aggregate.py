@@ -124,15 +124,9 @@ def _scan(
     return torch.stack(out, dim=3)
 
 
-def _scan_eager(
-    slices: tuple[torch.Tensor, ...],
-    p1: float,
-    p2: float,
-    reverse: bool,
-    shift: int = 0,
-    p2s: tuple[torch.Tensor, ...] | None = None,
-) -> torch.Tensor:
-    """:func:`_scan` without autograd, same values bitwise: (B, 1, D, N, X), a view of one preallocated
+def _scan_eager(slices: tuple[torch.Tensor, ...], p1: float, p2: float, reverse: bool, shift: int = 0,
+                p2s: tuple[torch.Tensor, ...] | None = None) -> torch.Tensor:
+    """:func:`_scan` (same arguments) without autograd, same values bitwise: (B, 1, D, N, X), a view of one preallocated
     (B, 1, D + 2, N, X) buffer whose rows 0 and D + 1 are -inf. Each step writes into its slice of the buffer,
     and the neighbours' maximum of the previous step is one ``maximum`` of its rows shifted by +-1 (no Concat
     per step, no stack of the N steps at the end). Measured on a (1, 95, 193, 128) volume, 4 directions,
