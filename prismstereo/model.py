@@ -17,7 +17,8 @@ The layers, in order:
      sweep (:func:`~prismstereo.matching.sweep_cost.warp_slices`, one ``grid_sample`` of D x H x W samples).
 
    Then matching cost (ZNCC by default), box + semi-global aggregation (4 directions), winner-take-all with
-   sub-pixel refinement, uniqueness confidence.
+   sub-pixel refinement, uniqueness confidence; the estimate is extended by ``coarse_reach`` coarse pixels
+   into invalid neighbours (:func:`~prismstereo.matching.levels.extend_estimate`).
 4. **Fine level**: the coarse estimate upsampled to full resolution; a band of 2 R + 1 hypotheses (<= 1 px
    apart) around it per pixel, evaluated on the exact per-pixel sweep (a table with local cubics,
    :mod:`prismstereo.epipolar.table`, within 1e-3 px of the polynomials); cost, box, winner and
@@ -32,12 +33,12 @@ coarse level (f = 4) 1/64 of that and the fine band 11 / 368. ``benchmarks/depth
 both modes.
 
 Why the rectified coarse level by default (``benchmarks/depth_targets.py --sampling``, full resolution, both
-thesis setups, 205-1511 mm): the final depth comes from the same exact fine band either way, and the
-rectified coarse level lands inside it more often: coverage at 228 mm 94.8 -> 95.5 % (setup 1) and
-94.5 -> 96.1 % (setup 2), the only thesis depth where the sweep missed the 95 % target, and >= the sweep's on
-most other captures (setup 2's mean errors are 0.00-0.02 points higher, all <= 0.092 %); onnxruntime runs
-the frame faster (1024 x 768, 228-1374 mm, one run: 187 ms vs 220 ms; the volume is a gather of rows instead
-of a bilinear ``grid_sample`` of 2.3 M samples). It is not exact as a
+thesis setups, 205-1511 mm, measured before ``coarse_reach``): the final depth comes from the same exact fine
+band either way, and the rectified coarse level lands inside it more often: coverage at 228 mm 94.8 -> 95.5 %
+(setup 1) and 94.5 -> 96.1 % (setup 2), the only thesis depth where the sweep missed the 95 % target, and >= the
+sweep's on most other captures (setup 2's mean errors are 0.00-0.02 points higher, all <= 0.092 %);
+onnxruntime runs the frame faster (1024 x 768, 228-1374 mm, one run: 187 ms vs 220 ms; the volume is a gather
+of rows instead of a bilinear ``grid_sample`` of 2.3 M samples). It is not exact as a
 *final* level: a shift compares windows of equal width, while the other half's image of a surface is
 stretched or squeezed across the window (anamorphic virtual cameras), which the per-pixel sweep follows.
 Measured as a single level at half resolution, setup 2, 1192 mm: 0.26 % mean error / 88.9 % coverage against
@@ -63,7 +64,14 @@ from prismstereo.errors import OptionError, ShapeError, check_option, check_shap
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.cost import COSTS, Cost
-from prismstereo.matching.levels import FineBand, RectifiedSearch, SearchOptions, SweepSearch, affine_coefficients
+from prismstereo.matching.levels import (
+    FineBand,
+    RectifiedSearch,
+    SearchOptions,
+    SweepSearch,
+    affine_coefficients,
+    extend_estimate,
+)
 from prismstereo.matching.split import SplitImage
 from prismstereo.matching.sweep_cost import warp_slices
 
@@ -185,8 +193,25 @@ class PrismStereo(nn.Module):
             (setup 1, 228-1374 mm, one run of ``benchmarks/onnx_speed.py``; OpenCV SGBM 69 ms), slanted plane
             0.040 % mean error on 96.5 % of the co-visible pixels (full resolution 0.027 % on 98.4 %). On the
             thesis planes (``benchmarks/depth_targets.py --downsample 2``, 205-1511 mm) the mean error stays
-            <= 0.123 % (setup 1) / 0.175 % (setup 2), but coverage drops to 90.2-98.6 % / 92.6-95.9 % (full
-            resolution: >= 95.5 / 96.0 %): below the 95 % target at the nearest and (setup 2) the far planes.
+            <= 0.123 % (setup 1) / 0.132 % (setup 2), coverage 94.0-99.2 % / 93.4-97.0 % (full resolution:
+            97.2-99.6 / 96.4-98.5 %; both with ``coarse_reach=1``, without it 90.2-98.6 / 92.6-95.9 %): below the
+            95 % target at the nearest plane (setup 1) and the far ones (setup 2, 780-1374 mm).
+        coarse_reach: invalid coarse pixels within this many coarse pixels of valid ones take their valid
+            neighbours' mean s (:func:`~prismstereo.matching.levels.extend_estimate`) before it is upsampled
+            for the fine band; 0 leaves the coarse estimate as it is. The coarse level loses a margin of about
+            its window at the edges of the common field of view (at 228 mm with ``thesis_setup1`` that field is
+            a strip of 144 of the 512 reference columns), and the bilinear upsampling of s blended the values
+            of its invalid pixels into the valid ones next to them, misplacing the band there (on a half-size
+            setup 1 at 240 mm the coverage went 91.8 -> 95.2 % from that alone, 95.8 % with the reached pixels).
+            Measured with 1 (``benchmarks/depth_targets.py``, full resolution, 205-1511 mm, against 0): coverage
+            of the co-visible pixels 95.5-99.4 -> 97.2-99.6 % (setup 1) and 96.0-98.1 -> 96.4-98.5 % (setup 2),
+            mean errors equal or lower (within 0.005 points); the share of valid pixels that are not co-visible
+            fell on every setup 1 capture (228 mm 8.65 -> 8.46 %, 312 mm 0.78 -> 0.47 %) and rose by 0.0-0.8
+            points on setup 2 (228 mm 3.85 -> 4.64 %, 1192 mm 1.79 -> 2.10 %). A radius of 2 covered more but
+            let in more false matches (setup 2, 228 mm: 12.2 % false without the confidence rule).
+        reach_confidence: the fine band's confidence (NCC) a pixel needs when only its coarse neighbours were
+            valid (the others need ``min_confidence``); 0.8 instead of 0.9 gave the same coverage to 0.1 point
+            with up to 0.5 points more false matches (setup 2, 228 mm 5.11 %).
 
     Example:
         >>> small = thesis_setup1().downscaled(8)
@@ -221,6 +246,8 @@ class PrismStereo(nn.Module):
         occluder_confidence: float | None = 0.8,
         lr_threshold: float | None = None,
         downsample: int = 1,
+        coarse_reach: int = 1,
+        reach_confidence: float = 0.9,
     ) -> None:
         super().__init__()
         check_option(cost, COSTS, "cost")
@@ -276,6 +303,11 @@ class PrismStereo(nn.Module):
         if lr_threshold is not None and not lr_threshold > 0:
             raise OptionError(f"lr_threshold must be > 0 or None, got {lr_threshold!r}")
         self.lr_threshold = lr_threshold
+        if not isinstance(coarse_reach, int) or coarse_reach < 0:
+            raise OptionError(f"coarse_reach must be an int >= 0, got {coarse_reach!r}")
+        if not 0 <= reach_confidence <= 1:
+            raise OptionError(f"reach_confidence must be in [0, 1], got {reach_confidence!r}")
+        self.coarse_reach, self.reach_confidence = coarse_reach, float(reach_confidence)
         self.num_hypotheses = num_hypotheses
 
         w_o = rig.image_width - w_ref
@@ -343,7 +375,8 @@ class PrismStereo(nn.Module):
             "band": self.band, "refinement": self.refinement, "min_confidence": self.min_confidence,
             "min_uniqueness": self.min_uniqueness, "occlusion_tolerance": self.occlusion_tolerance,
             "occluder_confidence": self.occluder_confidence, "lr_threshold": self.lr_threshold,
-            "downsample": self.downsample,
+            "downsample": self.downsample, "coarse_reach": self.coarse_reach,
+            "reach_confidence": self.reach_confidence,
         }
 
     @staticmethod
@@ -453,10 +486,16 @@ class PrismStereo(nn.Module):
             f = self.factor
             with torch.no_grad():  # the coarse level only places the fine band (its s0 is detached)
                 coarse = self.search(self._downsample(ref), self._downsample(other), final=False)
-            s0 = F.interpolate(coarse.s, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
-            ok0 = F.interpolate(coarse.valid.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
-            s, ok, confidence, match = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), ok0, self.table,
+                s_c, reach = extend_estimate(coarse.s, coarse.valid, self.coarse_reach)
+
+            def up(t: torch.Tensor) -> torch.Tensor:
+                return F.interpolate(t.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
+
+            s0 = F.interpolate(s_c, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
+            s, ok, confidence, match = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), up(reach), self.table,
                                                  self.interval)
+            if self.coarse_reach:  # pixels the coarse level only reached from a neighbour: a stricter match
+                ok = ok & (up(coarse.valid) | (confidence >= self.reach_confidence))
         s = s.clamp(-1.0, 1.0)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)

@@ -337,3 +337,27 @@ def test_downsample_matches_the_binned_capture_on_the_full_grid():
         PrismStereo(rig, (400.0, 800.0), downsample=0)
     with pytest.raises(ShapeError, match="but the rig's sensor is"):
         model(torch.rand(1, 1, 192, 256))
+
+
+def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
+    """At a near plane the common field of view is a narrow strip whose edge the coarse level loses (its
+    windows leave the other half there). Extending its estimate by one coarse pixel (1) keeps the bilinear
+    upsampling of valid estimates from blending in the invalid pixels' values and (2) lets the fine band match
+    the reached pixels, accepted at the stricter reach_confidence."""
+    rig = scaled_rig(thesis_setup1(), 2)
+    cap = render(rig, fronto_parallel_plane(rig, 240.0, seed=2), FORM)
+    with torch.no_grad():
+        plain = PrismStereo(rig, (220.0, 900.0), coarse_reach=0)(cap.image)
+        reach = PrismStereo(rig, (220.0, 900.0))(cap.image)
+        unreached = PrismStereo(rig, (220.0, 900.0), reach_confidence=1.0)(cap.image)  # (1) only
+    rel0, coverage0 = _errors(rig, plain, cap)
+    rel1, coverage1 = _errors(rig, reach, cap)
+    coverage_unreached = _errors(rig, unreached, cap)[1]
+    assert coverage1 > coverage_unreached > coverage0 + 0.01  # measured 95.8 > 95.2 > 91.8 % (with 0.8)
+    reached = reach.valid & ~unreached.valid  # the same fine band otherwise: exactly the accepted reached pixels
+    assert reached.sum() > 50 and reach.confidence[reached].min() >= 0.9
+    assert rel1.mean() <= rel0.mean() * 1.1 and rel1.mean() < 0.001
+    with pytest.raises(OptionError, match="coarse_reach must be an int >= 0"):
+        PrismStereo(rig, (220.0, 900.0), coarse_reach=-1)
+    with pytest.raises(OptionError, match="reach_confidence must be in"):
+        PrismStereo(rig, (220.0, 900.0), reach_confidence=1.5)

@@ -26,6 +26,7 @@ from torch import nn
 
 from prismstereo.epipolar.row_rectify import RectifiedLevel
 from prismstereo.epipolar.table import band_positions, column_to_sweep, local_cubic, positions_at
+from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.matching.aggregate import box_filter, sgm_aggregate
 from prismstereo.matching.select import (
     left_right_check,
@@ -44,7 +45,10 @@ from prismstereo.matching.sweep_cost import (
     worst_cost,
 )
 
-__all__ = ["FineBand", "LevelResult", "RectifiedSearch", "SearchOptions", "SweepSearch", "affine_coefficients"]
+__all__ = [
+    "Extended", "FineBand", "LevelResult", "RectifiedSearch", "SearchOptions", "SweepSearch", "affine_coefficients",
+    "extend_estimate",
+]
 
 _TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05}  # soft-argmin temperature per cost's units
 _STRIP_VOXELS = 400_000  # fine band voxels per strip in torch eager (~1.6 MB per float32 volume: cache-sized)
@@ -354,3 +358,52 @@ class FineBand(nn.Module):
         at_j = [p.gather(1, j) for p in (x, y)]
         match = torch.cat([a + weight * (p.gather(1, k) - a) for a, p in zip(at_j, (x, y), strict=True)], 1)
         return LevelResult(s, ok, similarity(local.gather(1, j), o.cost, channels, o.window), match)
+
+
+class Extended(NamedTuple):
+    """:func:`extend_estimate`'s result, (B, 1, H, W) each.
+
+    Attributes:
+        s: the estimate, extended to invalid pixels in reach of valid ones.
+        reach: bool, where it is defined (valid, or a valid pixel within the radius).
+    """
+
+    s: torch.Tensor
+    reach: torch.Tensor
+
+
+def extend_estimate(s: torch.Tensor, valid: torch.Tensor, radius: int) -> Extended:
+    """Give invalid pixels within ``radius`` pixels of a valid one the mean s of the valid pixels of their
+    (2 radius + 1)^2 window; valid pixels, and those out of reach, keep theirs.
+
+    A coarse level loses a margin of about its window at the edges of the common field of view (its windows
+    leave the other half's image there) and elsewhere along invalid patches; the fine band, with its own
+    smaller full-resolution windows and checks, can still match most of these pixels if it is placed near
+    the right s. (:class:`~prismstereo.model.PrismStereo` accepts such a pixel only at a higher confidence.)
+
+    Args:
+        s: (B, 1, H, W) estimate; any value where invalid (NaN too: kept only where out of reach).
+        valid: (B, 1, H, W) bool.
+        radius: >= 0 pixels (0: unchanged).
+
+    Example:
+        >>> s = torch.tensor([[[[0.2, 0.4, 9.0, 9.0]]]]); ok = torch.tensor([[[[True, True, False, False]]]])
+        >>> t, reach = extend_estimate(s, ok, 1)
+        >>> [round(v, 3) for v in t[0, 0, 0].tolist()], reach[0, 0, 0].tolist()
+        ([0.2, 0.4, 0.4, 9.0], [True, True, True, False])
+    """
+    check_shape(s, ["B", 1, "H", "W"], "s")
+    if valid.shape != s.shape or valid.dtype != torch.bool:
+        raise ShapeError(f"valid must be a bool tensor of s's shape {tuple(s.shape)}, got {valid.dtype} "
+                         f"{tuple(valid.shape)}")
+    if not isinstance(radius, int) or radius < 0:
+        raise OptionError(f"radius must be an int >= 0, got {radius!r}")
+    if radius == 0:
+        return Extended(s, valid)
+    k = 2 * radius + 1
+    weight = valid.to(s.dtype)
+    total = F.avg_pool2d(torch.where(valid, s, torch.zeros_like(s)), k, 1, radius, count_include_pad=False)
+    share = F.avg_pool2d(weight, k, 1, radius, count_include_pad=False)  # same normalisation: the ratio is the mean
+    mean = total / share.clamp_min(torch.finfo(s.dtype).tiny)
+    reach = valid | (share > 0)
+    return Extended(torch.where(valid | ~reach, s, mean), reach)

@@ -2,10 +2,17 @@ import pytest
 import torch
 
 import prismstereo.matching.levels as levels
-from prismstereo import thesis_setup1
+from prismstereo import OptionError, ShapeError, thesis_setup1
 from prismstereo.epipolar.sweep import depth_to_sweep
 from prismstereo.epipolar.table import cubic_at, local_cubic
-from prismstereo.matching.levels import FineBand, LevelResult, RectifiedSearch, SweepSearch, similarity
+from prismstereo.matching.levels import (
+    FineBand,
+    LevelResult,
+    RectifiedSearch,
+    SweepSearch,
+    extend_estimate,
+    similarity,
+)
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 from tests.conftest import scaled_rig
@@ -72,3 +79,29 @@ def test_similarity_reference_values():
     torch.testing.assert_close(similarity(torch.tensor([0.0, 0.25, 2.0]), "zncc", 1, 5),
                                torch.tensor([1.0, 0.75, 0.0]))
     torch.testing.assert_close(similarity(torch.tensor([12.0]), "census", 1, 5), torch.tensor([0.5]))
+
+
+def test_extend_estimate_fills_invalid_pixels_in_reach_with_their_valid_neighbours_mean():
+    gen = torch.Generator().manual_seed(6)
+    s = torch.rand(2, 1, 7, 9, generator=gen, dtype=torch.float64)
+    valid = torch.rand(2, 1, 7, 9, generator=gen) > 0.6
+    valid[1] = False  # an image with nothing valid: nothing in reach, s unchanged
+    s_nan = torch.where(valid, s, torch.full_like(s, float("nan")))  # invalid values never leak in
+    out, reach = extend_estimate(s_nan, valid, 1)
+    assert out.shape == s.shape and reach.dtype == torch.bool
+    for y, x in [(0, 0), (3, 4), (6, 8), (2, 7)]:
+        window = (slice(max(0, y - 1), y + 2), slice(max(0, x - 1), x + 2))
+        neighbours = s[0, 0][window][valid[0, 0][window]]
+        if valid[0, 0, y, x]:
+            assert out[0, 0, y, x] == s[0, 0, y, x]
+        elif neighbours.numel():
+            torch.testing.assert_close(out[0, 0, y, x], neighbours.mean())
+        assert bool(reach[0, 0, y, x]) == bool(neighbours.numel())
+    assert not reach[1].any() and out[1].isnan().all()
+    assert torch.equal(extend_estimate(s, valid, 0).s, s)
+    far, far_reach = extend_estimate(s, valid, 3)
+    assert far_reach.sum() >= reach.sum()
+    with pytest.raises(OptionError, match="radius must be an int >= 0"):
+        extend_estimate(s, valid, -1)
+    with pytest.raises(ShapeError, match="valid must be a bool tensor"):
+        extend_estimate(s, valid[:, :, :3], 1)
