@@ -101,6 +101,7 @@ def test_extend_estimate_fills_invalid_pixels_in_reach_with_their_valid_neighbou
     assert torch.equal(extend_estimate(s, valid, 0).s, s)
     far, far_reach = extend_estimate(s, valid, 3)
     assert far_reach.sum() >= reach.sum()
+    torch.autograd.gradcheck(lambda x: extend_estimate(x, valid[:1], 1).s, (s[:1].clone().requires_grad_(),))
     with pytest.raises(OptionError, match="radius must be an int >= 0"):
         extend_estimate(s, valid, -1)
     with pytest.raises(ShapeError, match="valid must be a bool tensor"):
