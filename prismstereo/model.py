@@ -206,10 +206,11 @@ class PrismStereo(nn.Module):
             Measured with 1 (``benchmarks/depth_targets.py``, full resolution, 205-1511 mm, against 0): coverage
             of the co-visible pixels 95.5-99.4 -> 97.2-99.6 % (setup 1) and 96.0-98.1 -> 96.4-98.5 % (setup 2),
             mean errors within 0.002 points on setup 1 (up to +0.002 at 525 / 936 mm and the step scene) and
-            equal or lower on setup 2 (1374 mm 0.092 -> 0.087 %); the share of valid pixels that are not co-visible
-            fell on every setup 1 capture (228 mm 8.65 -> 8.46 %, 312 mm 0.78 -> 0.47 %) and rose by 0.0-0.8
-            points on setup 2 (228 mm 3.85 -> 4.64 %, 1192 mm 1.79 -> 2.10 %). A radius of 2 covered more but
-            let in more false matches (setup 2, 228 mm: 12.2 % false without the confidence rule).
+            equal or lower on setup 2 (1374 mm 0.092 -> 0.087 %); the share of valid pixels that are not
+            co-visible fell on every setup 1 capture but 1374 mm (equal; 228 mm 8.65 -> 8.46 %, 312 mm 0.78 ->
+            0.47 %) and rose by 0.0-0.8 points on setup 2 (228 mm 3.85 -> 4.64 %, 1192 mm 1.79 -> 2.10 %). A
+            radius of 2 covered more but let in more false matches (setup 2, 228 mm: 12.2 % false without the
+            confidence rule).
         reach_confidence: the fine band's confidence (NCC) a pixel needs when only its coarse neighbours were
             valid (the others need ``min_confidence``); 0.8 instead of 0.9 gave the same coverage to 0.1 point
             with up to 0.5 points more false matches (setup 2, 228 mm 5.11 %).
