@@ -433,8 +433,8 @@ class PrismStereo(nn.Module):
         2 threads each oversubscribe the cores (A/B in one process: 254 ms per image at batch 8 against
         222 ms with one thread per worker; batch 1 254 ms). A batch of 8 as one tensor was slower (0.91x
         batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page faults per call, every volume
-        of 8 images a fresh mmap). ``benchmarks/onnx_speed.py``, four runs: batch 8 gave 1.04-1.16x the
-        images/s of batch 1 (~205 ms per image at batch 1 in a quiet phase of the host).
+        of 8 images a fresh mmap). ``benchmarks/onnx_speed.py``, five runs: batch 8 gave 1.04-1.26x the
+        images/s of batch 1 (~205-240 ms per image at batch 1).
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
         b = image.shape[0]
