@@ -37,6 +37,8 @@ from prismstereo.matching.select import (
 )
 from prismstereo.matching.sweep_cost import (
     Warped,
+    _fill,
+    _grey,
     sample_points,
     sample_slices,
     shift_cost,
@@ -257,7 +259,7 @@ class RectifiedSearch(_Search):
             vol = (total if t else total.transpose(-1, -2)).detach()  # (B, D, W_l, H_r)
             d, w_l, h_r = vol.shape[1:]
             right = vol.reshape(b, d * w_l, h_r).index_select(1, self.right_index).view(b, d, -1, h_r)
-            right = torch.where(self.right_valid, right, torch.full_like(right, float("inf")))
+            right = _fill(right, self.right_valid, float("inf"))
             k_right = winner_take_all(right)[0].transpose(-1, -2).to(reference.dtype)  # (B, 1, H_r, W_ol)
             # disparity in left_right_check's convention (other column = reference column - d): d = -shift
             ok = ok & left_right_check(-(first + refined.detach()), -(first + k_right), self.lr_threshold)
@@ -339,8 +341,8 @@ class FineBand(nn.Module):
         s_band = s0 + offsets.view(1, -1, 1, 1)  # (B, J, H, W); beyond [-1, 1]: outside the interval
         x, y = band_positions(local_cubic(table.to(reference), s0, top), offsets).unbind(-1)  # full-sensor pixels
         channels = reference.shape[1]
-        if o.cost == "zncc" and channels > 1:  # ZNCC compares grey windows: sample the grey image (linear)
-            reference, other = reference.mean(1, keepdim=True), other.mean(1, keepdim=True)
+        if o.cost == "zncc":  # ZNCC compares grey windows: sample the grey image (linear)
+            reference, other = _grey(reference), _grey(other)
         lo, hi = interval.to(reference).unbind(0)
         warped = Warped(sample_points(other, x - self.split, y), (s_band >= lo) & (s_band <= hi))
         volume = sweep_cost(reference, warped, o.cost, o.window, o.census_threshold)
