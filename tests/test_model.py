@@ -361,3 +361,18 @@ def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
         PrismStereo(rig, (220.0, 900.0), coarse_reach=-1)
     with pytest.raises(OptionError, match="reach_confidence must be in"):
         PrismStereo(rig, (220.0, 900.0), reach_confidence=1.5)
+
+
+def test_rgb_capture_matches_its_grey_mean(setup1_model):
+    """ZNCC compares grey windows: an RGB capture gives the depth of its channel mean (every step before the
+    grey conversion is linear per channel, so only rounding differs)."""
+    rig, model = setup1_model
+    cap = render(rig, fronto_parallel_plane(rig, 600.0, seed=7, channels=3),
+                 ImageFormation(supersample=2, noise_sigma=1 / 255, channels=3))
+    assert cap.image.shape[1] == 3
+    with torch.no_grad():
+        rgb = model(cap.image)
+        grey = model(cap.image.mean(1, keepdim=True))
+    assert (rgb.valid == grey.valid).float().mean() > 0.999 and rgb.valid.float().mean() > 0.5
+    both = rgb.valid & grey.valid
+    assert float(((rgb.depth - grey.depth).abs() / grey.depth)[both].max()) < 1e-4

@@ -61,7 +61,8 @@ class ImageFormation:
 
     Args:
         supersample: s x s samples per pixel (s >= 1; s = 1 samples the pixel centre only).
-        channels: 1 (grey) or 3 (RGB); grey textures are repeated into RGB.
+        channels: 1 (grey) or 3 (RGB); grey textures are repeated into RGB, RGB textures seen in grey are their
+            channel mean.
         vignetting: strength in [0, 1] of cos^4 natural vignetting (0 = none).
         blur_sigma_px: Gaussian defocus blur (px, 0 = none).
         poisson_photons: photons at full scale for shot noise (None = none).

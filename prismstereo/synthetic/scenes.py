@@ -330,13 +330,16 @@ class Scene:
         return best, index
 
     def shade(self, hit: Hit, index: torch.Tensor, channels: int) -> torch.Tensor:
-        """(N, channels) intensities: each surface's texture at its hits, background elsewhere."""
+        """(N, channels) intensities: each surface's texture at its hits, background elsewhere; a grey texture
+        is repeated into RGB, an RGB texture seen in grey is its channel mean."""
         out = torch.full((index.shape[0], channels), self.background, dtype=torch.float32)
         for i, surface in enumerate(self.surfaces):
             mask = index == i
             if mask.any():
                 values = surface.texture.sample(hit.coords[mask]).to(torch.float32)
-                out[mask] = values.expand(-1, channels) if values.shape[1] == 1 else values
+                if values.shape[1] != channels:  # grey -> RGB: repeated; RGB -> grey: the channel mean
+                    values = values.expand(-1, channels) if values.shape[1] == 1 else values.mean(1, keepdim=True)
+                out[mask] = values
         return out
 
 

@@ -41,6 +41,11 @@ def test_capture_shapes_and_types():
     for mask in (cap.valid, cap.left, cap.covisible):
         assert mask.shape == (1, 1, h, w) and mask.dtype == torch.bool
     assert torch.equal(cap.image[:, 0], cap.image[:, 1])  # grey texture repeated into RGB
+    colour = fronto_parallel_plane(rig, 525.0, channels=3)  # an RGB texture on a grey sensor: its channel mean
+    rgb = render(rig, colour, ImageFormation(supersample=2, channels=3, bits=None))
+    grey = render(rig, colour, ImageFormation(supersample=2, channels=1, bits=None))
+    assert not torch.equal(rgb.image[:, 0], rgb.image[:, 1])
+    torch.testing.assert_close(grey.image, rgb.image.mean(1, keepdim=True))
 
 
 @pytest.mark.parametrize("make", [thesis_setup1, thesis_setup2])
