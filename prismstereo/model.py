@@ -202,7 +202,7 @@ class PrismStereo(nn.Module):
             its window at the edges of the common field of view (at 228 mm with ``thesis_setup1`` that field is
             a strip of 144 of the 512 reference columns), and the bilinear upsampling of s blended the values
             of its invalid pixels into the valid ones next to them, misplacing the band there (on a half-size
-            setup 1 at 240 mm the coverage went 91.8 -> 95.2 % from that alone, 95.8 % with the reached pixels).
+            setup 1 at 240 mm the coverage went 91.8 -> 95.2 % from that alone, 95.7 % with the reached pixels).
             Measured with 1 (``benchmarks/depth_targets.py``, full resolution, 205-1511 mm, against 0): coverage
             of the co-visible pixels 95.5-99.4 -> 97.2-99.6 % (setup 1) and 96.0-98.1 -> 96.4-98.5 % (setup 2),
             mean errors within 0.002 points on setup 1 (up to +0.002 at 525 / 936 mm and the step scene) and

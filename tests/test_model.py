@@ -353,7 +353,7 @@ def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
     rel0, coverage0 = _errors(rig, plain, cap)
     rel1, coverage1 = _errors(rig, reach, cap)
     coverage_unreached = _errors(rig, unreached, cap)[1]
-    assert coverage1 > coverage_unreached > coverage0 + 0.01  # measured 95.8 > 95.2 > 91.8 % (with 0.8)
+    assert coverage1 > coverage_unreached > coverage0 + 0.01  # measured 95.7 > 95.2 > 91.8 %
     reached = reach.valid & ~unreached.valid  # the same fine band otherwise: exactly the accepted reached pixels
     assert reached.sum() > 50 and reach.confidence[reached].min() >= 0.9
     assert rel1.mean() <= rel0.mean() * 1.1 and rel1.mean() < 0.001
