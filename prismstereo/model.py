@@ -33,11 +33,13 @@ coarse level (f = 4) 1/64 of that and the fine band 11 / 368. ``benchmarks/depth
 both modes.
 
 Why the rectified coarse level by default (``benchmarks/depth_targets.py --sampling``, full resolution, both
-thesis setups, 205-1511 mm, measured before ``coarse_reach``): the final depth comes from the same exact fine
-band either way, and the rectified coarse level lands inside it more often: coverage at 228 mm 94.8 -> 95.5 %
-(setup 1) and 94.5 -> 96.1 % (setup 2), the only thesis depth where the sweep missed the 95 % target, and >= the
-sweep's on most other captures (setup 2's mean errors are 0.00-0.02 points higher, all <= 0.092 %);
-onnxruntime runs the frame faster (1024 x 768, 228-1374 mm, one run: 187 ms vs 220 ms; the volume is a gather
+thesis setups, 205-1511 mm, with ``coarse_reach=1``): the final depth comes from the same exact fine band either
+way, and the rectified coarse level lands inside it more often: coverage 97.2-99.6 % against the sweep's
+96.3-99.4 % (setup 1) and 96.4-98.6 % against 95.1-98.8 % (setup 2; 228 mm: 97.2 vs 95.1 %, the sweep's lowest,
+near the 95 % target). The sweep is the more precise placement on setup 2 (whose row rectification leaves
+0.1 px): mean errors 0.010-0.071 % against 0.012-0.087 % and fewer valid pixels that are not co-visible (0.0-2.6
+% against 0.0-4.6 %); on setup 1 the two are within 0.007 points. onnxruntime runs the rectified frame faster
+(1024 x 768, 228-1374 mm, four runs: 175-270 ms against 216-322 ms; the volume is a gather
 of rows instead of a bilinear ``grid_sample`` of 2.3 M samples). It is not exact as a
 *final* level: a shift compares windows of equal width, while the other half's image of a surface is
 stretched or squeezed across the window (anamorphic virtual cameras), which the per-pixel sweep follows.
