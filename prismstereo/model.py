@@ -71,7 +71,6 @@ from prismstereo.matching.levels import (
     RectifiedSearch,
     SearchOptions,
     SweepSearch,
-    affine_coefficients,
     extend_estimate,
 )
 from prismstereo.matching.split import SplitImage
@@ -404,18 +403,14 @@ class PrismStereo(nn.Module):
         return f
 
     def _normalised(self, coefficients: torch.Tensor, factor: int) -> torch.Tensor:
-        """Map pixel-unit polynomials to grid_sample coordinates of the other half (padded to a multiple of
-        ``factor``)."""
-        return affine_coefficients(coefficients, *self._grid_map(coefficients, factor))
-
-    def _grid_map(self, like: torch.Tensor, factor: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
-        """(scale, offset) (2,) mapping full-sensor pixel positions to grid_sample coordinates (align_corners=
-        False) of the other half, padded to a multiple of ``factor`` (the coarse level's box downsampling)."""
+        """Map pixel-unit polynomials of full-sensor positions to grid_sample coordinates (align_corners=False)
+        of the other half, padded to a multiple of ``factor`` (the coarse level's box downsampling): the map is
+        affine, so only T_0's coefficient gets the offset."""
         h, w_o = self.split.height, self.split.width - self.split.split
         width, height = math.ceil(w_o / factor) * factor, math.ceil(h / factor) * factor
-        scale = like.new_tensor([2.0 / width, 2.0 / height])
-        offset = like.new_tensor([(1.0 - 2.0 * self.split.split) / width - 1.0, 1.0 / height - 1.0])
-        return scale, offset
+        scale = coefficients.new_tensor([2.0 / width, 2.0 / height])
+        offset = coefficients.new_tensor([(1.0 - 2.0 * self.split.split) / width - 1.0, 1.0 / height - 1.0])
+        return torch.cat([coefficients[:1] * scale + offset, coefficients[1:] * scale])
 
     def _downsample(self, image: torch.Tensor) -> torch.Tensor:
         f = self.factor

@@ -47,10 +47,7 @@ from prismstereo.matching.sweep_cost import (
     worst_cost,
 )
 
-__all__ = [
-    "Extended", "FineBand", "LevelResult", "RectifiedSearch", "SearchOptions", "SweepSearch", "affine_coefficients",
-    "extend_estimate",
-]
+__all__ = ["Extended", "FineBand", "LevelResult", "RectifiedSearch", "SearchOptions", "SweepSearch", "extend_estimate"]
 
 _TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05}  # soft-argmin temperature per cost's units
 _STRIP_VOXELS = 400_000  # fine band voxels per strip in torch eager (~1.6 MB per float32 volume: cache-sized)
@@ -101,27 +98,6 @@ def similarity(best: torch.Tensor, cost: str, channels: int, window: int) -> tor
     """
     worst = worst_cost(cost, channels, window)
     return (1.0 - best / (1.0 if cost == "zncc" else worst)).clamp(0.0, 1.0)
-
-
-def affine_coefficients(coefficients: torch.Tensor, scale: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
-    """The affine image p -> scale p + offset of polynomials given by their coefficients along dim 0, constant
-    term first (Chebyshev T_0 or monomial c_0): only that term gets the offset. Used to move sweep positions
-    from full-sensor pixels to ``grid_sample`` units.
-
-    Args:
-        coefficients: (N, ..., 2).
-        scale, offset: (2,) per coordinate.
-
-    Returns:
-        (N, ..., 2).
-
-    Example:
-        >>> affine_coefficients(torch.ones(3, 1, 2), torch.tensor([2.0, 2.0]), torch.tensor([1.0, 0.0]))[:, 0]
-        tensor([[3., 2.],
-                [2., 2.],
-                [2., 2.]])
-    """
-    return torch.cat([coefficients[:1] * scale + offset, coefficients[1:] * scale])
 
 
 def _refine(options: SearchOptions, local: torch.Tensor, total: torch.Tensor, index: torch.Tensor, cost: str,
