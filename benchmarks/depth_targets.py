@@ -19,10 +19,11 @@ Captures come from this package's renderer (:mod:`prismstereo.synthetic`): exact
 an independent closed form (``tests/geometry/test_optics.py``), textures on the surfaces, not in the image.
 
 ``--downsample K`` evaluates the models that match on K x K-binned captures (the speed knob of
-``PrismStereo``; depth on the full reference grid, each pixel its block's value).
+``PrismStereo``; depth on the full reference grid, each pixel its block's value); with ``--full-band R`` a final
+band of 2 R + 1 hypotheses at full resolution re-estimates every pixel around the binned estimate (a pyramid).
 
 Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--sampling] [--compare]
-[--downsample K]
+[--downsample K [--full-band R]]
 """
 
 from __future__ import annotations
@@ -77,6 +78,8 @@ def main() -> None:
     parser.add_argument("--compare", action="store_true", help="also single-level full searches (half res)")
     parser.add_argument("--downsample", type=int, default=1, metavar="K",
                         help="the models match on KxK-binned captures (PrismStereo(downsample=K))")
+    parser.add_argument("--full-band", type=int, default=0, metavar="R",
+                        help="with --downsample: a final full-resolution band of 2R+1 hypotheses (full_band=R)")
     args = parser.parse_args()
     torch.set_num_threads(2)
     form = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
@@ -85,12 +88,15 @@ def main() -> None:
         models = {}
         for sampling in ("rectified", "sweep") if args.sampling else ("rectified",):
             t0 = time.perf_counter()
-            model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling, downsample=args.downsample)
+            model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling, downsample=args.downsample,
+                                                   full_band=args.full_band)
             binned = f", matching {args.downsample}x{args.downsample}-binned" if args.downsample > 1 else ""
+            level = model if model.binned is None else model.binned
+            final = f"; then a full-resolution band +-{model.band} of {model.num_hypotheses}" if model.binned else ""
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}{binned}, {sampling} coarse level: "
-                  f"{model.num_hypotheses} hypotheses, coarse factor {model.factor} "
-                  f"({model.coarse_hypotheses if model.factor > 1 else '-'} coarse hypotheses), band +-{model.band}; "
-                  f"model built in {time.perf_counter() - t0:.1f} s")
+                  f"{level.num_hypotheses} hypotheses, coarse factor {level.factor} "
+                  f"({level.coarse_hypotheses if level.factor > 1 else '-'} coarse hypotheses), band +-{level.band}"
+                  f"{final}; model built in {time.perf_counter() - t0:.1f} s")
         print(HEADER)
         results: dict[str, list[dict[str, float]]] = {name: [] for name in models}
         tag = (lambda name: f" [{name}]") if len(models) > 1 else (lambda name: "")

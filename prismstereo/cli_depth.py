@@ -94,12 +94,17 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig):
         raise PrismStereoError(f"--hypotheses must be >= 2, got {args.hypotheses}")
     if args.downsample < 1:
         raise PrismStereoError(f"--downsample must be >= 1, got {args.downsample}")
+    if args.full_band < 0 or (args.full_band and args.downsample == 1):
+        raise PrismStereoError(f"--full-band must be >= 0 and needs --downsample >= 2, got {args.full_band}")
     if args.z_range is None:
         z_range, how = default_z_range(rig), "default for this rig"
     else:
         z_range, how = check_z_range(rig, args.z_range), "--z-range"
-    model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses, downsample=args.downsample).eval()
+    model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses, downsample=args.downsample,
+                        full_band=args.full_band).eval()
     binned = f", matching on {args.downsample}x{args.downsample}-binned pixels" if args.downsample > 1 else ""
+    if args.full_band:
+        binned += f", then a full-resolution band of {2 * args.full_band + 1}"
     return model, (f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.num_hypotheses} "
                    f"hypotheses{binned}")
 
@@ -189,6 +194,9 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
                        help="number of depth hypotheses (default: neighbours <= 1 px apart)")
     depth.add_argument("--downsample", type=int, default=1, metavar="K",
                        help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser)")
+    depth.add_argument("--full-band", type=int, default=0, metavar="R",
+                       help="with --downsample: re-estimate every pixel at full resolution in a band of 2R+1 "
+                            "hypotheses around the binned estimate (default 0: each pixel its block's value)")
     depth.add_argument("--backend", choices=BACKENDS, default="torch", help="inference backend")
     depth.add_argument("--batch-size", type=int, default=1, metavar="B", help="images processed together")
     depth.add_argument("--format", choices=DEPTH_FORMATS, default=None,
@@ -231,6 +239,9 @@ def add_export_parser(sub: argparse._SubParsersAction) -> None:
                         help="number of depth hypotheses (default: neighbours <= 1 px apart)")
     export.add_argument("--downsample", type=int, default=1, metavar="K",
                         help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser)")
+    export.add_argument("--full-band", type=int, default=0, metavar="R",
+                        help="with --downsample: re-estimate every pixel at full resolution in a band of 2R+1 "
+                             "hypotheses around the binned estimate (default 0: each pixel its block's value)")
     export.add_argument("--opset", type=int, default=DEFAULT_OPSET, metavar="K",
                         help=f"ONNX opset (16-20, default {DEFAULT_OPSET})")
     export.add_argument("--channels", type=int, choices=(1, 3), default=1,

@@ -60,7 +60,7 @@ from torch import nn
 
 from prismstereo.depth.range import default_z_range
 from prismstereo.epipolar.row_rectify import fit_row_rectification, level_coverage, rectified_level
-from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
+from prismstereo.epipolar.sweep import SweepFit, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.epipolar.table import cubic_at, local_cubic, positions_at, tabulate_sweep, valid_interval
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import trace_pixels
@@ -215,6 +215,20 @@ class PrismStereo(nn.Module):
         reach_confidence: the fine band's confidence (NCC) a pixel needs when only its coarse neighbours were
             valid (the others need ``min_confidence``); 0.8 instead of 0.9 gave the same coverage to 0.1 point
             with up to 0.5 points more false matches (setup 2, 228 mm 5.11 %).
+        full_band: with ``downsample`` k > 1, R > 0 makes a pyramid: the model of the binned capture (every
+            option above applies to it; :attr:`binned`) estimates s, which is extended by ``coarse_reach`` times
+            its coarse factor binned pixels and upsampled bilinearly to place a band of 2 R + 1 hypotheses (<= 1
+            px apart) at full resolution around every pixel, evaluated like the fine band on the exact
+            full-resolution sweep. Full lateral resolution at about the binned model's price plus a thin band;
+            0 (default) gives each pixel its block's values. ``benchmarks/depth_targets.py --downsample 2
+            --full-band 2`` (205-1511 mm) against the full-resolution default: mean errors 0.013-0.088 % vs
+            0.016-0.083 % (setup 1) and 0.011-0.067 % vs 0.012-0.087 % (setup 2), fewer valid pixels that are
+            not co-visible (228 mm: 3.8 vs 8.5 % / 2.5 vs 4.6 %), coverage 96.2-99.5 % vs 97.2-99.6 % and
+            93.5-97.8 % vs 96.4-98.5 % (below 95 % at 936 and 1374 mm on setup 2: the binned coarse level, 8
+            sensor pixels per coarse pixel, averages their fine texture away), at ~0.55-0.65x the time
+            (torch ~110-150 ms against ~190-220 ms at 1024 x 768; onnxruntime in ``benchmarks/onnx_speed.py``).
+            A radius of ``coarse_reach`` binned pixels instead of ``coarse_reach`` x the coarse factor covered
+            less (setup 2, 1374 mm: 92.6 vs 93.5 %; setup 1, 228 mm: 94.1 vs 96.2 %); R = 3 was no better than 2.
 
     Example:
         >>> small = thesis_setup1().downscaled(8)
@@ -251,8 +265,16 @@ class PrismStereo(nn.Module):
         downsample: int = 1,
         coarse_reach: int = 1,
         reach_confidence: float = 0.9,
+        full_band: int = 0,
     ) -> None:
         super().__init__()
+        level_options = dict(  # everything but the resolution: the binned model of a pyramid gets the same
+            cost=cost, fine_cost=fine_cost, sampling=sampling, window=window, census_threshold=census_threshold,
+            box=box, fine_box=fine_box, aggregation=aggregation, directions=directions, p1=p1, p2=p2,
+            coarse_factor=coarse_factor, band=band, refinement=refinement, min_confidence=min_confidence,
+            min_uniqueness=min_uniqueness, occlusion_tolerance=occlusion_tolerance,
+            occluder_confidence=occluder_confidence, lr_threshold=lr_threshold, coarse_reach=coarse_reach,
+            reach_confidence=reach_confidence)
         check_option(cost, COSTS, "cost")
         check_option(fine_cost, COSTS, "fine_cost")
         if sampling is not None:
@@ -265,9 +287,16 @@ class PrismStereo(nn.Module):
                 raise OptionError(f"{name} must be a positive odd int, got {value!r}")
         if not isinstance(downsample, int) or downsample < 1 or rig.image_height // downsample < 16:
             raise OptionError(f"downsample must be an int >= 1 leaving >= 16 rows, got {downsample!r}")
+        if not isinstance(full_band, int) or full_band < 0 or (full_band and downsample == 1):
+            raise OptionError(f"full_band must be an int >= 0, and > 0 only with downsample > 1, got {full_band!r}")
         self.rig, self.downsample = rig, downsample
         z_range_mm = default_z_range(rig) if z_range_mm is None else z_range_mm
-        if downsample > 1:  # everything below works on the binned capture
+        self.binned: PrismStereo | None = None
+        if full_band:  # a pyramid: the binned model places a full-resolution band of 2 full_band + 1 hypotheses
+            self.binned = PrismStereo(rig.binned(downsample), z_range_mm, num_hypotheses, **level_options)
+            num_hypotheses, coarse_factor, band = None, downsample, full_band
+            sampling = self.binned.sampling
+        elif downsample > 1:  # everything below works on the binned capture
             rig = rig.binned(downsample)
         self.split = SplitImage(rig)
         fit = fit_sweep(rig, z_range_mm)
@@ -333,29 +362,10 @@ class PrismStereo(nn.Module):
         options = SearchOptions(cost=cost, window=window, census_threshold=self.census_threshold, box=box,
                                 aggregation=aggregation, directions=directions, p1=p1, p2=p2, refinement=refinement,
                                 min_uniqueness=min_uniqueness)
-        if self.sampling == "rectified":  # the coarse (or single) level as a 1-D shift volume on row-rectified halves
-            rect = fit_row_rectification(rig, fit)
-            self.rectification_residual_px = rect.max_residual_px
-            level = rectified_level(rect, fit, coarse_factor, other_valid)
-            self.search: nn.Module = RectifiedSearch(options, level, coarse_factor, self.split.split, lr_threshold)
-        elif coarse_factor == 1:
-            self.search = SweepSearch(options, self._normalised(fine, 1).float(), num_hypotheses,
-                                      other_valid=other_valid)
-        else:
-            fc = coarse_factor
-            hc, wc = math.ceil(h / fc), math.ceil(w_ref / fc)
-            uvc = (torch.stack(torch.meshgrid(torch.arange(wc, dtype=f64), torch.arange(hc, dtype=f64),
-                                              indexing="xy"), -1) + 0.5) * fc - 0.5
-            coarse = sweep_coefficients(fit, uvc).permute(2, 0, 1, 3)
-            valid_c = level_coverage(other_valid, fc) > 0.999
-            # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
-            num_c = sweep_hypotheses(coarse / fc)
-            probe = torch.zeros(1, 1, valid_c.shape[0], valid_c.shape[1], dtype=f64)
-            coarse = self._normalised(coarse, fc)  # grid_sample units of the coarse other image
-            grid_c = positions_at(coarse, torch.linspace(-1.0, 1.0, num_c, dtype=f64))
-            self.search = SweepSearch(options, coarse.float(), num_c,
-                                      valid=warp_slices(probe, grid_c.unsqueeze(0), valid_c).valid[0])
-        self.coarse_hypotheses = self.search.num_hypotheses
+        # the coarse level: a pyramid's is the binned model
+        self.search = None if self.binned is not None else self._search_level(
+            rig, fit, fine, options, num_hypotheses, other_valid, lr_threshold)
+        self.coarse_hypotheses = (self.search if self.binned is None else self.binned).num_hypotheses
         if coarse_factor > 1:
             self.fine = FineBand(dataclasses.replace(options, cost=fine_cost, box=fine_box), self.band,
                                  2.0 / (num_hypotheses - 1), self.split.split)
@@ -369,6 +379,8 @@ class PrismStereo(nn.Module):
             >>> PrismStereo(model.rig, **model.config()).num_hypotheses == model.num_hypotheses
             True
         """
+        if self.binned is not None:  # the options went to the binned model
+            return {**self.binned.config(), "downsample": self.downsample, "full_band": self.band}
         return {
             "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses, "cost": self.cost,
             "fine_cost": self.fine_cost, "sampling": self.sampling, "window": self.window,
@@ -379,7 +391,7 @@ class PrismStereo(nn.Module):
             "min_uniqueness": self.min_uniqueness, "occlusion_tolerance": self.occlusion_tolerance,
             "occluder_confidence": self.occluder_confidence, "lr_threshold": self.lr_threshold,
             "downsample": self.downsample, "coarse_reach": self.coarse_reach,
-            "reach_confidence": self.reach_confidence,
+            "reach_confidence": self.reach_confidence, "full_band": 0,
         }
 
     @staticmethod
@@ -401,6 +413,31 @@ class PrismStereo(nn.Module):
         while f < 4 and num_hypotheses / (2 * f) >= 24 and min(height, width) / (2 * f) >= 32:
             f *= 2
         return f
+
+    def _search_level(self, rig: BiPrismRig, fit: SweepFit, fine: torch.Tensor, options: SearchOptions,
+                      num_hypotheses: int, other_valid: torch.Tensor, lr_threshold: float | None) -> nn.Module:
+        """The coarse (or single) level's search over the full range (see the module docstring)."""
+        h, w_ref, f64 = rig.image_height, rig.reference_width, torch.float64
+        if self.sampling == "rectified":  # a 1-D shift volume on row-rectified halves
+            rect = fit_row_rectification(rig, fit)
+            self.rectification_residual_px = rect.max_residual_px
+            level = rectified_level(rect, fit, self.factor, other_valid)
+            return RectifiedSearch(options, level, self.factor, self.split.split, lr_threshold)
+        if self.factor == 1:
+            return SweepSearch(options, self._normalised(fine, 1).float(), num_hypotheses, other_valid=other_valid)
+        fc = self.factor
+        hc, wc = math.ceil(h / fc), math.ceil(w_ref / fc)
+        uvc = (torch.stack(torch.meshgrid(torch.arange(wc, dtype=f64), torch.arange(hc, dtype=f64),
+                                          indexing="xy"), -1) + 0.5) * fc - 0.5
+        coarse = sweep_coefficients(fit, uvc).permute(2, 0, 1, 3)
+        valid_c = level_coverage(other_valid, fc) > 0.999
+        # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
+        num_c = sweep_hypotheses(coarse / fc)
+        probe = torch.zeros(1, 1, valid_c.shape[0], valid_c.shape[1], dtype=f64)
+        coarse = self._normalised(coarse, fc)  # grid_sample units of the coarse other image
+        grid_c = positions_at(coarse, torch.linspace(-1.0, 1.0, num_c, dtype=f64))
+        valid = warp_slices(probe, grid_c.unsqueeze(0), valid_c).valid[0]
+        return SweepSearch(options, coarse.float(), num_c, valid=valid)
 
     def _normalised(self, coefficients: torch.Tensor, factor: int) -> torch.Tensor:
         """Map pixel-unit polynomials of full-sensor positions to grid_sample coordinates (align_corners=False)
@@ -464,6 +501,8 @@ class PrismStereo(nn.Module):
         h, w = self.rig.image_height, self.rig.image_width
         if image.shape[-2:] != (h, w):
             raise ShapeError(f"image is {image.shape[-1]}x{image.shape[-2]} px but the rig's sensor is {w}x{h}")
+        if self.binned is not None:
+            return self._depth(image)
         res = self._depth(F.avg_pool2d(image, k))  # drops the last H mod k rows / W mod k columns, as binned()
         w_ref = self.rig.reference_width
 
@@ -484,17 +523,29 @@ class PrismStereo(nn.Module):
         else:
             f = self.factor
             with torch.no_grad():  # the coarse level only places the fine band (its s0 is detached)
-                coarse = self.search(self._downsample(ref), self._downsample(other), final=False)
-                s_c, reach = extend_estimate(coarse.s, coarse.valid, self.coarse_reach)
+                if self.binned is None:
+                    coarse = self.search(self._downsample(ref), self._downsample(other), final=False)
+                    s_c, valid_c, radius = coarse.s, coarse.valid, self.coarse_reach
+                else:  # the binned model's final estimate; reach as far as its own coarse level reached
+                    low = self.binned._depth(F.avg_pool2d(image, f))
+                    s_c, valid_c = low.index * (2.0 / (self.binned.num_hypotheses - 1)) - 1.0, low.valid
+                    radius = self.coarse_reach * self.binned.factor
+                s_c, reach = extend_estimate(s_c, valid_c, radius)
 
-            def up(t: torch.Tensor) -> torch.Tensor:
-                return F.interpolate(t.to(ref.dtype), scale_factor=f, mode="nearest")[..., :h, :w_ref] > 0.5
+            def up(t: torch.Tensor, mode: str = "nearest") -> torch.Tensor:
+                # level pixel i covers full pixels f i ... f i + f - 1; a binned level may end short of the
+                # reference half (its width rounded down): replicate its last row / column
+                t = F.interpolate(t.to(ref.dtype), scale_factor=f, mode=mode, **({} if mode == "nearest" else
+                                                                                  {"align_corners": False}))
+                if t.shape[-2] < h or t.shape[-1] < w_ref:
+                    t = F.pad(t, (0, max(0, w_ref - t.shape[-1]), 0, max(0, h - t.shape[-2])), mode="replicate")
+                return t[..., :h, :w_ref]
 
-            s0 = F.interpolate(s_c, scale_factor=f, mode="bilinear", align_corners=False)[..., :h, :w_ref]
-            s, ok, confidence, match = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), up(reach), self.table,
-                                                 self.interval)
+            s0 = up(s_c, "bilinear")
+            s, ok, confidence, match = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), up(reach) > 0.5,
+                                                 self.table, self.interval)
             if self.coarse_reach:  # pixels the coarse level only reached from a neighbour: a stricter match
-                ok = ok & (up(coarse.valid) | (confidence >= self.reach_confidence))
+                ok = ok & ((up(valid_c) > 0.5) | (confidence >= self.reach_confidence))
         s = s.clamp(-1.0, 1.0)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)

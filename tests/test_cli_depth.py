@@ -85,6 +85,17 @@ def test_downsample_runs_on_binned_pixels_and_writes_the_full_grid(scene, tmp_pa
     assert (np.isnan(depth[::2, ::2]) == np.isnan(depth[1::2, 1::2])).all()  # 2 x 2 blocks share their values
 
 
+def test_full_band_refines_the_binned_depth_at_full_resolution(scene, tmp_path, capsys):
+    out = tmp_path / "far.npy"
+    assert _run(scene, scene / "far.png", "--out", out, "--downsample", "2", "--full-band", "2") == 0
+    assert "matching on 2x2-binned pixels, then a full-resolution band of 5" in capsys.readouterr().out
+    depth = np.load(out)
+    assert depth.shape == (96, 64) and np.isfinite(depth).mean() > 0.4
+    assert abs(np.nanmedian(depth) / FAR - 1) < 0.02
+    both = np.isfinite(depth[::2, ::2]) & np.isfinite(depth[1::2, 1::2])
+    assert (depth[::2, ::2] != depth[1::2, 1::2])[both].mean() > 0.9  # no longer the block's value
+
+
 def test_png_clipping_warns(scene, tmp_path, capsys):
     assert _run(scene, scene / "far.png", "--out", tmp_path / "far.png") == 0
     assert "clipped to 65535 (see --png-scale)" in capsys.readouterr().out
@@ -126,6 +137,7 @@ def test_directory_of_two_images_batched_with_ply(scene, tmp_path, capsys):
         (["{far}", "--out", "{tmp}/d.npy", "--batch-size", "0"], "--batch-size must be >= 1"),
         (["{far}", "--out", "{tmp}/d.npy", "--hypotheses", "1"], "--hypotheses must be >= 2"),
         (["{far}", "--out", "{tmp}/d.npy", "--downsample", "0"], "--downsample must be >= 1"),
+        (["{far}", "--out", "{tmp}/d.npy", "--full-band", "2"], "--full-band must be >= 0 and needs --downsample"),
         (["{far}", "--out", "{tmp}/d.png", "--png-scale", "0"], "--png-scale must be a positive number"),
     ],
 )

@@ -8,7 +8,7 @@ from prismstereo.epipolar import exact_sampling_grid
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients
 from prismstereo.matching.levels import RectifiedSearch, SweepSearch
 from prismstereo.model import PrismStereo, sweep_hypotheses
-from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, step_scene
+from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, slanted_plane, step_scene
 from tests.conftest import scaled_rig
 
 FORM = ImageFormation(supersample=2, noise_sigma=1 / 255)
@@ -337,6 +337,43 @@ def test_downsample_matches_the_binned_capture_on_the_full_grid():
         PrismStereo(rig, (400.0, 800.0), downsample=0)
     with pytest.raises(ShapeError, match="but the rig's sensor is"):
         model(torch.rand(1, 1, 192, 256))
+
+
+def test_full_band_refines_the_binned_estimate_at_full_resolution():
+    """downsample=2 with full_band=2 is a pyramid: the binned model (the same options on the binned rig)
+    places a band of 5 hypotheses at full resolution, which re-estimates every pixel on the exact sweep: the
+    depth varies inside the 2 x 2 blocks on a slanted plane and is more precise than the block values."""
+    rig = scaled_rig(thesis_setup1(), 2)  # 512 x 384 -> binned 256 x 192
+    z_range = (300.0, 900.0)
+    blocks = PrismStereo(rig, z_range, downsample=2)
+    model = PrismStereo(rig, z_range, downsample=2, full_band=2)
+    assert model.binned is not None and model.binned.rig == rig.binned(2) and model.binned.binned is None
+    assert model.binned.num_hypotheses == blocks.num_hypotheses and model.coarse_hypotheses == blocks.num_hypotheses
+    assert model.num_hypotheses == PrismStereo(rig, z_range).num_hypotheses and model.band == 2
+    cap = render(rig, slanted_plane(rig, 560.0, 30.0, seed=4), FORM)
+    with torch.no_grad():
+        res, low = model(cap.image), blocks(cap.image)
+    assert res.depth.shape == res.valid.shape == (1, 1, rig.image_height, rig.reference_width)
+    rel, coverage = _errors(rig, res, cap)
+    rel_low, coverage_low = _errors(rig, low, cap)
+    assert coverage > coverage_low - 0.01 and coverage > 0.9
+    assert rel.mean() < 0.8 * rel_low.mean() and rel.median() < 0.0006  # measured 0.070 vs 0.113 %; 0.046 %
+    quads = res.depth[0, 0, : rig.image_height // 2 * 2].unfold(0, 2, 2).unfold(1, 2, 2)  # (H/2, W/2, 2, 2)
+    ok = res.valid[0, 0, : rig.image_height // 2 * 2].unfold(0, 2, 2).unfold(1, 2, 2).flatten(2).all(-1)
+    varies = quads.flatten(2).std(-1) > 0
+    assert varies[ok].float().mean() > 0.95  # the block values of `low` would give 0
+    step = 2.0 / (model.num_hypotheses - 1)  # index is into the final level's hypotheses
+    s = res.index[res.valid] * step - 1
+    z = 1 / (1 / 300.0 + (s + 1) / 2 * (1 / 900.0 - 1 / 300.0))
+    assert torch.allclose(z, res.depth[res.valid], rtol=1e-4)
+    config = model.config()
+    assert config["full_band"] == 2 and config["num_hypotheses"] == blocks.num_hypotheses
+    assert PrismStereo(rig, **config).config() == config
+    assert blocks.config()["full_band"] == 0
+    with pytest.raises(OptionError, match="full_band must be an int >= 0, and > 0 only with downsample > 1"):
+        PrismStereo(rig, z_range, full_band=2)
+    with pytest.raises(OptionError, match="full_band must be"):
+        PrismStereo(rig, z_range, downsample=2, full_band=-1)
 
 
 def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
