@@ -23,7 +23,9 @@ soon as another process is busy, onnxruntime and OpenCV much less, so only trust
    ``--sampling`` adds torch and onnxruntime rows for the same model with the exact-sweep coarse level
    (``sampling='sweep'``; the default is the rectified shift volume). Both ranges also time the model with
    ``downsample=2`` (matching on the 2 x 2-binned capture, depth on the full reference grid: the speed knob;
-   the narrow range also with coarse factor 4 on the binned image, where the default picks 2)
+   the narrow range also with coarse factor 4 on the binned image, where the default picks 2) and with
+   ``downsample=2, full_band=2`` (the pyramid: the binned model places a band of 5 hypotheses at full
+   resolution, which re-estimates every pixel: full lateral resolution)
    and, for context, StereoSGBM on the same binned halves (numDisparities halved, depth converted with the
    binned rig's exact sweep and given to each pixel of the block as the model does); SGBM on the full-resolution
    halves stays the reference of the "x SGBM" column.
@@ -285,9 +287,9 @@ def spread_report(sweep: PixelSweep, capture) -> tuple[str, bool]:
 
 def table(title: str, rows: list[Row]) -> str:
     sgbm = next(r.ms for r in rows if r.name.startswith("OpenCV StereoSGBM"))
-    out = [title, f"{'method':42s} {'ms/frame':>9s} {'(min)':>9s} {'x SGBM':>7s} {'err %':>7s} {'(median)':>8s} "
+    out = [title, f"{'method':50s} {'ms/frame':>9s} {'(min)':>9s} {'x SGBM':>7s} {'err %':>7s} {'(median)':>8s} "
                   f"{'cover %':>8s}"]
-    out += [f"{r.name:42s} {r.ms:9.1f} {r.best:9.1f} {r.ms / sgbm:7.2f} {r.error:7.3f} {r.median:8.3f} "
+    out += [f"{r.name:50s} {r.ms:9.1f} {r.best:9.1f} {r.ms / sgbm:7.2f} {r.error:7.3f} {r.median:8.3f} "
             f"{r.coverage:8.1f}" for r in rows]
     return "\n".join(out)
 
@@ -353,6 +355,11 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
         binned_runner = OnnxDepth(export_onnx(binned_model, tmp / f"{case.name}_binned{factor}.onnx"), threads=2)
         label = f"downsample 2 (f = {binned_model.factor})"
         variants.append((f"torch eager, {label}", f"onnxruntime, {label}", binned_model, binned_runner))
+    # the pyramid: the binned model places a full-resolution band of 5 (full lateral resolution)
+    pyramid = PrismStereo(rig, case.z_range, downsample=2, full_band=2).eval()
+    pyramid_runner = OnnxDepth(export_onnx(pyramid, tmp / f"{case.name}_pyramid.onnx"), threads=2)
+    label = f"downsample 2 (f = {pyramid.binned.factor}) + full band 2"
+    variants.append((f"torch eager, {label}", f"onnxruntime, {label}", pyramid, pyramid_runner))
     rows = []
     other = OtherLoad().__enter__()
     for torch_name, ort_name, torch_model, ort_runner in variants:
