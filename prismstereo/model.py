@@ -27,6 +27,10 @@ The layers, in order:
 5. Depth from the sweep coordinate (exact: s is linear in 1/Z), validity (inside the common field of view,
    winner inside the band, confidence) and a z-buffer occlusion test in the other half.
 
+With ``downsample`` k and ``full_band`` R the coarse level of step 3 is a whole model of the k x k-binned capture
+(:attr:`PrismStereo.binned`, steps 1-5 on the binned rig), and step 4 a band of 2 R + 1 full-resolution
+hypotheses around its estimate: a pyramid with full lateral resolution at about half the default's time.
+
 Why coarse-to-fine by default: over the thesis' working range the correspondence moves ~365 px across the
 other half (``thesis_setup1``); a full-resolution search touches H x W_ref x 368 voxels per pass, the
 coarse level (f = 4) 1/64 of that and the fine band 11 / 368. ``benchmarks/depth_targets.py`` measures

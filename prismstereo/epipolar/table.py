@@ -138,9 +138,17 @@ def local_cubic(table: torch.Tensor, s: torch.Tensor, top: int = 0) -> LocalCubi
     u = t - i
     pixels = torch.arange(top * w, (top + rows) * w, device=s.device).view(1, 1, rows, w)
     base = i.long() * (h * w) + pixels  # flat index of entry i
-    flat = table.reshape(k * h * w, 2)
-    pm, p0, p1, p2 = (flat.index_select(0, (base + o * h * w).reshape(-1)).view(b, 1, rows, w, 2)
-                      for o in (-1, 0, 1, 2))
+    if torch.onnx.is_in_onnx_export():
+        # element gathers of x and y from the flat table: onnxruntime's GatherElements runs a typed loop where
+        # its Gather of (x, y) rows makes one memcpy per row (2.0 against 4.5 ms for 242 k pixels; a 1024 x 768
+        # frame ~8 ms faster); no broadcast along the trailing axis, slow in onnxruntime
+        base = torch.stack([2 * base, 2 * base + 1], -1)
+        flat = table.reshape(-1)
+        taps = [flat.gather(0, (base + o * h * w * 2).reshape(-1)) for o in (-1, 0, 1, 2)]
+    else:  # torch: rows are faster (0.84 against 1.10 ms on 120 x 512 pixels)
+        flat = table.reshape(k * h * w, 2)
+        taps = [flat.index_select(0, (base + o * h * w).reshape(-1)) for o in (-1, 0, 1, 2)]
+    pm, p0, p1, p2 = (t.view(b, 1, rows, w, 2) for t in taps)
     coefficients = torch.stack([p0, p1 - pm / 3 - p0 / 2 - p2 / 6, (pm + p1) / 2 - p0, (p2 - pm) / 6 + (p0 - p1) / 2])
     return LocalCubic(coefficients, u, scale)
 
@@ -192,11 +200,10 @@ def band_positions(cubic: LocalCubic, offsets: torch.Tensor) -> torch.Tensor:
     alpha = c0 + u * (c1 + u * (c2 + u * c3))
     beta = c1 + u * (2 * c2 + 3 * u * c3)
     gamma = c2 + 3 * u * c3
-    powers = torch.stack([torch.ones_like(c3), beta, gamma, c3], 1).squeeze(2)  # (B, 4, H, W, 2)
     o = offsets.to(c3) * cubic.scale
     m = torch.stack([torch.ones_like(o), o, o * o, o * o * o], 1)  # (J, 4)
-    b, _, h, w, _ = powers.shape
-    flat = torch.cat([alpha.reshape(b, 1, -1), powers[:, 1:].reshape(b, 3, -1)], 1)  # (B, 4, H W 2)
+    b, _, h, w, _ = c3.shape
+    flat = torch.cat([alpha, beta, gamma, c3], 1).reshape(b, 4, -1)  # (B, 4, H W 2)
     return (m @ flat).view(b, -1, h, w, 2)
 
 
