@@ -194,9 +194,10 @@ class PrismStereo(nn.Module):
             larger) and returns the depth on the full-resolution reference grid, each pixel with its block's
             values (nearest; ``match`` in full-sensor pixels). A speed knob: ~k^2 less work, at k times coarser
             lateral and disparity resolution. ``num_hypotheses``, ``coarse_factor`` and ``band`` then refer to
-            the binned image. Measured with k = 2 at 1024 x 768: onnxruntime 62 ms per frame instead of 192 ms
-            (setup 1, 228-1374 mm, one run of ``benchmarks/onnx_speed.py``; OpenCV SGBM 69 ms), slanted plane
-            0.040 % mean error on 96.5 % of the co-visible pixels (full resolution 0.027 % on 98.4 %). On the
+            the binned image. Measured with k = 2 at 1024 x 768: onnxruntime 33-58 ms per frame instead of
+            164-259 ms (setup 1, 228-1374 mm, three runs of ``benchmarks/onnx_speed.py``; OpenCV SGBM 69-70 ms),
+            slanted plane 0.040 % mean error on 98.3 % of the co-visible pixels (full resolution 0.027 % on
+            98.8 %). On the
             thesis planes (``benchmarks/depth_targets.py --downsample 2``, 205-1511 mm) the mean error stays
             <= 0.123 % (setup 1) / 0.132 % (setup 2), coverage 94.0-99.2 % / 93.4-97.0 % (full resolution:
             97.2-99.6 / 96.4-98.5 %; both with ``coarse_reach=1``, without it 90.2-98.6 / 92.6-95.9 %): below the
@@ -229,10 +230,13 @@ class PrismStereo(nn.Module):
             0.016-0.083 % (setup 1) and 0.011-0.067 % vs 0.012-0.087 % (setup 2), fewer valid pixels that are
             not co-visible (228 mm: 3.8 vs 8.5 % / 2.5 vs 4.6 %), coverage 96.2-99.5 % vs 97.2-99.6 % and
             93.5-97.8 % vs 96.4-98.5 % (below 95 % at 936 and 1374 mm on setup 2: the binned coarse level, 8
-            sensor pixels per coarse pixel, averages their fine texture away), at ~0.55-0.65x the time
-            (torch ~110-150 ms against ~190-220 ms at 1024 x 768; onnxruntime in ``benchmarks/onnx_speed.py``).
-            A radius of ``coarse_reach`` binned pixels instead of ``coarse_reach`` x the coarse factor covered
-            less (setup 2, 1374 mm: 92.6 vs 93.5 %; setup 1, 228 mm: 94.1 vs 96.2 %); R = 3 was no better than 2.
+            sensor pixels per coarse pixel, averages their fine texture away), at ~0.5-0.7x the time
+            (``benchmarks/onnx_speed.py``, setup 1 at 1024 x 768, 228-1374 mm, three runs: onnxruntime 88-174
+            ms against 164-259 ms, torch 105-149 against 185-224 ms; OpenCV SGBM 69-70 ms). A radius of
+            ``coarse_reach`` binned pixels instead of ``coarse_reach`` x the coarse factor covered less (setup 2,
+            1374 mm: 92.6 vs 93.5 %; setup 1, 228 mm: 94.1 vs 96.2 %). R = 3 (measured with that radius of 1)
+            covered 0.1-1.2 points more on setup 2 with more false matches and ~15 % more time; R = 1 was ~7 %
+            faster in onnxruntime and covered 1.2 points less on the slanted plane.
 
     Example:
         >>> small = thesis_setup1().downscaled(8)
