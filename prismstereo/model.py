@@ -221,22 +221,24 @@ class PrismStereo(nn.Module):
             valid (the others need ``min_confidence``); 0.8 instead of 0.9 gave the same coverage to 0.1 point
             with up to 0.5 points more false matches (setup 2, 228 mm 5.11 %).
         full_band: with ``downsample`` k > 1, R > 0 makes a pyramid: the model of the binned capture (every
-            option above applies to it; :attr:`binned`) estimates s, which is extended by ``coarse_reach`` times
-            its coarse factor binned pixels and upsampled bilinearly to place a band of 2 R + 1 hypotheses (<= 1
-            px apart) at full resolution around every pixel, evaluated like the fine band on the exact
+            option above applies to it; :attr:`binned`) estimates s, which is extended by 2 ``coarse_reach``
+            times its coarse factor binned pixels and upsampled bilinearly to place a band of 2 R + 1 hypotheses
+            (<= 1 px apart) at full resolution around every pixel, evaluated like the fine band on the exact
             full-resolution sweep. Full lateral resolution at about the binned model's price plus a thin band;
             0 (default) gives each pixel its block's values. ``benchmarks/depth_targets.py --downsample 2
-            --full-band 2`` (205-1511 mm) against the full-resolution default: mean errors 0.013-0.088 % vs
-            0.016-0.083 % (setup 1) and 0.011-0.067 % vs 0.012-0.087 % (setup 2), fewer valid pixels that are
-            not co-visible (228 mm: 3.8 vs 8.5 % / 2.5 vs 4.6 %), coverage 96.2-99.5 % vs 97.2-99.6 % and
-            93.5-97.8 % vs 96.4-98.5 % (below 95 % at 936 and 1374 mm on setup 2: the binned coarse level, 8
-            sensor pixels per coarse pixel, averages their fine texture away), at ~0.5-0.7x the time
-            (``benchmarks/onnx_speed.py``, setup 1 at 1024 x 768, 228-1374 mm, three runs: onnxruntime 88-174
-            ms against 164-259 ms, torch 105-149 against 185-224 ms; OpenCV SGBM 69-70 ms). A radius of
-            ``coarse_reach`` binned pixels instead of ``coarse_reach`` x the coarse factor covered less (setup 2,
-            1374 mm: 92.6 vs 93.5 %; setup 1, 228 mm: 94.1 vs 96.2 %). R = 3 (measured with that radius of 1)
-            covered 0.1-1.2 points more on setup 2 with more false matches and ~15 % more time; R = 1 was ~7 %
-            faster in onnxruntime and covered 1.2 points less on the slanted plane.
+            --full-band 2`` (205-1511 mm) against the full-resolution default: mean errors 0.015-0.088 % vs
+            0.016-0.083 % (setup 1) and 0.012-0.065 % vs 0.012-0.087 % (setup 2), coverage 97.2-99.5 % vs
+            97.2-99.6 % and 95.8-98.7 % vs 96.4-98.5 %, fewer valid pixels that are not co-visible (228 mm: 3.2 vs
+            8.5 % / 2.3 vs 4.6 %), slanted plane 0.029 / 0.020 % (0.026 / 0.023 %), step 0.043 / 0.029 % (0.049 /
+            0.033 %), at ~0.5-0.7x the time (``benchmarks/onnx_speed.py``, setup 1 at 1024 x 768, 228-1374 mm,
+            three runs: onnxruntime 88-174 ms against 164-259 ms, torch 105-149 against 185-224 ms; OpenCV SGBM
+            69-70 ms). The extension radius (binned pixels; setup 2 at 1374 / 936 mm, setup 1 at 228 mm): 4 gave
+            93.5 / 94.8 / 96.2 % coverage, 8 (the default's) 95.8 / 96.6 / 97.2 %, 12 and 16 no more (96.0 / 96.6 /
+            97.0 and 95.9 / 96.4 / 96.6 %; the binned
+            level loses a margin of about its windows near the edges of the other half, which its own coarse
+            reach does not bridge; a coarse reach of 2 inside the binned model instead gave 95.2 / 96.3 / 96.8 %).
+            With a radius of 2: R = 3 covered 0.1-1.2 points more on setup 2 with more false matches and ~15 %
+            more time; R = 1 was ~7 % faster in onnxruntime and covered 1.2 points less on the slanted plane.
 
     Example:
         >>> small = thesis_setup1().downscaled(8)
@@ -534,10 +536,10 @@ class PrismStereo(nn.Module):
                 if self.binned is None:
                     coarse = self.search(self._downsample(ref), self._downsample(other), final=False)
                     s_c, valid_c, radius = coarse.s, coarse.valid, self.coarse_reach
-                else:  # the binned model's final estimate; reach as far as its own coarse level reached
+                else:  # the binned model's final estimate, extended twice as far as its own coarse level reached
                     low = self.binned._depth(F.avg_pool2d(image, f))
                     s_c, valid_c = low.index * (2.0 / (self.binned.num_hypotheses - 1)) - 1.0, low.valid
-                    radius = self.coarse_reach * self.binned.factor
+                    radius = 2 * self.coarse_reach * self.binned.factor
                 s_c, reach = extend_estimate(s_c, valid_c, radius)
 
             def up(t: torch.Tensor, mode: str = "nearest") -> torch.Tensor:

@@ -81,16 +81,19 @@ def test_similarity_reference_values():
     torch.testing.assert_close(similarity(torch.tensor([12.0]), "census", 1, 5), torch.tensor([0.5]))
 
 
-def test_extend_estimate_fills_invalid_pixels_in_reach_with_their_valid_neighbours_mean():
+@pytest.mark.parametrize("radius", [1, 2])
+def test_extend_estimate_fills_invalid_pixels_in_reach_with_their_valid_neighbours_mean(radius):
     gen = torch.Generator().manual_seed(6)
     s = torch.rand(2, 1, 7, 9, generator=gen, dtype=torch.float64)
     valid = torch.rand(2, 1, 7, 9, generator=gen) > 0.6
+    valid[..., 5:] = False  # columns 8 (and 7 with radius 1) are out of reach
     valid[1] = False  # an image with nothing valid: nothing in reach, s unchanged
     s_nan = torch.where(valid, s, torch.full_like(s, float("nan")))  # invalid values never leak in
-    out, reach = extend_estimate(s_nan, valid, 1)
+    out, reach = extend_estimate(s_nan, valid, radius)
     assert out.shape == s.shape and reach.dtype == torch.bool
-    for y, x in [(0, 0), (3, 4), (6, 8), (2, 7)]:
-        window = (slice(max(0, y - 1), y + 2), slice(max(0, x - 1), x + 2))
+    assert not bool(reach[0].all()) and bool((reach[0] & ~valid[0]).any())  # both cases occur
+    for y, x in [(y, x) for y in range(7) for x in range(9)]:
+        window = (slice(max(0, y - radius), y + radius + 1), slice(max(0, x - radius), x + radius + 1))
         neighbours = s[0, 0][window][valid[0, 0][window]]
         if valid[0, 0, y, x]:
             assert out[0, 0, y, x] == s[0, 0, y, x]
