@@ -41,7 +41,7 @@ soon as another process is busy, onnxruntime and OpenCV much less, so only trust
    are page-faulted in on every call; that is system time). The ratio is printed from the medians and from the
    fastest runs: on this shared VM a single image's time swings by up to 2x between host phases, and the
    ratio with it (0.99-1.30x in five runs of session 5; 1.04-1.26x in five runs after the eager box filter and
-   semi-global scans got faster and the worker threads one intra-op thread each).
+   semi-global scans got faster and the worker threads one intra-op thread each; 1.07-1.28x in four more).
 4. **Peak RSS** of a fresh process (``subprocess`` + ``sys.executable``) that loads the exported wide graph
    with ``OnnxDepth`` and runs one frame, and of one that builds the torch model and runs one frame in eager
    mode: the high-water mark VmHWM of /proc/self/status after the imports, after loading / building, after

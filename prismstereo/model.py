@@ -194,14 +194,14 @@ class PrismStereo(nn.Module):
             larger) and returns the depth on the full-resolution reference grid, each pixel with its block's
             values (nearest; ``match`` in full-sensor pixels). A speed knob: ~k^2 less work, at k times coarser
             lateral and disparity resolution. ``num_hypotheses``, ``coarse_factor`` and ``band`` then refer to
-            the binned image. Measured with k = 2 at 1024 x 768: onnxruntime 33-58 ms per frame instead of
-            164-259 ms (setup 1, 228-1374 mm, three runs of ``benchmarks/onnx_speed.py``; OpenCV SGBM 69-70 ms),
+            the binned image. Measured with k = 2 at 1024 x 768: onnxruntime 32-58 ms per frame instead of
+            153-259 ms (setup 1, 228-1374 mm, four runs of ``benchmarks/onnx_speed.py``; OpenCV SGBM 69-70 ms),
             slanted plane 0.040 % mean error on 98.3 % of the co-visible pixels (full resolution 0.027 % on
-            98.8 %). On the
-            thesis planes (``benchmarks/depth_targets.py --downsample 2``, 205-1511 mm) the mean error stays
-            <= 0.123 % (setup 1) / 0.132 % (setup 2), coverage 94.0-99.2 % / 93.4-97.0 % (full resolution:
-            97.2-99.6 / 96.4-98.5 %; both with ``coarse_reach=1``, without it 90.2-98.6 / 92.6-95.9 %): below the
-            95 % target at the nearest plane (setup 1) and the far ones (setup 2, 780-1374 mm).
+            98.8 %). On the thesis planes (``benchmarks/depth_targets.py --downsample 2``, 205-1511 mm) the mean
+            error stays <= 0.123 % (setup 1) / 0.132 % (setup 2), coverage 94.0-99.2 % / 93.4-97.0 % (full
+            resolution: 97.2-99.6 / 96.4-98.5 %; both with ``coarse_reach=1``, without it 90.2-98.6 / 92.6-95.9
+            %): below the 95 % target at the nearest plane (setup 1) and the far ones (setup 2, 780-1374 mm).
+            ``full_band`` re-estimates every pixel at full resolution from there.
         coarse_reach: invalid coarse pixels within this many coarse pixels of valid ones take their valid
             neighbours' mean s (:func:`~prismstereo.matching.levels.extend_estimate`) before it is upsampled
             for the fine band; 0 leaves the coarse estimate as it is. The coarse level loses a margin of about
@@ -231,12 +231,12 @@ class PrismStereo(nn.Module):
             97.2-99.6 % and 95.8-98.7 % vs 96.4-98.5 %, fewer valid pixels that are not co-visible (228 mm: 3.2 vs
             8.5 % / 2.3 vs 4.6 %), slanted plane 0.029 / 0.020 % (0.026 / 0.023 %), step 0.043 / 0.029 % (0.049 /
             0.033 %), at ~0.5-0.7x the time (``benchmarks/onnx_speed.py``, setup 1 at 1024 x 768, 228-1374 mm,
-            three runs: onnxruntime 88-174 ms against 164-259 ms, torch 105-149 against 185-224 ms; OpenCV SGBM
+            four runs: onnxruntime 84-174 ms against 153-259 ms, torch 105-149 against 183-224 ms; OpenCV SGBM
             69-70 ms). The extension radius (binned pixels; setup 2 at 1374 / 936 mm, setup 1 at 228 mm): 4 gave
-            93.5 / 94.8 / 96.2 % coverage, 8 (the default's) 95.8 / 96.6 / 97.2 %, 12 and 16 no more (96.0 / 96.6 /
-            97.0 and 95.9 / 96.4 / 96.6 %; the binned
-            level loses a margin of about its windows near the edges of the other half, which its own coarse
-            reach does not bridge; a coarse reach of 2 inside the binned model instead gave 95.2 / 96.3 / 96.8 %).
+            93.5 / 94.8 / 96.2 % coverage, 8 (the default's) 95.8 / 96.6 / 97.2 %, 12 and 16 no more (96.0 / 96.6
+            / 97.0 and 95.9 / 96.4 / 96.6 %): the binned level loses a margin of about its windows near the edges
+            of the other half, which its own coarse reach does not bridge (a coarse reach of 2 inside the binned
+            model instead gave 95.2 / 96.3 / 96.8 %).
             With a radius of 2: R = 3 covered 0.1-1.2 points more on setup 2 with more false matches and ~15 %
             more time; R = 1 was ~7 % faster in onnxruntime and covered 1.2 points less on the slanted plane.
 
@@ -477,8 +477,9 @@ class PrismStereo(nn.Module):
         2 threads each oversubscribe the cores (A/B in one process: 254 ms per image at batch 8 against
         222 ms with one thread per worker; batch 1 254 ms). A batch of 8 as one tensor was slower (0.91x
         batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page faults per call, every volume
-        of 8 images a fresh mmap). ``benchmarks/onnx_speed.py``, five runs: batch 8 gave 1.04-1.26x the
-        images/s of batch 1 (~205-240 ms per image at batch 1).
+        of 8 images a fresh mmap). ``benchmarks/onnx_speed.py``, nine runs: batch 8 gave 1.04-1.28x the
+        images/s of batch 1 (~185-240 ms per image at batch 1); the pyramid (``full_band``) 1.07x in one run.
+        Sub-batches of 2 or 4 images per worker gave 104 / 116 against 108 ms per image (pyramid, batch 8).
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
         b = image.shape[0]
@@ -545,8 +546,8 @@ class PrismStereo(nn.Module):
             def up(t: torch.Tensor, mode: str = "nearest") -> torch.Tensor:
                 # level pixel i covers full pixels f i ... f i + f - 1; a binned level may end short of the
                 # reference half (its width rounded down): replicate its last row / column
-                t = F.interpolate(t.to(ref.dtype), scale_factor=f, mode=mode, **({} if mode == "nearest" else
-                                                                                  {"align_corners": False}))
+                corners = {} if mode == "nearest" else {"align_corners": False}
+                t = F.interpolate(t.to(ref.dtype), scale_factor=f, mode=mode, **corners)
                 if t.shape[-2] < h or t.shape[-1] < w_ref:
                     t = F.pad(t, (0, max(0, w_ref - t.shape[-1]), 0, max(0, h - t.shape[-2])), mode="replicate")
                 return t[..., :h, :w_ref]
