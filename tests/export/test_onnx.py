@@ -136,6 +136,15 @@ def test_runner_accepts_numpy_and_float64(exported, captures):
     assert torch.equal(a.depth, b.depth)
 
 
+def test_runner_without_spinning_computes_the_same(exported, captures):
+    spin, sleep = OnnxDepth(exported), OnnxDepth(exported, spinning=False)
+    key = "session.intra_op.allow_spinning"
+    assert spin.session.get_session_options().get_session_config_entry(key) == "1"
+    assert sleep.session.get_session_options().get_session_config_entry(key) == "0"
+    a, b = spin(captures[:1]), sleep(captures[:1])
+    assert torch.equal(a.depth, b.depth) and torch.equal(a.valid, b.valid)
+
+
 def test_runner_errors(exported, tmp_path):
     runner = OnnxDepth(exported)
     with pytest.raises(ShapeError, match=r"image must have shape \(B, 1, 96, 128\)"):
@@ -172,6 +181,8 @@ def test_session_cache(exported, model, tmp_path, monkeypatch):
     monkeypatch.setenv("PRISMSTEREO_CACHE", str(tmp_path))
     first = onnx_session(model)
     assert first is onnx_session(model)  # same process: same session
+    sleeping = onnx_session(model, spinning=False)  # another session of the same file
+    assert sleeping is not first and sleeping.path == first.path
     files = list((tmp_path / "onnx").glob("*.onnx"))
     assert len(files) == 1 and first.path == files[0]
     other = PrismStereo(model.rig, (300.0, 900.0), coarse_factor=2, min_confidence=0.6)
