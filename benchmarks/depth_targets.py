@@ -18,9 +18,11 @@ rectified volume is as a final level.
 Captures come from this package's renderer (:mod:`prismstereo.synthetic`): exact ray tracing checked against
 an independent closed form (``tests/geometry/test_optics.py``), textures on the surfaces, not in the image.
 
-``--downsample K`` evaluates the models that match on K x K-binned captures (the speed knob of
-``PrismStereo``; depth on the full reference grid, each pixel its block's value); with ``--full-band R`` a final
-band of 2 R + 1 hypotheses at full resolution re-estimates every pixel around the binned estimate (a pyramid).
+The models are ``PrismStereo``'s defaults: at 1024 x 768 the pyramid (the 2 x 2-binned model places a final
+band of 5 full-resolution hypotheses). ``--downsample K`` evaluates the models that match on K x K-binned
+captures (``--downsample 1``: the full-resolution coarse level, the default before session 7); with an explicit
+``--downsample`` each pixel gets its block's value unless ``--full-band R`` adds the final band of 2 R + 1
+hypotheses.
 
 Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--sampling] [--compare]
 [--downsample K [--full-band R]]
@@ -76,9 +78,10 @@ def main() -> None:
     parser.add_argument("--scale", type=int, default=1, help="sensor downscale factor (1 = full resolution)")
     parser.add_argument("--sampling", action="store_true", help="also the coarse level as the exact sweep")
     parser.add_argument("--compare", action="store_true", help="also single-level full searches (half res)")
-    parser.add_argument("--downsample", type=int, default=1, metavar="K",
-                        help="the models match on KxK-binned captures (PrismStereo(downsample=K))")
-    parser.add_argument("--full-band", type=int, default=0, metavar="R",
+    parser.add_argument("--downsample", type=int, default=None, metavar="K",
+                        help="the models match on KxK-binned captures (PrismStereo(downsample=K); default: the "
+                             "model's)")
+    parser.add_argument("--full-band", type=int, default=None, metavar="R",
                         help="with --downsample: a final full-resolution band of 2R+1 hypotheses (full_band=R)")
     args = parser.parse_args()
     torch.set_num_threads(2)
@@ -90,7 +93,7 @@ def main() -> None:
             t0 = time.perf_counter()
             model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling, downsample=args.downsample,
                                                    full_band=args.full_band)
-            binned = f", matching {args.downsample}x{args.downsample}-binned" if args.downsample > 1 else ""
+            binned = f", matching {model.downsample}x{model.downsample}-binned" if model.downsample > 1 else ""
             level = model if model.binned is None else model.binned
             final = f"; then a full-resolution band +-{model.band} of {model.num_hypotheses}" if model.binned else ""
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}{binned}, {sampling} coarse level: "

@@ -8,8 +8,9 @@ sensor by K for quick runs). Times: median and fastest of ``--repeats`` runs aft
 process): on a shared 2-core machine torch's 2-thread eager mode slows down several-fold (and erratically) as
 soon as another process is busy, onnxruntime and OpenCV much less, so only trust runs where that is ~0.
 
-1. **Wide range** 228-1374 mm (the thesis working range): ``PrismStereo(rig, (228, 1374))`` (defaults:
-   coarse-to-fine, coarse factor 4) on one capture of ``slanted_plane(rig, 525, 30)`` (a noise-textured plane
+1. **Wide range** 228-1374 mm (the thesis working range): ``PrismStereo(rig, (228, 1374))`` (defaults: at
+   1024 x 768 the pyramid, a 2 x 2-binned coarse-to-fine model with coarse factor 4 placing a full-resolution
+   band of 5 hypotheses; printed) on one capture of ``slanted_plane(rig, 525, 30)`` (a noise-textured plane
    through 525 mm slanted 30 degrees about y; Z 514-536 mm over the co-visible pixels), 2 x 2 supersampling,
    read noise 1/255, 8 bits. Rows: torch eager (``inference_mode``); onnxruntime
    (:class:`~prismstereo.export.OnnxDepth`, graph exported once per run into a temporary directory); OpenCV
@@ -22,26 +23,27 @@ soon as another process is busy, onnxruntime and OpenCV much less, so only trust
    % of co-visible reference pixels that are valid, as in ``benchmarks/depth_targets.py``.
    ``--sampling`` adds torch and onnxruntime rows for the same model with the exact-sweep coarse level
    (``sampling='sweep'``; the default is the rectified shift volume). Both ranges also time the model with
-   ``downsample=2`` (matching on the 2 x 2-binned capture, depth on the full reference grid: the speed knob;
-   the narrow range also with coarse factor 4 on the binned image, where the default picks 2) and with
-   ``downsample=2, full_band=2`` (the pyramid: the binned model places a band of 5 hypotheses at full
-   resolution, which re-estimates every pixel: full lateral resolution)
-   and, for context, StereoSGBM on the same binned halves (numDisparities halved, depth converted with the
-   binned rig's exact sweep and given to each pixel of the block as the model does); SGBM on the full-resolution
-   halves stays the reference of the "x SGBM" column.
+   ``downsample=1`` (the full-resolution coarse level, coarse factor 4; the default before session 7) and with
+   ``downsample=2, full_band=0`` (matching on the 2 x 2-binned capture, each pixel its block's depth: the speed
+   knob, half the lateral resolution; the narrow range also with coarse factor 4 on the binned image, where
+   the default picks 2) and, for context, StereoSGBM on the same binned halves (numDisparities halved, depth
+   converted with the binned rig's exact sweep and given to each pixel of the block as the model does); SGBM on
+   the full-resolution halves stays the reference of the "x SGBM" column.
 2. **Narrow range** 600-1450 mm: the same with ``PrismStereo(rig, (600, 1450))`` (its default coarse factor,
-   printed; ``--narrow-coarse-factor F`` forces one), numDisparities 96 / K and ``slanted_plane(rig, 900, 30)``
-   (Z 878-923 mm). (A single full-resolution level, ``--narrow-coarse-factor 1``, what the model picked for
-   this range before its default became f = 2, is ~9x slower in torch and its unrolled ONNX graph took ~7 min
-   to export at half resolution.) Both ranges print the correspondence over the range from the exact sweep:
-   how far the match moves along u between z_min and z_max, the OpenCV disparity interval that means, the
-   largest vertical offset of the match from the pixel's row, and the ground-truth disparities of the capture.
+   printed; ``--narrow-coarse-factor F`` forces one, for the binned model of the pyramid and ``downsample=1``),
+   numDisparities 96 / K and ``slanted_plane(rig, 900, 30)`` (Z 878-923 mm). (A single full-resolution level,
+   what the model picked for this range before its default became f = 2, is ~9x slower in torch and its
+   unrolled ONNX graph took ~7 min to export at half resolution.) Both ranges print the correspondence over
+   the range from the exact sweep: how far the match moves along u between z_min and z_max, the OpenCV
+   disparity interval that means, the largest vertical offset of the match from the pixel's row, and the
+   ground-truth disparities of the capture.
 3. **Batching**: torch eager images/s at batch 8 (and 2) vs batch 1, wide model, the sizes timed alternately,
    with the CPU time split into user and system and the minor page faults per call (fresh large temporaries
    are page-faulted in on every call; that is system time). The ratio is printed from the medians and from the
    fastest runs: on this shared VM a single image's time swings by up to 2x between host phases, and the
    ratio with it (0.99-1.30x in five runs of session 5; 1.04-1.26x in five runs after the eager box filter and
-   semi-global scans got faster and the worker threads one intra-op thread each; 1.07-1.28x in four more).
+   semi-global scans got faster and the worker threads one intra-op thread each; 1.07-1.28x in four more, all
+   with the full-resolution coarse level, the default then; the pyramid gave 1.07x in one run).
 4. **Peak RSS** of a fresh process (``subprocess`` + ``sys.executable``) that loads the exported wide graph
    with ``OnnxDepth`` and runs one frame, and of one that builds the torch model and runs one frame in eager
    mode: the high-water mark VmHWM of /proc/self/status after the imports, after loading / building, after
@@ -310,6 +312,19 @@ def machine_line() -> str:
 
 
 # ----------------------------------------------------------------------------------------------- parts
+def describe_levels(model: PrismStereo) -> str:
+    """The model's levels in one phrase."""
+    def level(m: PrismStereo) -> str:
+        if m.factor == 1:
+            return f"{m.num_hypotheses} hypotheses in one level"
+        return (f"{m.num_hypotheses} hypotheses, coarse factor {m.factor} ({m.coarse_hypotheses} coarse), "
+                f"band +-{m.band}")
+    if model.binned is not None:
+        return (f"pyramid: {model.downsample}x{model.downsample}-binned model ({level(model.binned)}) + "
+                f"full-resolution band +-{model.band} of {model.num_hypotheses}")
+    return level(model) + (f", on {model.downsample}x{model.downsample}-binned pixels" if model.downsample > 1 else "")
+
+
 def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_factor: int | None, tmp: Path,
              sweep_too: bool = False):
     """Parts 1 / 2: the table of one range (with ``sweep_too`` also the model with the exact-sweep coarse
@@ -325,10 +340,8 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
     t_export = time.perf_counter() - t0
     runner = OnnxDepth(path, threads=2)
     split = model.rig.reference_width
-    coarse = f"coarse factor {model.factor} ({model.coarse_hypotheses} coarse hypotheses, band +-{model.band})" \
-        if model.factor > 1 else "coarse factor 1 (single full-resolution level)"
     print(f"\n== {case.name} range {case.z_range[0]:g}-{case.z_range[1]:g} mm: thesis_setup1 "
-          f"{rig.image_width}x{rig.image_height}, split {split}, {model.num_hypotheses} hypotheses, {coarse}; "
+          f"{rig.image_width}x{rig.image_height}, split {split}, default model: {describe_levels(model)}; "
           f"scene slanted_plane({case.depth_mm:g} mm, {case.slant_deg:g} deg)")
     print(f"render {t_render:.1f} s, model build {t_build:.1f} s, ONNX export {t_export:.1f} s "
           f"({path.stat().st_size / 1e6:.0f} MB), onnxruntime session load {runner.load_seconds:.1f} s")
@@ -342,24 +355,23 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
           f"{100 * float(check.max()):.1e} %")
 
     image = capture.image
-    variants = [("torch eager", "onnxruntime (2 threads)", model, runner)]
+    variants = [("torch eager (default)", "onnxruntime (default, 2 threads)", model, runner)]
     if sweep_too:  # the same model with the other coarse sampling (default: rectified), built and exported first
         sweep_model = PrismStereo(rig, case.z_range, coarse_factor=coarse_factor, sampling="sweep").eval()
         sweep_runner = OnnxDepth(export_onnx(sweep_model, tmp / f"{case.name}_sweep.onnx"), threads=2)
         variants.append(("torch eager, sweep coarse level", "onnxruntime, sweep coarse level", sweep_model,
                          sweep_runner))
-    # the speed knob: matching on the 2 x 2-binned capture, depth on the full reference grid (its default coarse
-    # factor, and for the narrow range, whose binned search gets f = 2 by default, also f = 4)
+    others = []
+    if model.downsample != 1:  # the full-resolution coarse level (the default on smaller sensors)
+        others.append(("downsample 1", PrismStereo(rig, case.z_range, downsample=1, coarse_factor=coarse_factor)))
+    # the speed knob: matching on the 2 x 2-binned capture, each pixel its block's depth (its default coarse factor,
+    # and for the narrow range, whose binned search gets f = 2 by default, also f = 4)
     for factor in (None, 4) if case.name == "narrow" else (None,):
-        binned_model = PrismStereo(rig, case.z_range, downsample=2, coarse_factor=factor).eval()
-        binned_runner = OnnxDepth(export_onnx(binned_model, tmp / f"{case.name}_binned{factor}.onnx"), threads=2)
-        label = f"downsample 2 (f = {binned_model.factor})"
-        variants.append((f"torch eager, {label}", f"onnxruntime, {label}", binned_model, binned_runner))
-    # the pyramid: the binned model places a full-resolution band of 5 (full lateral resolution)
-    pyramid = PrismStereo(rig, case.z_range, downsample=2, full_band=2).eval()
-    pyramid_runner = OnnxDepth(export_onnx(pyramid, tmp / f"{case.name}_pyramid.onnx"), threads=2)
-    label = f"downsample 2 (f = {pyramid.binned.factor}) + full band 2"
-    variants.append((f"torch eager, {label}", f"onnxruntime, {label}", pyramid, pyramid_runner))
+        blocks = PrismStereo(rig, case.z_range, downsample=2, full_band=0, coarse_factor=factor)
+        others.append((f"downsample 2 blocks (f = {blocks.factor})", blocks))
+    for i, (label, other_model) in enumerate(others):
+        other_runner = OnnxDepth(export_onnx(other_model.eval(), tmp / f"{case.name}_{i}.onnx"), threads=2)
+        variants.append((f"torch eager, {label}", f"onnxruntime, {label}", other_model, other_runner))
     rows = []
     other = OtherLoad().__enter__()
     for torch_name, ort_name, torch_model, ort_runner in variants:

@@ -92,21 +92,25 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig):
 
     if args.hypotheses is not None and args.hypotheses < 2:
         raise PrismStereoError(f"--hypotheses must be >= 2, got {args.hypotheses}")
-    if args.downsample < 1:
+    if args.downsample is not None and args.downsample < 1:
         raise PrismStereoError(f"--downsample must be >= 1, got {args.downsample}")
-    if args.full_band < 0 or (args.full_band and args.downsample == 1):
-        raise PrismStereoError(f"--full-band must be >= 0 and needs --downsample >= 2, got {args.full_band}")
+    downsample = PrismStereo.default_downsample(rig) if args.downsample is None else args.downsample
+    if args.full_band is not None and (args.full_band < 0 or (args.full_band and downsample == 1)):
+        raise PrismStereoError(f"--full-band must be >= 0 and needs --downsample >= 2 (here {downsample}), "
+                               f"got {args.full_band}")
     if args.z_range is None:
         z_range, how = default_z_range(rig), "default for this rig"
     else:
         z_range, how = check_z_range(rig, args.z_range), "--z-range"
     model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses, downsample=args.downsample,
                         full_band=args.full_band).eval()
-    binned = f", matching on {args.downsample}x{args.downsample}-binned pixels" if args.downsample > 1 else ""
-    if args.full_band:
-        binned += f", then a full-resolution band of {2 * args.full_band + 1}"
-    return model, (f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.num_hypotheses} "
-                   f"hypotheses{binned}")
+    k = model.downsample
+    if model.binned is not None:
+        levels = (f"{model.binned.num_hypotheses} hypotheses on {k}x{k}-binned pixels, then a full-resolution band "
+                  f"of {2 * model.band + 1} (of {model.num_hypotheses})")
+    else:
+        levels = f"{model.num_hypotheses} hypotheses" + (f", matching on {k}x{k}-binned pixels" if k > 1 else "")
+    return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {levels}"
 
 
 def _read_capture(path: Path, rig: BiPrismRig) -> torch.Tensor:
@@ -192,11 +196,14 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
                             "(prismstereo.depth.default_z_range)")
     depth.add_argument("--hypotheses", type=int, default=None, metavar="N",
                        help="number of depth hypotheses (default: neighbours <= 1 px apart)")
-    depth.add_argument("--downsample", type=int, default=1, metavar="K",
-                       help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser)")
-    depth.add_argument("--full-band", type=int, default=0, metavar="R",
+    depth.add_argument("--downsample", type=int, default=None, metavar="K",
+                       help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser "
+                            "unless --full-band); default: 2 with --full-band 2 on sensors whose reference "
+                            "half is >= 384 px on its shorter side, else 1")
+    depth.add_argument("--full-band", type=int, default=None, metavar="R",
                        help="with --downsample: re-estimate every pixel at full resolution in a band of 2R+1 "
-                            "hypotheses around the binned estimate (default 0: each pixel its block's value)")
+                            "hypotheses around the binned estimate (0: each pixel its block's value; "
+                            "default: 0 with an explicit --downsample)")
     depth.add_argument("--backend", choices=BACKENDS, default="torch", help="inference backend")
     depth.add_argument("--batch-size", type=int, default=1, metavar="B", help="images processed together")
     depth.add_argument("--format", choices=DEPTH_FORMATS, default=None,
@@ -237,11 +244,14 @@ def add_export_parser(sub: argparse._SubParsersAction) -> None:
                         help="depths searched (mm); default as for `prismstereo depth`")
     export.add_argument("--hypotheses", type=int, default=None, metavar="N",
                         help="number of depth hypotheses (default: neighbours <= 1 px apart)")
-    export.add_argument("--downsample", type=int, default=1, metavar="K",
-                        help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser)")
-    export.add_argument("--full-band", type=int, default=0, metavar="R",
+    export.add_argument("--downsample", type=int, default=None, metavar="K",
+                        help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser "
+                             "unless --full-band); default: 2 with --full-band 2 on sensors whose reference "
+                             "half is >= 384 px on its shorter side, else 1")
+    export.add_argument("--full-band", type=int, default=None, metavar="R",
                         help="with --downsample: re-estimate every pixel at full resolution in a band of 2R+1 "
-                             "hypotheses around the binned estimate (default 0: each pixel its block's value)")
+                             "hypotheses around the binned estimate (0: each pixel its block's value; "
+                             "default: 0 with an explicit --downsample)")
     export.add_argument("--opset", type=int, default=DEFAULT_OPSET, metavar="K",
                         help=f"ONNX opset (16-20, default {DEFAULT_OPSET})")
     export.add_argument("--channels", type=int, choices=(1, 3), default=1,

@@ -29,7 +29,10 @@ The layers, in order:
 
 With ``downsample`` k and ``full_band`` R the coarse level of step 3 is a whole model of the k x k-binned capture
 (:attr:`PrismStereo.binned`, steps 1-5 on the binned rig), and step 4 a band of 2 R + 1 full-resolution
-hypotheses around its estimate: a pyramid with full lateral resolution at about half the default's time.
+hypotheses around its estimate: a pyramid with full lateral resolution in about half the time of the
+full-resolution coarse level. It is the default on sensors whose reference half is >= 384 px on its shorter
+side (k = 2, R = 2: the thesis setups at 1024 x 768; :meth:`PrismStereo.default_downsample`); smaller sensors
+get steps 3-4 at full resolution (``downsample=1``), as any sensor does when asked.
 
 Why coarse-to-fine by default: over the thesis' working range the correspondence moves ~365 px across the
 other half (``thesis_setup1``); a full-resolution search touches H x W_ref x 368 voxels per pass, the
@@ -191,17 +194,20 @@ class PrismStereo(nn.Module):
             off by default; the z-buffer test (``occlusion_tolerance``) handles occlusions.
         downsample: k > 1 matches on the capture box-averaged over k x k pixel blocks (the rig seen through
             that binning, :meth:`~prismstereo.geometry.rig.BiPrismRig.binned`: exact geometry, pixels k times
-            larger) and returns the depth on the full-resolution reference grid, each pixel with its block's
-            values (nearest; ``match`` in full-sensor pixels). A speed knob: ~k^2 less work, at k times coarser
+            larger) and returns the depth on the full-resolution reference grid: re-estimated there by a
+            full-resolution band with ``full_band`` > 0 (the pyramid), else each pixel with its block's values
+            (nearest; ``match`` in full-sensor pixels), a speed knob of ~k^2 less work at k times coarser
             lateral and disparity resolution. ``num_hypotheses``, ``coarse_factor`` and ``band`` then refer to
-            the binned image. Measured with k = 2 at 1024 x 768: onnxruntime 32-58 ms per frame instead of
-            153-259 ms (setup 1, 228-1374 mm, four runs of ``benchmarks/onnx_speed.py``; OpenCV SGBM 69-70 ms),
-            slanted plane 0.040 % mean error on 98.3 % of the co-visible pixels (full resolution 0.027 % on
-            98.8 %). On the thesis planes (``benchmarks/depth_targets.py --downsample 2``, 205-1511 mm) the mean
-            error stays <= 0.123 % (setup 1) / 0.132 % (setup 2), coverage 94.0-99.2 % / 93.4-97.0 % (full
-            resolution: 97.2-99.6 / 96.4-98.5 %; both with ``coarse_reach=1``, without it 90.2-98.6 / 92.6-95.9
-            %): below the 95 % target at the nearest plane (setup 1) and the far ones (setup 2, 780-1374 mm).
-            ``full_band`` re-estimates every pixel at full resolution from there.
+            the binned image. None (default): :meth:`default_downsample`, with ``full_band`` 2 when that is > 1
+            (the pyramid on 1024 x 768 sensors); 1 is the full-resolution coarse level of steps 3-4. Block
+            values (k = 2, ``full_band=0``) measured at 1024 x 768: onnxruntime 32-58 ms per frame instead of
+            153-259 ms with ``downsample=1`` (setup 1, 228-1374 mm, four runs of ``benchmarks/onnx_speed.py``;
+            OpenCV SGBM 69-70 ms), slanted plane 0.040 % mean error on 98.3 % of the co-visible pixels
+            (``downsample=1``: 0.027 % on 98.8 %). On the thesis planes (``benchmarks/depth_targets.py
+            --downsample 2 --full-band 0``, 205-1511 mm) the mean error stays <= 0.123 % (setup 1) / 0.132 %
+            (setup 2), coverage 94.0-99.2 % / 93.4-97.0 % (``downsample=1``: 97.2-99.6 / 96.4-98.5 %; both with
+            ``coarse_reach=1``, without it 90.2-98.6 / 92.6-95.9 %): below the 95 % target at the nearest plane
+            (setup 1) and the far ones (setup 2, 780-1374 mm).
         coarse_reach: invalid coarse pixels within this many coarse pixels of valid ones take their valid
             neighbours' mean s (:func:`~prismstereo.matching.levels.extend_estimate`) before it is upsampled
             for the fine band; 0 leaves the coarse estimate as it is. The coarse level loses a margin of about
@@ -209,7 +215,7 @@ class PrismStereo(nn.Module):
             a strip of 144 of the 512 reference columns), and the bilinear upsampling of s blended the values
             of its invalid pixels into the valid ones next to them, misplacing the band there (on a half-size
             setup 1 at 240 mm the coverage went 91.8 -> 95.2 % from that alone, 95.7 % with the reached pixels).
-            Measured with 1 (``benchmarks/depth_targets.py``, full resolution, 205-1511 mm, against 0): coverage
+            Measured with 1 (``benchmarks/depth_targets.py``, ``downsample=1``, 205-1511 mm, against 0): coverage
             of the co-visible pixels 95.5-99.4 -> 97.2-99.6 % (setup 1) and 96.0-98.1 -> 96.4-98.5 % (setup 2),
             mean errors within 0.002 points on setup 1 (up to +0.002 at 525 / 936 mm and the step scene) and
             equal or lower on setup 2 (1374 mm 0.092 -> 0.087 %); the share of valid pixels that are not
@@ -225,8 +231,9 @@ class PrismStereo(nn.Module):
             times its coarse factor binned pixels and upsampled bilinearly to place a band of 2 R + 1 hypotheses
             (<= 1 px apart) at full resolution around every pixel, evaluated like the fine band on the exact
             full-resolution sweep. Full lateral resolution at about the binned model's price plus a thin band;
-            0 (default) gives each pixel its block's values. ``benchmarks/depth_targets.py --downsample 2
-            --full-band 2`` (205-1511 mm) against the full-resolution default: mean errors 0.015-0.088 % vs
+            0 gives each pixel its block's values; None (default): 2 with the default ``downsample`` when that
+            is > 1, else 0 (an explicit ``downsample`` keeps block values unless ``full_band`` is given).
+            ``benchmarks/depth_targets.py`` (205-1511 mm) against ``downsample=1``: mean errors 0.015-0.088 % vs
             0.016-0.083 % (setup 1) and 0.012-0.065 % vs 0.012-0.087 % (setup 2), coverage 97.2-99.5 % vs
             97.2-99.6 % and 95.8-98.7 % vs 96.4-98.5 %, fewer valid pixels that are not co-visible (228 mm: 3.2 vs
             8.5 % / 2.3 vs 4.6 %), slanted plane 0.029 / 0.020 % (0.026 / 0.023 %), step 0.043 / 0.029 % (0.049 /
@@ -272,10 +279,10 @@ class PrismStereo(nn.Module):
         occlusion_tolerance: float | None = 0.01,
         occluder_confidence: float | None = 0.8,
         lr_threshold: float | None = None,
-        downsample: int = 1,
+        downsample: int | None = None,
         coarse_reach: int = 1,
         reach_confidence: float = 0.9,
-        full_band: int = 0,
+        full_band: int | None = None,
     ) -> None:
         super().__init__()
         level_options = dict(  # everything but the resolution: the binned model of a pyramid gets the same
@@ -295,6 +302,10 @@ class PrismStereo(nn.Module):
         for name, value in (("box", box), ("fine_box", fine_box), ("window", window)):
             if not isinstance(value, int) or value < 1 or value % 2 == 0:
                 raise OptionError(f"{name} must be a positive odd int, got {value!r}")
+        if downsample is None:  # the default: the pyramid on large sensors
+            downsample = self.default_downsample(rig)
+            full_band = (2 if downsample > 1 else 0) if full_band is None else full_band
+        full_band = 0 if full_band is None else full_band
         if not isinstance(downsample, int) or downsample < 1 or rig.image_height // downsample < 16:
             raise OptionError(f"downsample must be an int >= 1 leaving >= 16 rows, got {downsample!r}")
         if not isinstance(full_band, int) or full_band < 0 or (full_band and downsample == 1):
@@ -303,7 +314,8 @@ class PrismStereo(nn.Module):
         z_range_mm = default_z_range(rig) if z_range_mm is None else z_range_mm
         self.binned: PrismStereo | None = None
         if full_band:  # a pyramid: the binned model places a full-resolution band of 2 full_band + 1 hypotheses
-            self.binned = PrismStereo(rig.binned(downsample), z_range_mm, num_hypotheses, **level_options)
+            self.binned = PrismStereo(rig.binned(downsample), z_range_mm, num_hypotheses, downsample=1, full_band=0,
+                                      **level_options)
             num_hypotheses, coarse_factor, band = None, downsample, full_band
             sampling = self.binned.sampling
         elif downsample > 1:  # everything below works on the binned capture
@@ -405,6 +417,21 @@ class PrismStereo(nn.Module):
         }
 
     @staticmethod
+    def default_downsample(rig: BiPrismRig) -> int:
+        """k = 2 (the pyramid, with ``full_band`` 2) when the reference half is at least 384 px on its shorter side,
+        else 1 (coarse-to-fine at full resolution). At 1024 x 768 (the thesis setups, 205-1511 mm) the pyramid
+        met the same depth targets as the full-resolution coarse level with lower errors on setup 2 (0.012-0.065
+        against 0.012-0.087 %), fewer false matches (228 mm: 3.2 / 2.3 % against 8.5 / 4.6 %) and 0.1-0.6 points
+        less coverage, in ~0.55x the time (see ``full_band``); on smaller sensors the binned image is too
+        small for its own f = 4 coarse level.
+
+        Example:
+            >>> [PrismStereo.default_downsample(thesis_setup1().downscaled(k)) for k in (1, 2)]
+            [2, 1]
+        """
+        return 2 if min(rig.image_height, rig.reference_width) >= 384 else 1
+
+    @staticmethod
     def default_coarse_factor(num_hypotheses: int, height: int, width: int) -> int:
         """f = the largest power of two (<= 4) leaving >= 24 hypotheses and >= 32 rows and columns at the
         coarse level; 1 (a single full-resolution level) for small searches. (f = 8 on a 1024 x 768 sensor
@@ -477,8 +504,8 @@ class PrismStereo(nn.Module):
         2 threads each oversubscribe the cores (A/B in one process: 254 ms per image at batch 8 against
         222 ms with one thread per worker; batch 1 254 ms). A batch of 8 as one tensor was slower (0.91x
         batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page faults per call, every volume
-        of 8 images a fresh mmap). ``benchmarks/onnx_speed.py``, nine runs: batch 8 gave 1.04-1.28x the
-        images/s of batch 1 (~185-240 ms per image at batch 1); the pyramid (``full_band``) 1.07x in one run.
+        of 8 images a fresh mmap). ``benchmarks/onnx_speed.py``, nine runs with ``downsample=1``: batch 8 gave
+        1.04-1.28x the images/s of batch 1 (~185-240 ms per image at batch 1); the pyramid 1.07x in one run.
         Sub-batches of 2 or 4 images per worker gave 104 / 116 against 108 ms per image (pyramid, batch 8).
         """
         check_shape(image, ["B", "C", "H", "W"], "image")

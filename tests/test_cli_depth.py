@@ -88,7 +88,7 @@ def test_downsample_runs_on_binned_pixels_and_writes_the_full_grid(scene, tmp_pa
 def test_full_band_refines_the_binned_depth_at_full_resolution(scene, tmp_path, capsys):
     out = tmp_path / "far.npy"
     assert _run(scene, scene / "far.png", "--out", out, "--downsample", "2", "--full-band", "2") == 0
-    assert "matching on 2x2-binned pixels, then a full-resolution band of 5" in capsys.readouterr().out
+    assert "hypotheses on 2x2-binned pixels, then a full-resolution band of 5 (of " in capsys.readouterr().out
     depth = np.load(out)
     assert depth.shape == (96, 64) and np.isfinite(depth).mean() > 0.4
     assert abs(np.nanmedian(depth) / FAR - 1) < 0.02

@@ -371,9 +371,26 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
     assert PrismStereo(rig, **config).config() == config
     assert blocks.config()["full_band"] == 0
     with pytest.raises(OptionError, match="full_band must be an int >= 0, and > 0 only with downsample > 1"):
-        PrismStereo(rig, z_range, full_band=2)
+        PrismStereo(rig, z_range, full_band=2)  # this sensor's default downsample is 1
     with pytest.raises(OptionError, match="full_band must be"):
         PrismStereo(rig, z_range, downsample=2, full_band=-1)
+
+
+def test_default_is_the_pyramid_on_large_sensors_only(monkeypatch):
+    """downsample=None resolves to default_downsample(rig), with full_band 2 when that is > 1; an explicit
+    downsample keeps block values unless full_band is given; config() holds the resolved values."""
+    assert PrismStereo.default_downsample(thesis_setup1()) == 2 and PrismStereo.default_downsample(thesis_setup2()) == 2
+    rig = scaled_rig(thesis_setup1(), 2)  # 512 x 384: a reference half of 256 x 384
+    assert PrismStereo.default_downsample(rig) == 1
+    plain = PrismStereo(rig, (400.0, 800.0))
+    assert plain.binned is None and plain.config()["downsample"] == 1 and plain.config()["full_band"] == 0
+    monkeypatch.setattr(PrismStereo, "default_downsample", staticmethod(lambda rig: 2))
+    pyramid = PrismStereo(rig, (400.0, 800.0))
+    assert pyramid.binned is not None and pyramid.band == 2
+    assert pyramid.config()["downsample"] == 2 and pyramid.config()["full_band"] == 2
+    assert PrismStereo(rig, (400.0, 800.0), full_band=3).band == 3
+    assert PrismStereo(rig, (400.0, 800.0), downsample=2).binned is None  # explicit: block values
+    assert PrismStereo(rig, (400.0, 800.0), downsample=1).binned is None
 
 
 def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
