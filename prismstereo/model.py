@@ -421,9 +421,10 @@ class PrismStereo(nn.Module):
         """k = 2 (the pyramid, with ``full_band`` 2) when the reference half is at least 384 px on its shorter side,
         else 1 (coarse-to-fine at full resolution). At 1024 x 768 (the thesis setups, 205-1511 mm) the pyramid
         met the same depth targets as the full-resolution coarse level with lower errors on setup 2 (0.012-0.065
-        against 0.012-0.087 %), fewer false matches (228 mm: 3.2 / 2.3 % against 8.5 / 4.6 %) and coverage
-        within -0.6 / +0.2 points per capture, in ~0.55x the time (see ``full_band``); on smaller sensors the
-        binned image is too small for its own f = 4 coarse level.
+        against 0.012-0.087 %), fewer false matches (228 mm: 3.2 / 2.3 % against 8.5 / 4.6 %), coverage within
+        -0.6 / +0.2 points on the planes and 0.2-1.1 points lower on the slanted and step scenes, in ~0.55x the
+        time (see ``full_band``); on smaller sensors the binned image is too small for its own f = 4 coarse
+        level.
 
         Example:
             >>> [PrismStereo.default_downsample(thesis_setup1().downscaled(k)) for k in (1, 2)]
