@@ -182,6 +182,18 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--downsample`` and ``--full-band``, shared by ``depth`` and ``export`` (the model's defaults when absent)."""
+    parser.add_argument("--downsample", type=int, default=None, metavar="K",
+                        help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser "
+                             "unless --full-band); default: 2 with --full-band 2 on sensors whose reference "
+                             "half is >= 384 px on its shorter side, else 1")
+    parser.add_argument("--full-band", type=int, default=None, metavar="R",
+                        help="with --downsample: re-estimate every pixel at full resolution in a band of 2R+1 "
+                             "hypotheses around the binned estimate (0: each pixel its block's value; "
+                             "default: 0 with an explicit --downsample)")
+
+
 def add_depth_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``prismstereo depth`` on the main parser's subcommands."""
     depth = sub.add_parser("depth", help="metric depth of the reference (left) half of bi-prism captures")
@@ -196,14 +208,7 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
                             "(prismstereo.depth.default_z_range)")
     depth.add_argument("--hypotheses", type=int, default=None, metavar="N",
                        help="number of depth hypotheses (default: neighbours <= 1 px apart)")
-    depth.add_argument("--downsample", type=int, default=None, metavar="K",
-                       help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser "
-                            "unless --full-band); default: 2 with --full-band 2 on sensors whose reference "
-                            "half is >= 384 px on its shorter side, else 1")
-    depth.add_argument("--full-band", type=int, default=None, metavar="R",
-                       help="with --downsample: re-estimate every pixel at full resolution in a band of 2R+1 "
-                            "hypotheses around the binned estimate (0: each pixel its block's value; "
-                            "default: 0 with an explicit --downsample)")
+    _add_resolution_arguments(depth)
     depth.add_argument("--backend", choices=BACKENDS, default="torch", help="inference backend")
     depth.add_argument("--batch-size", type=int, default=1, metavar="B", help="images processed together")
     depth.add_argument("--format", choices=DEPTH_FORMATS, default=None,
@@ -244,14 +249,7 @@ def add_export_parser(sub: argparse._SubParsersAction) -> None:
                         help="depths searched (mm); default as for `prismstereo depth`")
     export.add_argument("--hypotheses", type=int, default=None, metavar="N",
                         help="number of depth hypotheses (default: neighbours <= 1 px apart)")
-    export.add_argument("--downsample", type=int, default=None, metavar="K",
-                        help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser "
-                             "unless --full-band); default: 2 with --full-band 2 on sensors whose reference "
-                             "half is >= 384 px on its shorter side, else 1")
-    export.add_argument("--full-band", type=int, default=None, metavar="R",
-                        help="with --downsample: re-estimate every pixel at full resolution in a band of 2R+1 "
-                             "hypotheses around the binned estimate (0: each pixel its block's value; "
-                             "default: 0 with an explicit --downsample)")
+    _add_resolution_arguments(export)
     export.add_argument("--opset", type=int, default=DEFAULT_OPSET, metavar="K",
                         help=f"ONNX opset (16-20, default {DEFAULT_OPSET})")
     export.add_argument("--channels", type=int, choices=(1, 3), default=1,
