@@ -65,10 +65,18 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.range import default_z_range
 from prismstereo.epipolar.row_rectify import fit_row_rectification, level_coverage, rectified_level
 from prismstereo.epipolar.sweep import SweepFit, fit_sweep, sweep_coefficients, sweep_to_depth
-from prismstereo.epipolar.table import cubic_at, local_cubic, positions_at, tabulate_sweep, valid_interval
+from prismstereo.epipolar.table import (
+    cubic_at,
+    local_cubic,
+    positions_at,
+    sweep_hypotheses,
+    tabulate_sweep,
+    valid_interval,
+)
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
@@ -108,28 +116,6 @@ class DepthResult(NamedTuple):
     confidence: torch.Tensor
     index: torch.Tensor
     match: torch.Tensor
-
-
-def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0) -> int:
-    """Number of hypotheses, uniform in s over [-1, 1], with neighbours at most ``max_step_px`` apart in
-    the other half for every pixel of the per-pixel sweep polynomials ``coefficients`` (N, H, W, 2).
-
-    Example:
-        >>> from prismstereo.depth.range import default_z_range
-        >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
-        >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 700.0))
-        >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1)
-        >>> coef = sweep_coefficients(fit, uv.double()).permute(2, 0, 1, 3)
-        >>> sweep_hypotheses(coef) >= 10
-        True
-    """
-    if max_step_px <= 0:
-        raise OptionError(f"max_step_px must be > 0, got {max_step_px}")
-    probe = torch.linspace(-1.0, 1.0, 257, dtype=coefficients.dtype, device=coefficients.device)
-    sub = coefficients[:, ::4, ::4]
-    pos = positions_at(sub, probe)  # (257, h, w, 2)
-    speed = (pos[1:] - pos[:-1]).norm(dim=-1).amax() * 256 / 2  # px per unit s (max over pixels)
-    return max(2, math.ceil(float(speed) * 2 / max_step_px * 1.02) + 1)
 
 
 class PrismStereo(nn.Module):
@@ -602,10 +588,10 @@ class PrismStereo(nn.Module):
     def visible(
         self, match: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, occluders: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """Z-buffer occlusion test in the other half: each valid pixel's match (B, 2, H, W_ref) is rounded
-        to an other-half pixel; a pixel is visible when no occluder (a reference pixel of ``occluders``, default
-        ``valid``) with a point nearer than ``depth (1 - occlusion_tolerance)`` claims the same pixel.
-        Returns (B, 1, H, W_ref) bool.
+        """Z-buffer occlusion test in the other half (:func:`~prismstereo.depth.occlusion.zbuffer_visible`
+        with this model's split and ``occlusion_tolerance``): a valid pixel is visible when no occluder (a
+        pixel of ``occluders``, default ``valid``) with a point nearer than ``depth (1 - occlusion_tolerance)``
+        claims its match's other-half pixel. ``match`` (B, 2, H, W_ref); returns (B, 1, H, W_ref) bool.
 
         Example:
             >>> model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0))
@@ -613,15 +599,5 @@ class PrismStereo(nn.Module):
             >>> bool(model.visible(m, z, torch.ones(1, 1, 96, 64, dtype=torch.bool)).all())
             True
         """
-        b, _, h, w_ref = depth.shape
-        w_o = self.split.width - self.split.split
-        x = torch.round(match[:, 0] - self.split.split).long().clamp(0, w_o - 1)
-        y = torch.round(match[:, 1]).long().clamp(0, h - 1)
-        target = (y * w_o + x).view(b, -1)
-        tol = self.occlusion_tolerance or 0.0
-        far = torch.full_like(depth, float("inf"))
-        z = torch.where(valid, depth, far).view(b, -1)
-        occ = z if occluders is None else torch.where(occluders, depth, far).view(b, -1)
-        zbuf = torch.full((b, h * w_o), float("inf"), dtype=z.dtype, device=z.device)
-        zbuf = zbuf.scatter_reduce(1, target, occ, reduce="amin")
-        return (z * (1 - tol) <= zbuf.gather(1, target)).view(b, 1, h, w_ref)
+        return zbuffer_visible(match, depth, valid, self.split.split, self.split.width - self.split.split,
+                               self.occlusion_tolerance or 0.0, occluders)

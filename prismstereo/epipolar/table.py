@@ -19,6 +19,7 @@ second sampled channel.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import torch
@@ -29,7 +30,7 @@ from prismstereo.errors import OptionError, ShapeError, check_shape
 
 __all__ = [
     "LocalCubic", "TABLE_SIZES", "band_positions", "column_to_sweep", "cubic_at", "local_cubic", "positions_at",
-    "tabulate_sweep", "valid_interval",
+    "sweep_hypotheses", "tabulate_sweep", "valid_interval",
 ]
 
 TABLE_SIZES = (17, 33, 65)  # candidate numbers of tabulated coordinates (2^k + 1)
@@ -68,6 +69,27 @@ def positions_at(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
     n = coefficients.shape[0]
     basis = chebyshev_basis(s.to(coefficients), n)  # (S, N)
     return (basis @ coefficients.reshape(n, -1)).view(-1, *coefficients.shape[1:])
+
+
+def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0) -> int:
+    """Number of hypotheses, uniform in s over [-1, 1], with neighbours at most ``max_step_px`` apart in
+    the other half for every pixel of the per-pixel sweep polynomials ``coefficients`` (N, H, W, 2).
+
+    Example:
+        >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
+        >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 700.0))
+        >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1)
+        >>> coef = sweep_coefficients(fit, uv.double()).permute(2, 0, 1, 3)
+        >>> sweep_hypotheses(coef) >= 10
+        True
+    """
+    if max_step_px <= 0:
+        raise OptionError(f"max_step_px must be > 0, got {max_step_px}")
+    probe = torch.linspace(-1.0, 1.0, 257, dtype=coefficients.dtype, device=coefficients.device)
+    sub = coefficients[:, ::4, ::4]
+    pos = positions_at(sub, probe)  # (257, h, w, 2)
+    speed = (pos[1:] - pos[:-1]).norm(dim=-1).amax() * 256 / 2  # px per unit s (max over pixels)
+    return max(2, math.ceil(float(speed) * 2 / max_step_px * 1.02) + 1)
 
 
 def tabulate_sweep(coefficients: torch.Tensor, tolerance_px: float = 1e-3) -> torch.Tensor:
