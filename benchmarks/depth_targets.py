@@ -24,8 +24,12 @@ captures (``--downsample 1``: the full-resolution coarse level, the default befo
 ``--downsample`` each pixel gets its block's value unless ``--full-band R`` adds the final band of 2 R + 1
 hypotheses.
 
+``--band-edges clamp`` refines pixels whose best hypothesis is on the edge of their band from that edge's inner
+neighbour instead of rejecting them (``PrismStereo(band_edges='clamp')``; with ``--downsample 2 --full-band 1``
+the fast full-resolution setting).
+
 Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--sampling] [--compare]
-[--downsample K [--full-band R]]
+[--downsample K [--full-band R]] [--band-edges clamp]
 """
 
 from __future__ import annotations
@@ -83,6 +87,8 @@ def main() -> None:
                              "model's)")
     parser.add_argument("--full-band", type=int, default=None, metavar="R",
                         help="with --downsample: a final full-resolution band of 2R+1 hypotheses (full_band=R)")
+    parser.add_argument("--band-edges", choices=("reject", "clamp"), default="reject",
+                        help="PrismStereo(band_edges=...): pixels whose best hypothesis is on a band's edge")
     args = parser.parse_args()
     torch.set_num_threads(2)
     form = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
@@ -92,14 +98,9 @@ def main() -> None:
         for sampling in ("rectified", "sweep") if args.sampling else ("rectified",):
             t0 = time.perf_counter()
             model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling, downsample=args.downsample,
-                                                   full_band=args.full_band)
-            binned = f", matching {model.downsample}x{model.downsample}-binned" if model.downsample > 1 else ""
-            level = model if model.binned is None else model.binned
-            final = f"; then a full-resolution band +-{model.band} of {model.num_hypotheses}" if model.binned else ""
-            print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}{binned}, {sampling} coarse level: "
-                  f"{level.num_hypotheses} hypotheses, coarse factor {level.factor} "
-                  f"({level.coarse_hypotheses if level.factor > 1 else '-'} coarse hypotheses), band +-{level.band}"
-                  f"{final}; model built in {time.perf_counter() - t0:.1f} s")
+                                                   full_band=args.full_band, band_edges=args.band_edges)
+            print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.summary()}; model built in "
+                  f"{time.perf_counter() - t0:.1f} s")
         print(HEADER)
         results: dict[str, list[dict[str, float]]] = {name: [] for name in models}
         tag = (lambda name: f" [{name}]") if len(models) > 1 else (lambda name: "")

@@ -22,13 +22,15 @@ soon as another process is busy, onnxruntime and OpenCV much less, so only trust
    the mean (and median) relative depth error % over the valid co-visible reference pixels, and the coverage,
    % of co-visible reference pixels that are valid, as in ``benchmarks/depth_targets.py``.
    ``--sampling`` adds torch and onnxruntime rows for the same model with the exact-sweep coarse level
-   (``sampling='sweep'``; the default is the rectified shift volume). Both ranges also time the model with
-   ``downsample=1`` (the full-resolution coarse level, coarse factor 4; the default before session 7) and with
-   ``downsample=2, full_band=0`` (matching on the 2 x 2-binned capture, each pixel its block's depth: the speed
-   knob, half the lateral resolution; the narrow range also with coarse factor 4 on the binned image, where
-   the default picks 2) and, for context, StereoSGBM on the same binned halves (numDisparities halved, depth
-   converted with the binned rig's exact sweep and given to each pixel of the block as the model does); SGBM on
-   the full-resolution halves stays the reference of the "x SGBM" column.
+   (``sampling='sweep'``; the default is the rectified shift volume). Both ranges also time the pyramid with
+   ``full_band=1, band_edges='clamp'`` (the fast full-resolution setting: a band of 3, each pixel refined around its
+   centre, at most half a step beyond it, instead of rejected when the best of the three is on an edge), the model
+   with ``downsample=1`` (the full-resolution coarse level, coarse factor 4; the default before session 7) and with
+   ``downsample=2, full_band=0`` (matching on the 2 x 2-binned capture, each pixel its block's depth: the speed knob,
+   half the lateral resolution; the narrow range also with coarse factor 4 on the binned image, where the default
+   picks 2) and, for context, StereoSGBM on the same binned halves (numDisparities halved, depth converted with the
+   binned rig's exact sweep and given to each pixel of the block as the model does); SGBM on the full-resolution
+   halves stays the reference of the "x SGBM" column.
 2. **Narrow range** 600-1450 mm: the same with ``PrismStereo(rig, (600, 1450))`` (its default coarse factor,
    printed; ``--narrow-coarse-factor F`` forces one, for the binned model of the pyramid and ``downsample=1``),
    numDisparities 96 / K and ``slanted_plane(rig, 900, 30)`` (Z 878-923 mm). (A single full-resolution level,
@@ -312,19 +314,6 @@ def machine_line() -> str:
 
 
 # ----------------------------------------------------------------------------------------------- parts
-def describe_levels(model: PrismStereo) -> str:
-    """The model's levels in one phrase."""
-    def level(m: PrismStereo) -> str:
-        if m.factor == 1:
-            return f"{m.num_hypotheses} hypotheses in one level"
-        return (f"{m.num_hypotheses} hypotheses, coarse factor {m.factor} ({m.coarse_hypotheses} coarse), "
-                f"band +-{m.band}")
-    if model.binned is not None:
-        return (f"pyramid: {model.downsample}x{model.downsample}-binned model ({level(model.binned)}) + "
-                f"full-resolution band +-{model.band} of {model.num_hypotheses}")
-    return level(model) + (f", on {model.downsample}x{model.downsample}-binned pixels" if model.downsample > 1 else "")
-
-
 def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_factor: int | None, tmp: Path,
              sweep_too: bool = False):
     """Parts 1 / 2: the table of one range (with ``sweep_too`` also the model with the exact-sweep coarse
@@ -341,7 +330,7 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
     runner = OnnxDepth(path, threads=2)
     split = model.rig.reference_width
     print(f"\n== {case.name} range {case.z_range[0]:g}-{case.z_range[1]:g} mm: thesis_setup1 "
-          f"{rig.image_width}x{rig.image_height}, split {split}, default model: {describe_levels(model)}; "
+          f"{rig.image_width}x{rig.image_height}, split {split}, default model: {model.summary()}; "
           f"scene slanted_plane({case.depth_mm:g} mm, {case.slant_deg:g} deg)")
     print(f"render {t_render:.1f} s, model build {t_build:.1f} s, ONNX export {t_export:.1f} s "
           f"({path.stat().st_size / 1e6:.0f} MB), onnxruntime session load {runner.load_seconds:.1f} s")
@@ -362,6 +351,10 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
         variants.append(("torch eager, sweep coarse level", "onnxruntime, sweep coarse level", sweep_model,
                          sweep_runner))
     others = []
+    if model.binned is not None:  # the fast full-resolution setting: a thinner band, its edge pixels kept
+        fast = PrismStereo(rig, case.z_range, coarse_factor=coarse_factor, downsample=model.downsample, full_band=1,
+                           band_edges="clamp")
+        others.append(("full_band 1, band edges clamped", fast))
     if model.downsample != 1:  # the full-resolution coarse level (the default on smaller sensors)
         others.append(("downsample 1", PrismStereo(rig, case.z_range, downsample=1, coarse_factor=coarse_factor)))
     # the speed knob: matching on the 2 x 2-binned capture, each pixel its block's depth (its default coarse factor,

@@ -103,14 +103,8 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig):
     else:
         z_range, how = check_z_range(rig, args.z_range), "--z-range"
     model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses, downsample=args.downsample,
-                        full_band=args.full_band).eval()
-    k = model.downsample
-    if model.binned is not None:
-        levels = (f"{model.binned.num_hypotheses} hypotheses on {k}x{k}-binned pixels, then a full-resolution band "
-                  f"of {2 * model.band + 1} (of {model.num_hypotheses})")
-    else:
-        levels = f"{model.num_hypotheses} hypotheses" + (f", matching on {k}x{k}-binned pixels" if k > 1 else "")
-    return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {levels}"
+                        full_band=args.full_band, band_edges=args.band_edges).eval()
+    return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
 
 
 def _read_capture(path: Path, rig: BiPrismRig) -> torch.Tensor:
@@ -183,7 +177,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
 
 
 def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--downsample`` and ``--full-band``, shared by ``depth`` and ``export`` (the model's defaults when absent)."""
+    """``--downsample``, ``--full-band`` and ``--band-edges``, shared by ``depth`` and ``export`` (the model's
+    defaults when absent)."""
     parser.add_argument("--downsample", type=int, default=None, metavar="K",
                         help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser "
                              "unless --full-band); default: 2 with --full-band 2 on sensors whose reference "
@@ -192,6 +187,10 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --downsample: re-estimate every pixel at full resolution in a band of 2R+1 "
                              "hypotheses around the binned estimate (0: each pixel its block's value; "
                              "default: 0 with an explicit --downsample)")
+    parser.add_argument("--band-edges", choices=("reject", "clamp"), default="reject",
+                        help="a pixel whose best hypothesis is on the edge of its final band: invalid (reject, "
+                             "default) or refined from the edge's inner neighbour (clamp; with --full-band 1 the "
+                             "fast full-resolution setting)")
 
 
 def add_depth_parser(sub: argparse._SubParsersAction) -> None:

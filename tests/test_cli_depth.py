@@ -78,7 +78,7 @@ def test_png_round_trip_preview_and_ply(scene, tmp_path, capsys):
 def test_downsample_runs_on_binned_pixels_and_writes_the_full_grid(scene, tmp_path, capsys):
     out = tmp_path / "far.npy"
     assert _run(scene, scene / "far.png", "--out", out, "--downsample", "2") == 0
-    assert "hypotheses, matching on 2x2-binned pixels" in capsys.readouterr().out
+    assert "hypotheses in one level, on 2x2-binned pixels" in capsys.readouterr().out
     depth = np.load(out)
     assert depth.shape == (96, 64) and np.isfinite(depth).mean() > 0.4
     assert abs(np.nanmedian(depth) / FAR - 1) < 0.02
@@ -88,12 +88,25 @@ def test_downsample_runs_on_binned_pixels_and_writes_the_full_grid(scene, tmp_pa
 def test_full_band_refines_the_binned_depth_at_full_resolution(scene, tmp_path, capsys):
     out = tmp_path / "far.npy"
     assert _run(scene, scene / "far.png", "--out", out, "--downsample", "2", "--full-band", "2") == 0
-    assert "hypotheses on 2x2-binned pixels, then a full-resolution band of 5 (of " in capsys.readouterr().out
+    assert ", then a full-resolution band +-2 of " in capsys.readouterr().out
     depth = np.load(out)
     assert depth.shape == (96, 64) and np.isfinite(depth).mean() > 0.4
     assert abs(np.nanmedian(depth) / FAR - 1) < 0.02
     both = np.isfinite(depth[::2, ::2]) & np.isfinite(depth[1::2, 1::2])
     assert (depth[::2, ::2] != depth[1::2, 1::2])[both].mean() > 0.9  # no longer the block's value
+
+
+def test_band_edges_clamp_reaches_the_model(scene, tmp_path, capsys):
+    out = tmp_path / "far.npy"
+    args = ("--out", out, "--downsample", "2", "--full-band", "1")
+    assert _run(scene, scene / "far.png", *args, "--band-edges", "clamp") == 0
+    assert "band +-1 of " in (text := capsys.readouterr().out) and "band edges clamped" in text
+    clamped = np.isfinite(np.load(out)).sum()
+    assert _run(scene, scene / "far.png", *args) == 0
+    assert "band edges clamped" not in capsys.readouterr().out
+    assert clamped > np.isfinite(np.load(out)).sum()  # the band's edge pixels (more than the z-buffer removes)
+    with pytest.raises(SystemExit):
+        _run(scene, scene / "far.png", *args, "--band-edges", "widen")
 
 
 def test_png_clipping_warns(scene, tmp_path, capsys):

@@ -374,6 +374,16 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
         PrismStereo(rig, z_range, full_band=2)  # this sensor's default downsample is 1
     with pytest.raises(OptionError, match="full_band must be"):
         PrismStereo(rig, z_range, downsample=2, full_band=-1)
+    fast = PrismStereo(rig, z_range, downsample=2, full_band=1, band_edges="clamp")
+    assert fast.binned.fine.options.band_edges == "clamp" and fast.fine.options.band_edges == "clamp"
+    assert fast.config()["band_edges"] == "clamp" and PrismStereo(rig, **fast.config()).config() == fast.config()
+    assert fast.summary() == (f"2x2-binned model ({model.binned.num_hypotheses} hypotheses, rectified coarse level "
+                              f"with factor {model.binned.factor} ({model.binned.coarse_hypotheses} hypotheses), band "
+                              f"+-{model.binned.band}), then a full-resolution band +-1 of {model.num_hypotheses}, "
+                              f"band edges clamped")
+    assert model.summary().startswith("2x2-binned model (") and "band edges" not in model.summary()
+    with pytest.raises(OptionError, match="band_edges.*'reject'.*'clamp'"):
+        PrismStereo(rig, z_range, band_edges="widen")
 
 
 def test_default_is_the_pyramid_on_large_sensors_only(monkeypatch):

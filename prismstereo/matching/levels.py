@@ -69,6 +69,7 @@ class SearchOptions:
     p2: float = 8.0
     refinement: str | None = None
     min_uniqueness: float = 0.3
+    band_edges: str = "reject"
 
 
 class LevelResult(NamedTuple):
@@ -255,7 +256,10 @@ class FineBand(nn.Module):
     exact sweep: cost, box, winner, sub-pixel refinement (no SGM: the coarse level already regularised).
 
     The band is centred on each pixel's own estimate, not rounded to the hypothesis grid: rounding made the
-    parabola fits pixel-lock (quarter-res plane at 600 mm: 0.19 % -> 0.49 % mean error). The band runs over
+    parabola fits pixel-lock (quarter-res plane at 600 mm: 0.19 % -> 0.49 % mean error). A pixel whose best
+    hypothesis is on the band's edge (its match lies beyond the band) is invalid with ``options.band_edges``
+    'reject'; with 'clamp' its winner becomes the inner neighbour of that edge hypothesis, refined there (at
+    most half a step further out) and judged by that hypothesis' confidence. The band runs over
     horizontal strips whose cost and box filters see ``window // 2 + fine_box // 2`` rows beyond the strip, so
     the strips give the whole image's numbers (bitwise, measured). In torch eager strips of ~64 rows at
     1024 x 768 keep the band's (11, rows, W) volumes (~1.6 MB) in cache instead of 17 MB ones in DRAM. An
@@ -324,6 +328,8 @@ class FineBand(nn.Module):
         volume = sweep_cost(reference, warped, o.cost, o.window, o.census_threshold)
         local = box_filter(volume, o.box)
         j, _ = winner_take_all(local.detach())
+        if o.band_edges == "clamp":  # a winner on the band's edge: refined from its inner neighbour instead
+            j = j.clamp(1, 2 * self.band - 1)
         refined = _refine(o, local, local, j, o.cost, True)
         inside = (j > 0) & (j < 2 * self.band)
         frac = refined - j.to(reference.dtype)

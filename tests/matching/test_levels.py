@@ -75,6 +75,43 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     assert (whole.match - exact).abs().amax(1, keepdim=True)[whole.valid].max() < 1e-3
 
 
+def test_fine_band_edges_reject_or_clamp(plane):
+    """A pixel whose match lies beyond its band (the best hypothesis on the band's edge) is invalid with
+    band_edges='reject'; 'clamp' refines it from the edge's inner neighbour: s moves towards the truth, at most
+    half a step beyond that neighbour, with the exact sweep's match there and that hypothesis' (low) confidence.
+    Pixels whose best hypothesis is inside the band are the same either way."""
+    rig, cap = plane
+    reject = PrismStereo(rig, (450.0, 900.0), coarse_factor=2)
+    clamp = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, band_edges="clamp")
+    assert reject.fine.options.band_edges == "reject" and clamp.fine.options.band_edges == "clamp"
+    ref, other = reject.split(cap.image)
+    truth = float(depth_to_sweep(torch.tensor(600.0), torch.tensor(reject.z_range)))
+    h, w = rig.image_height, rig.reference_width
+    step, band = reject.fine.step, reject.fine.band
+    beyond = torch.zeros(1, 1, h, w, dtype=torch.bool)
+    beyond[..., w // 2:] = True  # the right half starts band + 1.5 steps off: the truth lies outside the band
+    s0 = torch.where(beyond, torch.tensor(truth - (band + 1.5) * step), torch.tensor(truth + 0.01))
+    ok0 = torch.ones_like(s0, dtype=torch.bool)
+    with torch.no_grad():
+        r = reject.fine(ref, other, s0, ok0, reject.table, reject.interval)
+        c = clamp.fine(ref, other, s0, ok0, clamp.table, clamp.interval)
+    cov = cap.covisible[..., :w]
+    assert r.valid[~beyond & cov].float().mean() > 0.95 and r.valid[beyond & cov].float().mean() < 0.02
+    for a, b in zip(r, c, strict=True):  # valid under 'reject': the same numbers
+        assert torch.equal(a[r.valid.expand_as(a)], b[r.valid.expand_as(b)])
+    clamped = c.valid & ~r.valid & beyond & cov
+    assert clamped.sum() > 0.95 * (beyond & cov).sum()
+    moved = (c.s - s0)[clamped] / step  # from the inner neighbour (band - 1 steps up) at most half a step on
+    assert float(moved.abs().min()) >= band - 1 - 1e-4 and float(moved.abs().max()) <= band - 0.5 + 1e-4
+    assert float((moved > band - 1 + 1e-3).float().mean()) > 0.9, moved.unique(return_counts=True)  # towards truth
+    cubic = local_cubic(clamp.table, c.s)
+    exact = cubic_at(cubic, cubic.u).squeeze(1).permute(0, 3, 1, 2)
+    assert (c.match - exact).abs().amax(1, keepdim=True)[clamped].max() < 1e-3
+    # that hypothesis is still 1-1.5 steps from the truth: it matches worse than the true match (measured
+    # median NCC 0.70 against ~0.99), so min_confidence / reach_confidence can still reject it
+    assert c.confidence[clamped].median() < r.confidence[r.valid].median() - 0.2
+
+
 def test_similarity_reference_values():
     torch.testing.assert_close(similarity(torch.tensor([0.0, 0.25, 2.0]), "zncc", 1, 5),
                                torch.tensor([1.0, 0.75, 0.0]))
