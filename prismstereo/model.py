@@ -243,8 +243,9 @@ class PrismStereo(nn.Module):
             --band-edges clamp`` (205-1511 mm) gave mean errors 0.014-0.096 % (setup 1) and 0.012-0.079 %
             (setup 2), coverage 96.9-99.6 % and 96.3-98.7 %, slanted plane 0.030 / 0.025 %, step 0.046 /
             0.034 % (the default pyramid: 0.015-0.088 %, 0.012-0.065 %, 97.2-99.5 %, 95.8-98.7 %, 0.029 / 0.020 %,
-            0.043 / 0.029 %), false matches at setup 2's 1374 mm 2.0 % of the valid pixels (1.2 %), in 0.92x the
-            default's onnxruntime time (79 against 86 ms per frame, one quiet A/B; 0.83x in a busy phase);
+            0.043 / 0.029 %), false matches at setup 2's 1374 mm 2.0 % of the valid pixels (1.2 %), in 0.86-0.92x the
+            default's onnxruntime time (``benchmarks/onnx_speed.py``, setup 1, 228-1374 mm: 79.8 against 93.0
+            ms per frame, 1.13x OpenCV SGBM's 70.5 ms; 79 against 86 ms in an A/B);
             without 'clamp' R = 1 covered 91.3-96.9 % on setup 2. With R = 2, 'clamp' covered 0.1-1.2 points
             more on setup 2 (worst 96.3 %) at up to +0.008 points of mean error and ~1.8x the false matches at
             1374 mm.
@@ -535,6 +536,9 @@ class PrismStereo(nn.Module):
         of 8 images a fresh mmap). ``benchmarks/onnx_speed.py``, nine runs with ``downsample=1``: batch 8 gave
         1.04-1.28x the images/s of batch 1 (~185-240 ms per image at batch 1); the pyramid 1.07x in one run.
         Sub-batches of 2 or 4 images per worker gave 104 / 116 against 108 ms per image (pyramid, batch 8).
+        The ceiling is the machine: two images at once on one thread each cost 281 ms of CPU per image against
+        217 ms for one image alone (the pyramid; the two cores slow each other down), while a second intra-op
+        thread already makes one image 1.38x faster; session 8 measured 1.16x / 1.24x for batch 8.
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
         b = image.shape[0]
