@@ -438,7 +438,8 @@ class PrismStereo(nn.Module):
                     f"({m.coarse_hypotheses} hypotheses), band +-{m.band}")
 
         k = self.downsample
-        edges = ", band edges clamped" if self.band_edges == "clamp" else ""
+        has_band = self.binned is not None or self.factor > 1  # a single level has no band to clamp
+        edges = ", band edges clamped" if self.band_edges == "clamp" and has_band else ""
         if self.binned is not None:
             return (f"{k}x{k}-binned model ({level(self.binned)}), then a full-resolution band +-{self.band} of "
                     f"{self.num_hypotheses}{edges}")

@@ -382,6 +382,8 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
                               f"+-{model.binned.band}), then a full-resolution band +-1 of {model.num_hypotheses}, "
                               f"band edges clamped")
     assert model.summary().startswith("2x2-binned model (") and "band edges" not in model.summary()
+    single = PrismStereo(rig, z_range, coarse_factor=1, band_edges="clamp")  # no band: nothing to clamp
+    assert single.summary() == f"{single.num_hypotheses} hypotheses in one level"
     with pytest.raises(OptionError, match="band_edges.*'reject'.*'clamp'"):
         PrismStereo(rig, z_range, band_edges="widen")
 
