@@ -67,12 +67,10 @@ from torch import nn
 
 from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.range import default_z_range
-from prismstereo.epipolar.row_rectify import fit_row_rectification, level_coverage, rectified_level
-from prismstereo.epipolar.sweep import SweepFit, fit_sweep, sweep_coefficients, sweep_to_depth
+from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.epipolar.table import (
     cubic_at,
     local_cubic,
-    positions_at,
     sweep_hypotheses,
     tabulate_sweep,
     valid_interval,
@@ -80,16 +78,10 @@ from prismstereo.epipolar.table import (
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.matching.build import build_search
 from prismstereo.matching.cost import COSTS, Cost
-from prismstereo.matching.levels import (
-    FineBand,
-    RectifiedSearch,
-    SearchOptions,
-    SweepSearch,
-    extend_estimate,
-)
+from prismstereo.matching.levels import FineBand, SearchOptions, extend_estimate
 from prismstereo.matching.split import SplitImage
-from prismstereo.matching.sweep_cost import warp_slices
 
 __all__ = ["DepthResult", "PrismStereo", "Refinement", "Sampling", "sweep_hypotheses"]
 
@@ -391,8 +383,13 @@ class PrismStereo(nn.Module):
                                 aggregation=aggregation, directions=directions, p1=p1, p2=p2, refinement=refinement,
                                 min_uniqueness=min_uniqueness)
         # the coarse level: a pyramid's is the binned model
-        self.search = None if self.binned is not None else self._search_level(
-            rig, fit, fine, options, num_hypotheses, other_valid, lr_threshold)
+        self.search = None
+        if self.binned is None:
+            built = build_search(rig, fit, fine, options, self.sampling, coarse_factor, num_hypotheses, other_valid,
+                                 lr_threshold)
+            self.search = built.search
+            if built.rectification_residual_px is not None:
+                self.rectification_residual_px = built.rectification_residual_px
         self.coarse_hypotheses = (self.search if self.binned is None else self.binned).num_hypotheses
         if coarse_factor > 1:
             fine_options = dataclasses.replace(options, cost=fine_cost, box=fine_box, band_edges=band_edges)
@@ -480,41 +477,6 @@ class PrismStereo(nn.Module):
         while f < 4 and num_hypotheses / (2 * f) >= 24 and min(height, width) / (2 * f) >= 32:
             f *= 2
         return f
-
-    def _search_level(self, rig: BiPrismRig, fit: SweepFit, fine: torch.Tensor, options: SearchOptions,
-                      num_hypotheses: int, other_valid: torch.Tensor, lr_threshold: float | None) -> nn.Module:
-        """The coarse (or single) level's search over the full range (see the module docstring)."""
-        h, w_ref, f64 = rig.image_height, rig.reference_width, torch.float64
-        if self.sampling == "rectified":  # a 1-D shift volume on row-rectified halves
-            rect = fit_row_rectification(rig, fit)
-            self.rectification_residual_px = rect.max_residual_px
-            level = rectified_level(rect, fit, self.factor, other_valid)
-            return RectifiedSearch(options, level, self.factor, self.split.split, lr_threshold)
-        if self.factor == 1:
-            return SweepSearch(options, self._normalised(fine, 1).float(), num_hypotheses, other_valid=other_valid)
-        fc = self.factor
-        hc, wc = math.ceil(h / fc), math.ceil(w_ref / fc)
-        uvc = (torch.stack(torch.meshgrid(torch.arange(wc, dtype=f64), torch.arange(hc, dtype=f64),
-                                          indexing="xy"), -1) + 0.5) * fc - 0.5
-        coarse = sweep_coefficients(fit, uvc).permute(2, 0, 1, 3)
-        valid_c = level_coverage(other_valid, fc) > 0.999
-        # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
-        num_c = sweep_hypotheses(coarse / fc)
-        probe = torch.zeros(1, 1, valid_c.shape[0], valid_c.shape[1], dtype=f64)
-        coarse = self._normalised(coarse, fc)  # grid_sample units of the coarse other image
-        grid_c = positions_at(coarse, torch.linspace(-1.0, 1.0, num_c, dtype=f64))
-        valid = warp_slices(probe, grid_c.unsqueeze(0), valid_c).valid[0]
-        return SweepSearch(options, coarse.float(), num_c, valid=valid)
-
-    def _normalised(self, coefficients: torch.Tensor, factor: int) -> torch.Tensor:
-        """Map pixel-unit polynomials of full-sensor positions to grid_sample coordinates (align_corners=False)
-        of the other half, padded to a multiple of ``factor`` (the coarse level's box downsampling): the map is
-        affine, so only T_0's coefficient gets the offset."""
-        h, w_o = self.split.height, self.split.width - self.split.split
-        width, height = math.ceil(w_o / factor) * factor, math.ceil(h / factor) * factor
-        scale = coefficients.new_tensor([2.0 / width, 2.0 / height])
-        offset = coefficients.new_tensor([(1.0 - 2.0 * self.split.split) / width - 1.0, 1.0 / height - 1.0])
-        return torch.cat([coefficients[:1] * scale + offset, coefficients[1:] * scale])
 
     def _downsample(self, image: torch.Tensor) -> torch.Tensor:
         f = self.factor

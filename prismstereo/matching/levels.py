@@ -12,7 +12,8 @@ like RAFT-Stereo's correlation blocks:
   (:func:`~prismstereo.epipolar.table.column_to_sweep`), resampled onto the unrectified pixels.
 
 :class:`FineBand` then re-estimates every full-resolution pixel in a band of hypotheses around an estimate,
-on the exact sweep (:mod:`prismstereo.epipolar.table`).
+on the exact sweep (:mod:`prismstereo.epipolar.table`). :mod:`prismstereo.matching.build` builds a rig's
+search.
 """
 
 from __future__ import annotations
