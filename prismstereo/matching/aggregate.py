@@ -73,142 +73,143 @@ def _counts(n: int, r: int, like: torch.Tensor) -> torch.Tensor:
 
 
 def _neighbour_max(q: torch.Tensor) -> torch.Tensor:
-    """max(q(d - 1), q(d + 1)) over the hypothesis axis 2 of (B, 1, D, X) (one neighbour at the ends); in an
+    """max(q(d - 1), q(d + 1)) over the hypothesis axis 2 of (N, 1, D, X) (one neighbour at the ends); in an
     ONNX export max(q(d - 1), q(d), q(d + 1)), the same inside :func:`_scan`."""
     if torch.onnx.is_in_onnx_export():
         return F.max_pool2d(q, (3, 1), stride=1, padding=(1, 0))
     return torch.cat([q[:, :, 1:2], torch.maximum(q[:, :, :-2], q[:, :, 2:]), q[:, :, -2:-1]], 2)
 
 
-def _scan(
-    slices: tuple[torch.Tensor, ...],
-    p1: float,
-    p2: float,
-    reverse: bool,
-    shift: int = 0,
-    p2s: tuple[torch.Tensor, ...] | None = None,
-) -> torch.Tensor:
-    """One scan direction in negated form over ``slices``, the (B, 1, D, X) slices -C of a volume along the
-    scanned axis; returns -L_r stacked along axis 3, (B, 1, D, N, X). ``p2s``: optional (B, 1, 1, X) per-slice
-    jump penalties (into that slice).
+def _scan(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
+          p2s: torch.Tensor | None = None) -> torch.Tensor:
+    """One forward scan along axis 0 of ``volume`` = -C (S, N, D, X) in negated form; returns -L_r, same shape.
+    ``p2s``: optional (S, N, 1, X) jump penalties (into each slice).
 
-    Negated, the recursion is Q(p) = -C(p) + max(Q', N(Q') - P1, M - P2) - M with Q' = Q(p - r),
-    M = max_d Q' and N the neighbours' maximum max(Q'(d - 1), Q'(d + 1)). In an ONNX export N is one MaxPool
-    over 3 hypotheses (it also covers d itself, which cannot win there since P1 >= 0): 8 graph nodes per scan
-    step instead of 13 (ONNX has a MaxPool, no MinPool), export 24 -> 10 s and ~30 ms less per onnxruntime
-    frame at 1024 x 768. Differentiable torch eager keeps the Slice / Maximum / Concat form (its max_pool2d
-    also computes indices: 100 us per step against 20 us); without autograd :func:`_scan_eager` computes the
-    same values faster. The values are bitwise those of the plain recursion (negation is exact; min, max and
-    the same additions in the same order). A ``shift`` of +-1 makes the scan diagonal: the predecessor of
-    position x in a slice is x - shift in the previous slice.
+    Negated, the recursion is Q(p) = -C(p) + max(Q_n, N(Q_n) - P1, -P2) with Q_n = Q(p - r) - max_d Q(p - r)
+    the predecessor normalised to a maximum of 0 and N the neighbours' maximum max(Q_n(d - 1), Q_n(d + 1)) (the
+    same numbers as max(Q', N(Q') - P1, M - P2) - M up to rounding; normalised first, the P2 term is a Clip at
+    -P2, one graph node less). In an ONNX export N is one MaxPool over 3 hypotheses (it also covers d itself,
+    which cannot win there since P1 >= 0): 7 graph nodes per scan step (ReduceMax, Sub, MaxPool, Sub, Max,
+    Clip, Add; ONNX has a MaxPool, no MinPool). The slices are taken along axis 1 with one Split and the steps
+    concatenated back along it (no Squeeze / Unsqueeze per step). Differentiable torch eager keeps the Slice /
+    Maximum / Concat form (its max_pool2d also computes indices: 100 us per step against 20 us); without
+    autograd :func:`_scan_eager` computes the same values faster (the same operations in the same order:
+    bitwise). A ``shift`` of 1 makes the scan diagonal: the predecessor of position x in a slice is x - 1 in
+    the previous slice.
     """
-    order = range(len(slices) - 1, -1, -1) if reverse else range(len(slices))
-    out: list[torch.Tensor] = [slices[0].new_empty(0)] * len(slices)
-    prev = None
-    starts = _starts(slices[0], shift)
-    for i in order:
-        c = slices[i]
-        if prev is None:
-            cur = c
-        else:
-            if shift:  # diagonal: row y continues the path of row y - shift in the previous column
-                prev = torch.roll(prev, shifts=shift, dims=-1)  # rows without a predecessor are reset below
-            big = prev.amax(dim=2, keepdim=True)  # amax: max(dim) also computes indices, ~1000x slower here
-            near = _neighbour_max(prev)
-            jump = p2 if p2s is None else p2s[i]
-            cur = c + torch.maximum(torch.maximum(prev, near - p1), big - jump) - big
-            if shift:
-                cur = torch.where(starts, cur, c)
-        out[i] = cur
-        prev = cur
-    return torch.stack(out, dim=3)
+    s, n, d, x = volume.shape
+    # a rank-changing Reshape before the Split: onnxruntime's transpose optimizer cannot push the orienting
+    # Transposes through it (it folded them into a strided Split along the last axis: 5 ms instead of ~0.5)
+    slices = [t.view(1, n, d, x) for t in volume.reshape(s, n * d * x).split(1, dim=0)]
+    floors = None if p2s is None else [-t.view(1, n, 1, x) for t in p2s.reshape(s, n * x).split(1, dim=0)]
+    starts = _starts(volume, shift)
+    out = [slices[0]]
+    for i in range(1, len(slices)):
+        prev = out[-1]
+        if shift:  # diagonal: position x continues the path of x - 1 in the previous slice
+            prev = torch.roll(prev, shifts=shift, dims=-1)  # positions without a predecessor are reset below
+        prev = prev - prev.amax(dim=2, keepdim=True)  # amax: max(dim) also computes indices, ~1000x slower here
+        best = torch.maximum(prev, _neighbour_max(prev) - p1)
+        best = best.clamp_min(-p2) if floors is None else torch.maximum(best, floors[i])
+        cur = slices[i] + best
+        if shift:
+            cur = torch.where(starts, cur, slices[i])
+        out.append(cur)
+    return torch.cat(out, dim=0)
 
 
-def _scan_eager(slices: tuple[torch.Tensor, ...], p1: float, p2: float, reverse: bool, shift: int = 0,
-                p2s: tuple[torch.Tensor, ...] | None = None) -> torch.Tensor:
-    """:func:`_scan` (same arguments) without autograd, same values bitwise: (B, 1, D, N, X), a view of one preallocated
-    (B, 1, D + 2, N, X) buffer whose rows 0 and D + 1 are -inf. Each step writes into its slice of the buffer,
-    and the neighbours' maximum of the previous step is one ``maximum`` of its rows shifted by +-1 (no Concat
-    per step, no stack of the N steps at the end). Measured on a (1, 95, 193, 128) volume, 4 directions,
-    2 threads, with the contiguous W-axis slices and in-place sums of :func:`_paths`: 62 -> 48 ms (the
-    coarse level of a 1024 x 768 frame)."""
-    b, _, d, x = slices[0].shape
-    n = len(slices)
-    out = slices[0].new_empty(b, 1, d + 2, n, x)
+def _scan_eager(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
+                p2s: torch.Tensor | None = None) -> torch.Tensor:
+    """:func:`_scan` (same arguments) without autograd, same values bitwise: (S, N, D, X), a view of one
+    preallocated (S, N, D + 2, X) buffer whose rows 0 and D + 1 are -inf. Each step writes into its slice of the
+    buffer, and the neighbours' maximum of the previous step is one ``maximum`` of its rows shifted by +-1 (no
+    Concat per step, no concatenation of the steps at the end)."""
+    s, n, d, x = volume.shape
+    out = volume.new_empty(s, n, d + 2, x)
     out[:, :, 0].fill_(float("-inf"))
     out[:, :, d + 1].fill_(float("-inf"))
-    order = range(n - 1, -1, -1) if reverse else range(n)
-    starts = _starts(slices[0], shift)
-    last = None
-    for i in order:
-        c, cur = slices[i], out[:, :, 1:d + 1, i]
-        if last is None:
-            cur.copy_(c)
-        else:
-            padded = out[:, :, :, last]
-            if shift:  # diagonal: row y continues the path of row y - shift in the previous column
-                padded = torch.roll(padded, shifts=shift, dims=-1)  # rows without a predecessor: reset below
-            prev = padded[:, :, 1:d + 1]
-            big = prev.amax(dim=2, keepdim=True)
-            near = torch.maximum(padded[:, :, :d], padded[:, :, 2:])
-            jump = p2 if p2s is None else p2s[i]
-            torch.add(c, torch.maximum(torch.maximum(prev, near - p1), big - jump), out=cur).sub_(big)
-            if shift:
-                cur.copy_(torch.where(starts, cur, c))
-        last = i
+    out[0, :, 1:d + 1].copy_(volume[0])
+    starts = _starts(volume, shift)
+    floors = None if p2s is None else -p2s
+    for i in range(1, s):
+        c, cur, padded = volume[i], out[i, :, 1:d + 1], out[i - 1]
+        if shift:  # diagonal: position x continues the path of x - 1 in the previous slice
+            padded = torch.roll(padded, shifts=shift, dims=-1)  # positions without a predecessor: reset below
+        padded = padded - padded[:, 1:d + 1].amax(dim=1, keepdim=True)  # the -inf rows stay -inf
+        prev = padded[:, 1:d + 1]
+        best = torch.maximum(prev, torch.maximum(padded[:, :d], padded[:, 2:]).sub_(p1))
+        best = best.clamp_min_(-p2) if floors is None else torch.maximum(best, floors[i], out=best)
+        torch.add(c, best, out=cur)
+        if shift:
+            cur.copy_(torch.where(starts, cur, c))
     return out[:, :, 1:d + 1]
 
 
 def _starts(like: torch.Tensor, shift: int) -> torch.Tensor:
-    """(X,) positions of a slice that have a predecessor in a diagonal scan with this ``shift``."""
-    rows = torch.arange(like.shape[-1], device=like.device)
-    return (rows >= shift) if shift >= 0 else (rows < rows.shape[0] + shift)
+    """(X,) positions of a slice that have a predecessor in a scan with this ``shift`` (0 or 1)."""
+    return torch.arange(like.shape[-1], device=like.device) >= shift
+
+
+def _flips(reverse: bool, shift: int) -> list[int]:
+    """Axes of an oriented (S, B, C, X) volume to flip: S for a reverse scan, X for a shift of -1."""
+    return ([0] if reverse else []) + ([3] if shift < 0 else [])
+
+
+def _orient(t: torch.Tensor, dim: int, reverse: bool, shift: int) -> torch.Tensor:
+    """(B, C, H, W) -> (S, B, C, X) such that the scan (``dim``, ``reverse``, ``shift``) runs forward along S
+    with a shift of 0 or 1: S = W, X = H for ``dim`` 3, S = H, X = W for ``dim`` 2; a reverse scan flips S and
+    a shift of -1 flips X."""
+    t = t.permute(3, 0, 1, 2) if dim == 3 else t.permute(2, 0, 1, 3)
+    flips = _flips(reverse, shift)
+    return t.flip(flips) if flips else t
 
 
 def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
            p2_maps: list[torch.Tensor] | None = None) -> torch.Tensor:
-    """Sum of the scan paths of ``directions`` over ``negated`` = -C (B, 1, D, H, W), negated form; ``p2_maps``
+    """Sum of the scan paths of ``directions`` over ``negated`` = -C (B, D, H, W), negated form; ``p2_maps``
     optional (B, 1, H, W) jump penalties per direction (in ``_DIRECTIONS`` order).
 
-    The directions along one axis share one slicing of the volume (one Split instead of one per direction:
-    onnxruntime takes ~7 ms to split a (95, 128, 193) volume along its last axis), and the scans along W stack
-    their slices on axis 3 of the volume transposed to (B, 1, D, W, H), then transpose the sum back once
-    (stacking along the last axis is a strided copy, ~6 ms per direction there, the transpose ~2.6 ms).
-    (onnxruntime's transpose optimizer folds the input-side transpose into the Split, which stays strided.)
-    The sum keeps the order of ``_DIRECTIONS`` for 2 and 4 directions (bitwise as one path after the other);
-    8 directions add the diagonal (W-axis) paths before the vertical ones. In torch eager without autograd the
-    scans are :func:`_scan_eager`, the transposed volume is made contiguous once, and the paths are summed in
-    place into the scans' own buffers (each fresh volume-sized sum costs page faults); the same values.
+    The scans of one shape run at once: each direction's volume is oriented so that its scan runs forward
+    along the first axis (:func:`_orient`) and the directions along one axis are stacked on the batch axis, so
+    one scan computes both horizontal paths, one both vertical ones, and one the four diagonal ones (8
+    directions; those with a shift of -1 flipped to +1). The paths along one axis are summed in their oriented
+    layout (the W-axis ones in ``_DIRECTIONS`` order), the two sums transposed back and added. Without autograd
+    in torch eager the scans are :func:`_scan_eager` and the sums are taken in place.
+
+    Measured on the 1/8-resolution coarse volume of a 1024 x 768 frame ((1, 49, 64, 97), 4 directions,
+    2 threads, medians of 20 alternating runs): onnxruntime 13.0-14.3 -> 10.4-10.9 ms (half the graph nodes:
+    161 scan steps instead of 322), torch eager 11-18 -> 7-8 ms. Stacking all four directions into one scan
+    of max(H, W) steps (zero-padding the vertical volume to square) was no faster in onnxruntime: 1.5x the
+    elements per step outweighed the fewer nodes (~2 us each).
     """
     fast = not torch.onnx.is_in_onnx_export() and not (torch.is_grad_enabled() and negated.requires_grad)
     scan = _scan_eager if fast else _scan
-
-    def add(acc: torch.Tensor | None, path: torch.Tensor) -> torch.Tensor:  # in place into our own buffers
-        return path if acc is None else acc.add_(path) if fast else acc + path
-
-    total = None
-    for dim in (3, 2):  # the scanned axis of (B, D, H, W): 3 = along W (rows), 2 = along H (columns)
-        chosen = [(i, reverse, shift) for i, (d, reverse, shift) in enumerate(_DIRECTIONS[directions]) if d == dim]
-        if not chosen:
-            continue
-        volume = negated.transpose(3, 4) if dim == 3 else negated
-        if dim == 3 and fast:  # contiguous slices (a fresh transposed copy; strided slices made each step slow)
-            volume = volume.contiguous()
-        slices = volume.unbind(3)
-        acc = None
-        for i, reverse, shift in chosen:
-            p2s = None
-            if p2_maps is not None:
-                p2_map = p2_maps[i].unsqueeze(1)  # (B, 1, 1, H, W)
-                p2s = (p2_map.transpose(3, 4) if dim == 3 else p2_map).unbind(3)
-            path = scan(slices, p1, p2, reverse, shift, p2s)
-            if dim == 3:
-                acc = add(acc, path)
+    chosen = _DIRECTIONS[directions]
+    b = negated.shape[0]
+    sums: dict[int, torch.Tensor] = {}  # per scanned axis, in its oriented (S, B, D, X) layout
+    for kind in dict.fromkeys((dim, bool(shift)) for dim, _, shift in chosen):  # same-shape groups
+        group = [i for i, (dim, _, shift) in enumerate(chosen) if (dim, bool(shift)) == kind]
+        stacked = torch.cat([_orient(negated, *chosen[i]) for i in group], 1)
+        p2s = None
+        if p2_maps is not None:
+            p2s = torch.cat([_orient(p2_maps[i].expand(b, -1, -1, -1), *chosen[i]) for i in group], 1)
+        out = scan(stacked, p1, p2, 1 if chosen[group[0]][2] else 0, p2s)
+        for k, i in enumerate(group):
+            dim, reverse, shift = chosen[i]
+            path = out[:, k * b:(k + 1) * b]
+            flips = _flips(reverse, shift)
+            path = path.flip(flips) if flips else path
+            if dim not in sums:
+                sums[dim] = path  # in eager summed in place: into the scan's own buffer
             else:
-                total = add(total, path)
-        if acc is not None:
-            total = add(total, acc.transpose(3, 4))
-    return total
+                sums[dim] = sums[dim].add_(path) if fast else sums[dim] + path
+    along_w = sums[3].permute(1, 2, 3, 0)  # (W, B, D, H) -> (B, D, H, W)
+    if 2 not in sums:
+        return along_w.contiguous() if fast else along_w
+    along_h = sums[2].permute(1, 2, 0, 3)  # (H, B, D, W) -> (B, D, H, W)
+    if fast:
+        return torch.add(along_w, along_h, out=torch.empty_like(negated, memory_format=torch.contiguous_format))
+    return along_w + along_h
 
 
 def sgm_aggregate(cost: torch.Tensor, p1: float, p2: float, directions: int = 4) -> torch.Tensor:
@@ -230,7 +231,7 @@ def sgm_aggregate(cost: torch.Tensor, p1: float, p2: float, directions: int = 4)
         raise OptionError(f"directions must be one of {sorted(_DIRECTIONS)}, got {directions!r}")
     if not 0 <= p1 <= p2:
         raise OptionError(f"need 0 <= p1 <= p2, got p1={p1}, p2={p2}")
-    return -_paths(-cost.unsqueeze(1), p1, p2, directions).squeeze(1)
+    return -_paths(-cost, p1, p2, directions)
 
 
 def sgm_aggregate_guided(
@@ -281,4 +282,4 @@ def sgm_aggregate_guided(
         before = torch.roll(guide, shifts=(dy, dx), dims=(2, 3))
         jump = (guide - before).abs().amax(dim=1, keepdim=True)
         p2_maps.append((p2 / (1 + jump / edge)).clamp_min(p1))
-    return -_paths(-cost.unsqueeze(1), p1, p2, directions, p2_maps).squeeze(1)
+    return -_paths(-cost, p1, p2, directions, p2_maps)

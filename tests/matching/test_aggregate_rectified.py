@@ -84,8 +84,29 @@ def test_box_and_sgm_exported_graphs_match_eager(tmp_path):
     torch.onnx.export(Graph(), (cost,), str(path), input_names=["volume"], opset_version=18, dynamo=False)
     ops = {node.op_type for node in __import__("onnx").load(str(path)).graph.node}
     assert {"AveragePool", "MaxPool"} <= ops and "Conv" not in ops
+    # the directions of one shape share one scan: W-axis pair, H-axis pair, the four diagonals; one MaxPool
+    # per step after the first (76 with one scan per direction)
+    pools = sum(node.op_type == "MaxPool" for node in __import__("onnx").load(str(path)).graph.node)
+    assert pools == (11 - 1) + (9 - 1) + (11 - 1)
     out = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"volume": cost.numpy()})[0]
     torch.testing.assert_close(torch.from_numpy(out), Graph()(cost), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("grad", [False, True])
+def test_stacked_scans_keep_batch_items_apart(grad):
+    """The scans stack directions on the batch axis: each item of a batch (and a guide of batch 1 shared by
+    all) gives what it gives alone, with and without autograd."""
+    gen = torch.Generator().manual_seed(5)
+    cost = torch.rand(3, 4, 6, 5, generator=gen, dtype=F64, requires_grad=grad)
+    guide = torch.rand(1, 2, 6, 5, generator=gen, dtype=F64)
+    for directions in (2, 4, 8):
+        whole = sgm_aggregate_guided(cost, guide, 0.3, 1.1, 0.1, directions)
+        plain = sgm_aggregate(cost, 0.3, 1.1, directions)
+        for i in range(3):
+            torch.testing.assert_close(whole[i:i + 1], sgm_aggregate_guided(cost[i:i + 1], guide, 0.3, 1.1, 0.1,
+                                                                             directions), rtol=0, atol=0)
+            torch.testing.assert_close(plain[i:i + 1], sgm_aggregate(cost[i:i + 1], 0.3, 1.1, directions),
+                                       rtol=0, atol=0)
 
 
 def test_guided_sgm_matches_reference_recursion():
