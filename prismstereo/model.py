@@ -20,8 +20,8 @@ The layers, in order:
    sub-pixel refinement, uniqueness confidence; the estimate is extended by ``coarse_reach`` coarse pixels
    into invalid neighbours (:func:`~prismstereo.matching.levels.extend_estimate`).
 4. **Fine level**: the coarse estimate upsampled to full resolution; a band of 2 R + 1 hypotheses (<= 1 px
-   apart) around it per pixel, evaluated on the exact per-pixel sweep (a table with local cubics,
-   :mod:`prismstereo.epipolar.table`, within 1e-3 px of the polynomials); cost, box, winner and
+   apart) around it per pixel, evaluated on the exact per-pixel sweep (truncated power series,
+   :mod:`prismstereo.epipolar.table`, within ~2e-4 px of the polynomials); cost, box, winner and
    sub-pixel refinement (equiangular, parabola or a differentiable local soft-argmin).
    With f = 1 the full range is searched at full resolution in one level (the reference mode).
 5. Depth from the sweep coordinate (exact: s is linear in 1/Z), validity (inside the common field of view,
@@ -69,9 +69,9 @@ from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.range import default_z_range
 from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.epipolar.table import (
-    cubic_at,
-    local_cubic,
+    series_at,
     sweep_hypotheses,
+    sweep_series,
     tabulate_sweep,
     valid_interval,
 )
@@ -372,13 +372,12 @@ class PrismStereo(nn.Module):
         self.register_buffer("other_valid", other_valid)
         self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, num_hypotheses, dtype=f64),
                                                       fit.z_range).float())
-        # the fine level and the match output evaluate the sweep from a table of positions at K coordinates
-        # by local cubics (<= 1e-3 px from the polynomials; 4 gathers + one matrix product for the band
-        # instead of N basis terms per sample), and the band's validity from each pixel's interval of real
-        # samples; the single-level search keeps the polynomials (one matrix product for all hypotheses)
-        table = tabulate_sweep(fine)
-        self.register_buffer("table", table.float())
-        self.register_buffer("interval", valid_interval(table.float(), other_valid, self.split.split))
+        # the fine level and the match output evaluate the sweep as truncated power series in s (Horner's rule:
+        # no table lookups; ~2e-4 px from the polynomials) and the band's validity from each pixel's interval of
+        # real samples (found on a table of positions, at build time only); the single-level search keeps the
+        # polynomials (one matrix product for all hypotheses)
+        self.register_buffer("series", sweep_series(fine).float())
+        self.register_buffer("interval", valid_interval(tabulate_sweep(fine).float(), other_valid, self.split.split))
         options = SearchOptions(cost=cost, window=window, census_threshold=self.census_threshold, box=box,
                                 aggregation=aggregation, directions=directions, p1=p1, p2=p2, refinement=refinement,
                                 min_uniqueness=min_uniqueness)
@@ -576,15 +575,14 @@ class PrismStereo(nn.Module):
 
             s0 = up(s_c, "bilinear")
             s, ok, confidence, match = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), up(reach) > 0.5,
-                                                 self.table, self.interval)
+                                                 self.series, self.interval)
             if self.coarse_reach:  # pixels the coarse level only reached from a neighbour: a stricter match
                 ok = ok & ((up(valid_c) > 0.5) | (confidence >= self.reach_confidence))
         s = s.clamp(-1.0, 1.0)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
-        if match is None:  # the fine band interpolates its samples; otherwise from the table at s
-            cubic = local_cubic(self.table.to(s), s)
-            match = cubic_at(cubic, cubic.u).squeeze(1).permute(0, 3, 1, 2)
+        if match is None:  # the fine band interpolates its samples; otherwise the series at s
+            match = torch.cat(series_at(self.series, s), 1)
         valid = ok & self.reference_valid & (confidence >= self.min_confidence)
         if self.occlusion_tolerance is not None:
             occluders = None if self.occluder_confidence is None else valid & (confidence >= self.occluder_confidence)

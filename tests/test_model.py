@@ -181,7 +181,7 @@ def test_soft_argmin_refinement_passes_gradients_to_the_image():
 def test_model_buffers_batch_and_errors(setup1_model):
     rig, model = setup1_model
     buffers = dict(model.named_buffers())
-    assert {"table", "reference_valid", "other_valid", "depths"} <= set(buffers)
+    assert {"series", "reference_valid", "other_valid", "depths"} <= set(buffers)
     assert ("search.coefficients" in buffers) == (model.sampling == "sweep")
     assert hasattr(model, "fine") == (model.factor > 1)
     assert model.depths.shape == (model.num_hypotheses,)

@@ -1,15 +1,22 @@
-"""The per-pixel sweep as a table: fast evaluation of m(u, v, s) near a per-pixel coordinate, and the
-interval of s where a reference pixel's correspondence is a real other-half sample.
+"""The per-pixel sweep in forms that are fast to evaluate: a power series for the fine band's samples, a
+table for inverting it, and the interval of s where a reference pixel's correspondence is a real
+other-half sample.
 
 :mod:`prismstereo.epipolar.sweep` gives each reference pixel's correspondence m(s) (s linear in 1/Z) as a
-Chebyshev polynomial of degree N - 1; evaluating it costs N terms per sample. A coarse-to-fine search needs
-m at a few coordinates s0 + j step around a per-pixel estimate s0, for every pixel: here m is tabulated at K
-uniform coordinates (:func:`tabulate_sweep`), the 4 entries around s0 give a local cubic
-(:func:`local_cubic`; Lagrange through u = -1, 0, 1, 2 in table units), and the whole band is one matrix
-product of that cubic's coefficients with the powers of j (:func:`band_positions`). K is the smallest of
-17, 33, 65 keeping the cubics within ``tolerance_px`` of the polynomial: measured over 205-1511 mm at full
-resolution, K = 17 gives 4e-6 px for ``thesis_setup1``, K = 33 gives 7e-4 px for ``thesis_setup2`` (whose
-correspondences bend more; K = 65: 5e-5 px).
+Chebyshev polynomial of degree N - 1 (~1e-10 px); evaluating it costs N terms per sample.
+
+* :func:`sweep_series`: the same polynomials truncated to the lowest degree D whose dropped Chebyshev terms
+  stay within ``tolerance_px`` at every pixel, as power series in s, planar per coordinate; :func:`series_at`
+  evaluates them at per-pixel coordinates by Horner's rule, 2 D multiply-adds per sample and coordinate
+  and no table lookups. Over 228-1374 mm at 1024 x 768 ``thesis_setup1`` needs D = 4 (its correspondences are
+  nearly linear in s), ``thesis_setup2`` D = 9; float32 evaluation adds ~6e-5 px of rounding (measured
+  against the float64 polynomials: 1.1e-4 / 1.0e-4 px in all). The fine band of
+  :class:`~prismstereo.matching.levels.FineBand` samples through it.
+* :func:`tabulate_sweep`: m tabulated at K uniform coordinates; the 4 entries around s give a local cubic
+  (:func:`local_cubic`; Lagrange through u = -1, 0, 1, 2 in table units). K is the smallest of 17, 33, 65
+  keeping the cubics within ``tolerance_px`` of the polynomial: measured over 205-1511 mm at full
+  resolution, K = 17 gives 4e-6 px for ``thesis_setup1``, K = 33 gives 7e-4 px for ``thesis_setup2`` (whose
+  correspondences bend more; K = 65: 5e-5 px). :func:`column_to_sweep` inverts it (Newton on the cubics).
 
 :func:`valid_interval` finds, per reference pixel, the interval [s_lo, s_hi] of coordinates whose sample has
 every bilinear tap inside the other half on a pixel that sees through the prism (the test of
@@ -29,8 +36,8 @@ from prismstereo.epipolar.sweep import chebyshev_basis
 from prismstereo.errors import OptionError, ShapeError, check_shape
 
 __all__ = [
-    "LocalCubic", "TABLE_SIZES", "band_positions", "column_to_sweep", "cubic_at", "local_cubic", "positions_at",
-    "sweep_hypotheses", "tabulate_sweep", "valid_interval",
+    "LocalCubic", "TABLE_SIZES", "column_to_sweep", "cubic_at", "local_cubic", "positions_at", "series_at",
+    "sweep_hypotheses", "sweep_series", "tabulate_sweep", "valid_interval",
 ]
 
 TABLE_SIZES = (17, 33, 65)  # candidate numbers of tabulated coordinates (2^k + 1)
@@ -90,6 +97,93 @@ def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0) -> in
     pos = positions_at(sub, probe)  # (257, h, w, 2)
     speed = (pos[1:] - pos[:-1]).norm(dim=-1).amax() * 256 / 2  # px per unit s (max over pixels)
     return max(2, math.ceil(float(speed) * 2 / max_step_px * 1.02) + 1)
+
+
+def _chebyshev_to_power(n: int, like: torch.Tensor) -> torch.Tensor:
+    """(n, n) matrix M with M[k, m] the coefficient of s^k in T_m(s)."""
+    out = torch.zeros(n, n, dtype=like.dtype, device=like.device)
+    out[0, 0] = 1.0
+    if n > 1:
+        out[1, 1] = 1.0
+    for m in range(2, n):  # T_m = 2 s T_{m-1} - T_{m-2}
+        out[1:, m] = 2 * out[:-1, m - 1]
+        out[:, m] -= out[:, m - 2]
+    return out
+
+
+def sweep_series(coefficients: torch.Tensor, tolerance_px: float = 2e-4) -> torch.Tensor:
+    """Per-pixel sweep polynomials as power series in s of the lowest degree within a tolerance.
+
+    The Chebyshev series is truncated after degree D, the smallest whose dropped terms sum to at most
+    ``tolerance_px`` in absolute value at every pixel and for both coordinates (a bound on the truncation
+    error over s in [-1, 1], since |T_k| <= 1), and re-expanded in powers of s (float64).
+
+    Args:
+        coefficients: (N, H, W, 2) per-pixel Chebyshev coefficients in s (pixels), e.g.
+            ``sweep_coefficients(fit, uv).permute(2, 0, 1, 3)``.
+        tolerance_px: bound on the truncation error (> 0); the full degree N - 1 when no lower one meets it.
+
+    Returns:
+        (2, D + 1, H, W) coefficients of s^0 .. s^D of the x (first) and y positions, dtype of ``coefficients``.
+
+    Raises:
+        ShapeError: bad shape. OptionError: tolerance not > 0.
+
+    Example:
+        >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
+        >>> uv = torch.stack(torch.meshgrid(torch.arange(8.0), torch.arange(6.0), indexing="xy"), -1).double()
+        >>> coef = sweep_coefficients(fit_sweep(thesis_setup1(), (300.0, 900.0)), uv).permute(2, 0, 1, 3)
+        >>> sweep_series(coef).shape  # a cubic in s is within 2e-4 px here
+        torch.Size([2, 4, 6, 8])
+    """
+    check_shape(coefficients, ["N", "H", "W", 2], "coefficients")
+    if not tolerance_px > 0:
+        raise OptionError(f"tolerance_px must be > 0, got {tolerance_px}")
+    n = coefficients.shape[0]
+    dropped = coefficients.abs().flip(0).cumsum(0).flip(0)  # dropped[k]: sum of |c_m| over m >= k
+    bound = dropped.flatten(1).amax(1)  # (N,) worst pixel and coordinate
+    degree = next((d for d in range(n - 1) if bound[d + 1] <= tolerance_px), n - 1)
+    power = _chebyshev_to_power(n, coefficients)[:degree + 1, :degree + 1]  # (D + 1, D + 1)
+    kept = coefficients[:degree + 1].permute(3, 0, 1, 2)  # (2, D + 1, H, W)
+    return torch.einsum("km,cmhw->ckhw", power, kept).contiguous()
+
+
+def series_at(series: torch.Tensor, s: torch.Tensor, top: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Evaluate :func:`sweep_series` at per-pixel coordinates by Horner's rule.
+
+    Args:
+        series: (2, D + 1, H, W) from :func:`sweep_series`.
+        s: (B, J, H_s, W) coordinates (J per pixel) of the series' rows ``top`` ... ``top + H_s - 1`` (all of
+            them by default); differentiable.
+        top: the series row of s's first row.
+
+    Returns:
+        (x, y), each (B, J, H_s, W) positions (units of the series: full-sensor pixels).
+
+    Raises:
+        ShapeError: bad shapes or rows outside the series.
+
+    Example:
+        >>> series = torch.tensor([[1.0, 2.0], [0.0, 0.5]]).view(2, 2, 1, 1)  # x = 1 + 2 s, y = s / 2
+        >>> x, y = series_at(series, torch.tensor([0.0, 0.5]).view(1, 2, 1, 1))
+        >>> x.flatten().tolist(), y.flatten().tolist()
+        ([1.0, 2.0], [0.0, 0.25])
+    """
+    check_shape(series, [2, "K", "H", "W"], "series")
+    check_shape(s, ["B", "J", "H_s", "W"], "s")
+    h, w = series.shape[-2:]
+    rows = s.shape[-2]
+    if s.shape[-1] != w or not 0 <= top <= h - rows:
+        raise ShapeError(f"series {tuple(series.shape)} has no rows {top}..{top + rows - 1} of width {s.shape[-1]}")
+    if top or rows != h:
+        series = series[..., top:top + rows, :]
+    out = []
+    for planes in series.to(s).unbind(0):  # (D + 1, H_s, W) per coordinate
+        acc = planes[-1].expand_as(s) if planes.shape[0] == 1 else planes[-1] * s + planes[-2]
+        for k in range(planes.shape[0] - 3, -1, -1):
+            acc = acc * s + planes[k]
+        out.append(acc)
+    return out[0], out[1]
 
 
 def tabulate_sweep(coefficients: torch.Tensor, tolerance_px: float = 1e-3) -> torch.Tensor:
@@ -194,39 +288,6 @@ def _lanes(u: torch.Tensor, n: int) -> torch.Tensor:
     Expand is as slow), so the coordinate pairs are multiplied by a u of the same shape."""
     x = u.unsqueeze(-1)
     return torch.cat([x] * n, -1) if n > 1 else x
-
-
-def band_positions(cubic: LocalCubic, offsets: torch.Tensor) -> torch.Tensor:
-    """Positions at s = s0 + offsets_j for every pixel, by one matrix product.
-
-    The cubic in u, re-expanded around each pixel's u0 in powers of the offset, gives 4 per-pixel
-    coefficients (alpha, beta, gamma, delta); the band is [1, o, o^2, o^3] times them (o = offsets in table
-    units), the same numbers as :func:`cubic_at` at u0 + o up to rounding.
-
-    Args:
-        cubic: from :func:`local_cubic` at s0 (B, 1, H, W).
-        offsets: (J,) offsets in s.
-
-    Returns:
-        (B, J, H, W, 2) positions (units of the table).
-
-    Example:
-        >>> table = torch.linspace(-1.0, 1.0, 17).pow(3).view(17, 1, 1, 1).expand(17, 1, 1, 2)
-        >>> c = local_cubic(table, torch.tensor([0.2]).view(1, 1, 1, 1))
-        >>> band_positions(c, torch.tensor([-0.1, 0.0, 0.1]))[0, :, 0, 0, 0]
-        tensor([0.0010, 0.0080, 0.0270])
-    """
-    check_shape(offsets, ["J"], "offsets")
-    c0, c1, c2, c3 = cubic.coefficients.unbind(0)  # each (B, 1, H, W, 2)
-    u = _lanes(cubic.u, c3.shape[-1])
-    alpha = c0 + u * (c1 + u * (c2 + u * c3))
-    beta = c1 + u * (2 * c2 + 3 * u * c3)
-    gamma = c2 + 3 * u * c3
-    o = offsets.to(c3) * cubic.scale
-    m = torch.stack([torch.ones_like(o), o, o * o, o * o * o], 1)  # (J, 4)
-    b, _, h, w, _ = c3.shape
-    flat = torch.cat([alpha, beta, gamma, c3], 1).reshape(b, 4, -1)  # (B, 4, H W 2)
-    return (m @ flat).view(b, -1, h, w, 2)
 
 
 def column_to_sweep(table: torch.Tensor, column: torch.Tensor, iterations: int = 3) -> torch.Tensor:

@@ -47,15 +47,17 @@ def winner_take_all(cost: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return index, best
 
 
-def _neighbours(cost: torch.Tensor, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _neighbours(cost: torch.Tensor, index: torch.Tensor | int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     d = cost.shape[1]
+    if isinstance(index, int):  # one winner for every pixel: static slices
+        return tuple(cost[:, i:i + 1] for i in (max(index - 1, 0), index, min(index + 1, d - 1)))
     c0 = cost.gather(1, index)
     cm = cost.gather(1, (index - 1).clamp(0, d - 1))
     cp = cost.gather(1, (index + 1).clamp(0, d - 1))
     return cm, c0, cp
 
 
-def subpixel_refine(cost: torch.Tensor, index: torch.Tensor, method: Subpixel = "equiangular") -> torch.Tensor:
+def subpixel_refine(cost: torch.Tensor, index: torch.Tensor | int, method: Subpixel = "equiangular") -> torch.Tensor:
     """Refine integer winners to fractional indices by fitting the costs at i-1, i, i+1.
 
     parabola: delta = (c- - c+) / (2 (c- - 2 c0 + c+)); equiangular: delta = (c- - c+) / (2 max(c- - c0,
@@ -63,22 +65,31 @@ def subpixel_refine(cost: torch.Tensor, index: torch.Tensor, method: Subpixel = 
 
     Args:
         cost: (B, D, H, W).
-        index: (B, 1, H, W) long winners (:func:`winner_take_all`).
+        index: (B, 1, H, W) long winners (:func:`winner_take_all`), or one int, the winner of every pixel (the
+            three costs are then static slices: no gathers in an exported graph; the same values).
         method: 'equiangular' or 'parabola'.
 
     Returns:
         (B, 1, H, W) fractional index, dtype of ``cost``.
 
+    Raises:
+        OptionError: unknown method, or an int index outside [0, D).
+
     Example:
         >>> c = torch.tensor([2.0, 0.0, 1.0]).view(1, 3, 1, 1)
-        >>> float(subpixel_refine(c, torch.ones(1, 1, 1, 1, dtype=torch.long)))
-        1.25
+        >>> float(subpixel_refine(c, torch.ones(1, 1, 1, 1, dtype=torch.long))), float(subpixel_refine(c, 1))
+        (1.25, 1.25)
     """
     check_option(method, ("equiangular", "parabola"), "method")
+    d = cost.shape[1]
+    if isinstance(index, int) and not 0 <= index < d:
+        raise OptionError(f"index must be in [0, {d}) for a cost of {d} hypotheses, got {index}")
     cm, c0, cp = _neighbours(cost, index)
     den = cm - 2 * c0 + cp if method == "parabola" else torch.maximum(cm - c0, cp - c0)
     delta = (cm - cp) / (2 * den).clamp_min(1e-12)
-    inner = (index > 0) & (index < cost.shape[1] - 1)
+    if isinstance(index, int):
+        return delta.clamp(-0.5, 0.5) + index if 0 < index < d - 1 else torch.full_like(delta, float(index))
+    inner = (index > 0) & (index < d - 1)
     delta = torch.where(inner, delta.clamp(-0.5, 0.5), torch.zeros_like(delta))
     return index.to(cost.dtype) + delta
 

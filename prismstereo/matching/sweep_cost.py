@@ -141,10 +141,13 @@ def _gather_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> t
     # NaN positions (a NaN image upstream) cast to garbage: clamped they read a pixel and stay NaN through the
     # weights, where onnxruntime would abort the whole frame on an out-of-range index. y0 w + x0 is exact in
     # float32 below 2^24 = 16.7 M pixels.
+    # int32 indices where they fit (onnxruntime casts and clamps int64 single-threaded, ~4x slower, and gathers
+    # with them ~30 % slower; torch.gather takes either)
+    index_type = torch.int32 if h * w < 2**31 else torch.long
     if h * w < 2**24:
-        index = (y0 * w + x0).long()
+        index = (y0 * w + x0).to(index_type)
     else:
-        index = y0.long() * w + x0.long()
+        index = y0.to(index_type) * w + x0.to(index_type)
     index = index.clamp(0, h * w - 1).view(b, 1, -1)
     index = index if c == 1 else index.expand(b, c, -1)  # an Expand is a copy in onnxruntime
     # the four taps of every sample share one index into four shifted (H, W) views of the padded image
@@ -209,12 +212,16 @@ _VAR_FLOOR = 1e-5  # (0.8 / 255)^2: below the variance of 8-bit read noise of 1 
 _box = box_filter  # (B, D, H, W) window mean, separable
 
 
-def _fill(volume: torch.Tensor, valid: torch.Tensor, value: float) -> torch.Tensor:
+def _fill(volume: torch.Tensor, valid: torch.Tensor, value: float, bounded: bool = False) -> torch.Tensor:
     """``volume`` where ``valid`` (broadcastable bool), ``value`` elsewhere. In an ONNX export the fill is a
     scalar constant of the Where: onnxruntime took 6.8 ms on (1, 11, 768, 512) against a full tensor of the
     fill (a ConstantOfShape per call), ~2-4 ms less with the scalar (torch eager keeps a full tensor: its
-    broadcasting Where is slower there)."""
+    broadcasting Where is slower there). ``bounded``: the caller guarantees 0 <= volume <= value, so the fill is
+    max(volume, value * not valid), bitwise the same; exported that is Not, Cast, Mul and Max, which onnxruntime
+    runs multi-threaded where its Where runs on one thread (~1.5 ns per element)."""
     if torch.onnx.is_in_onnx_export():
+        if bounded:
+            return torch.maximum(volume, valid.logical_not().to(volume.dtype) * value)
         return torch.where(valid, volume, volume.new_tensor(value))
     return torch.where(valid, volume, torch.full_like(volume, value))
 
@@ -306,7 +313,8 @@ def sweep_cost(
         volume = (reference.unsqueeze(2) - warped.image).abs().mean(1)
     else:
         volume = _zncc(reference, warped.image, window)
-    return _fill(volume, warped.valid, worst_cost(cost, reference.shape[1], window))
+    # ZNCC (1 - a clamped NCC) and census counts lie in [0, worst]; SAD only for images in [0, 1]
+    return _fill(volume, warped.valid, worst_cost(cost, reference.shape[1], window), bounded=cost != "sad")
 
 
 def shift_cost(
@@ -397,5 +405,5 @@ def shift_cost(
         left = _zncc(ref_t[..., :2 * r, :], wrp[..., :2 * r, :].unsqueeze(1) + 0.5, window)[..., :r, :]
         right = _zncc(ref_t[..., -2 * r:, :], wrp[..., -2 * r:, :].unsqueeze(1) + 0.5, window)[..., -r:, :]
         volume = torch.cat([left, volume[..., r:w - r, :], right], -2)
-    volume = _fill(volume, valid_t, worst_cost("zncc", 1, window))
+    volume = _fill(volume, valid_t, worst_cost("zncc", 1, window), bounded=True)
     return volume if transposed else volume.transpose(-1, -2)

@@ -4,10 +4,11 @@ import torch
 from prismstereo import OptionError, ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients
 from prismstereo.epipolar.table import (
-    band_positions,
     column_to_sweep,
     cubic_at,
     local_cubic,
+    series_at,
+    sweep_series,
     tabulate_sweep,
     valid_interval,
 )
@@ -40,14 +41,42 @@ def test_local_cubics_match_the_polynomials(setup):
     band_of_rows = local_cubic(table, s[..., 5:12, :], top=5)  # rows of the whole table, as the fine band's strips
     assert torch.equal(band_of_rows.coefficients, cubic.coefficients[..., 5:12, :, :])
     assert torch.equal(band_of_rows.u, cubic.u[..., 5:12, :])
-    # the band by one matrix product = the cubic at shifted coordinates = the polynomial
-    offsets = torch.linspace(-0.03, 0.03, 7, dtype=F64)
-    band = band_positions(cubic, offsets)
-    assert band.shape == (2, 7, *coef.shape[1:3], 2)
-    torch.testing.assert_close(band, cubic_at(cubic, cubic.u + offsets.view(1, -1, 1, 1) * cubic.scale))
-    inner = (s + offsets.view(1, -1, 1, 1)).clamp(-1, 1)
-    ok = (s + offsets.view(1, -1, 1, 1)).abs() <= 1
-    assert (band - _exact(coef, inner)).norm(dim=-1)[ok].max() < 2e-3
+
+
+@pytest.mark.parametrize("setup, degree", [(thesis_setup1, 4), (thesis_setup2, 8)])
+def test_series_match_the_polynomials(setup, degree):
+    """The truncated power series: the lowest degree whose dropped Chebyshev terms sum to <= 2e-4 px (setup 1 is
+    nearly linear in s, setup 2 bends more), within that of the float64 polynomials in float64, and within ~3e-4
+    px evaluated in float32 (rounding of positions up to ~1000 px); rows of the whole series as the fine band's
+    strips evaluate them."""
+    coef = _coefficients(setup().downscaled(2))
+    series = sweep_series(coef)
+    assert series.shape == (2, degree + 1, *coef.shape[1:3]) and series.dtype == F64
+    assert sweep_series(coef, 1e-2).shape[1] < degree + 1 < sweep_series(coef, 1e-12).shape[1] <= coef.shape[0]
+    gen = torch.Generator().manual_seed(5)
+    s = torch.rand(2, 3, *coef.shape[1:3], generator=gen, dtype=F64) * 2 - 1
+    exact = _exact(coef, s)
+    x, y = series_at(series, s)
+    assert x.shape == y.shape == s.shape
+    assert float((torch.stack([x, y], -1) - exact).abs().max()) <= 2e-4
+    x32, y32 = series_at(series.float(), s.float())
+    assert x32.dtype == torch.float32
+    assert float((torch.stack([x32, y32], -1).double() - exact).abs().max()) < 3e-4
+    rows = series_at(series, s[..., 5:12, :], top=5)
+    for a, b in zip(rows, (x, y), strict=True):
+        assert torch.equal(a, b[..., 5:12, :])
+
+
+def test_series_reference_values_and_gradient():
+    # T_0 + 2 T_1 + 0.5 T_2 = 1 + 2 s + 0.5 (2 s^2 - 1) = 0.5 + 2 s + s^2 in x; y = 3 T_1 = 3 s
+    coef = torch.tensor([[1.0, 0.0], [2.0, 3.0], [0.5, 0.0]], dtype=F64).view(3, 1, 1, 2)
+    series = sweep_series(coef)
+    torch.testing.assert_close(series[:, :, 0, 0], torch.tensor([[0.5, 2.0, 1.0], [0.0, 3.0, 0.0]], dtype=F64))
+    x, y = series_at(series, torch.tensor([0.5], dtype=F64).view(1, 1, 1, 1))
+    assert float(x) == 0.5 + 1.0 + 0.25 and float(y) == 1.5
+    assert sweep_series(coef, 0.6).shape[1] == 2  # dropping 0.5 T_2 is within 0.6 px: a line
+    s = torch.rand(1, 2, 1, 1, generator=torch.Generator().manual_seed(1), dtype=F64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: series_at(series, t), (s,))
 
 
 def test_smallest_table_for_the_tolerance():
@@ -90,7 +119,7 @@ def test_column_to_sweep_inverts_the_sweep(setup):
 def test_valid_interval_agrees_with_the_sampled_mask(setup):
     rig = setup().downscaled(4)
     model = PrismStereo(rig, (228.0, 1374.0), coarse_factor=1)
-    table = model.table.double()
+    table = tabulate_sweep(_coefficients(rig))
     lo, hi = valid_interval(table, model.other_valid, model.split.split)
     gen = torch.Generator().manual_seed(2)
     s = torch.rand(1, 16, *table.shape[1:3], generator=gen, dtype=F64) * 2 - 1
@@ -119,5 +148,13 @@ def test_errors():
         tabulate_sweep(torch.zeros(5, 3, 4, 2), 0.0)
     with pytest.raises(OptionError, match="steps must be an int >= 0"):
         valid_interval(table, torch.ones(3, 4, dtype=torch.bool), 4, steps=-1)
-    with pytest.raises(ShapeError, match="offsets"):
-        band_positions(local_cubic(table, torch.zeros(1, 1, 3, 4)), torch.zeros(2, 2))
+    with pytest.raises(ShapeError, match="series must have shape"):
+        series_at(torch.zeros(3, 2, 3, 4), torch.zeros(1, 1, 3, 4))
+    with pytest.raises(ShapeError, match="no rows 2..3"):
+        series_at(torch.zeros(2, 2, 3, 4), torch.zeros(1, 1, 2, 4), top=2)
+    with pytest.raises(ShapeError, match="of width 5"):
+        series_at(torch.zeros(2, 2, 3, 4), torch.zeros(1, 1, 3, 5))
+    with pytest.raises(OptionError, match="tolerance_px must be > 0"):
+        sweep_series(torch.zeros(5, 3, 4, 2), -1.0)
+    with pytest.raises(ShapeError, match="coefficients"):
+        sweep_series(torch.zeros(5, 3, 4))

@@ -2,6 +2,7 @@
 the session cache. One small coarse-to-fine model (128 x 96 sensor, coarse factor 2) exported once."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -105,22 +106,39 @@ def test_other_graphs_match_torch(model, captures, options, tmp_path):
     assert float((rel > 1e-4).double().mean()) <= 2e-3 and float(rel.max()) <= 1e-3
 
 
+def test_band_of_three_clamped_needs_no_winner_search(model, tmp_path):
+    """With band 1 and clamped edges the final band's winner is always its centre: the graph takes it by static
+    slices (one ArgMin fewer than the pyramid's band of 5) and fills invalid samples without a Where on the band
+    volume (onnxruntime runs Where on one thread)."""
+    def ops(options: dict) -> list[onnx.NodeProto]:
+        variant = PrismStereo(model.rig, (300.0, 900.0), coarse_factor=2, downsample=2, **options).eval()
+        return list(onnx.load(str(export_onnx(variant, tmp_path / "variant.onnx"))).graph.node)
+
+    fast = ops(dict(full_band=1, band_edges="clamp"))
+    pyramid = ops(dict(full_band=2))
+    assert sum(n.op_type == "ArgMin" for n in fast) == sum(n.op_type == "ArgMin" for n in pyramid) - 1
+    final = [n for n in fast if "/fine_1/" in n.name]  # the final band (the binned model's is /fine/)
+    assert final and not [n for n in final if n.op_type in ("Where", "ArgMin")]
+
+
 def test_fine_band_strips_keep_the_batch_axis_dynamic(model, captures, tmp_path, monkeypatch):
     """The exported fine band runs in row strips (4 at 1024 x 768); here forced to 5 strips on the small
     sensor: a graph traced with batch 1 runs a batch of 4 (the strip arithmetic once depended on the traced
     batch size, and onnxruntime failed on mismatched strip shapes at batch 4). The strips index the one sweep
-    table (slices of it were constant-folded into copies: the table stored ~1.9 times at 1024 x 768)."""
+    series (slices of it were constant-folded into copies: the then sweep table stored ~1.9 times at 1024 x 768)."""
     import onnx
 
     import prismstereo.matching.levels as levels
 
+    def stored(path: Path) -> int:
+        return sum(len(t.raw_data) for t in onnx.load(str(path)).graph.initializer)
+
+    whole = export_onnx(model, tmp_path / "whole.onnx")
     monkeypatch.setattr(levels, "_EXPORT_STRIP_VOXELS", (2 * model.band + 1) * model.rig.reference_width * 20)
     path = export_onnx(model, tmp_path / "strips.onnx")
-    k, h, w, _ = model.table.shape
-    row_bytes = k * w * 2 * 4  # a slice table[:, lo:hi] stored as float32
-    sizes = [len(t.raw_data) for t in onnx.load(str(path)).graph.initializer]
-    slices = [size for size in sizes if size % row_bytes == 0 and size // row_bytes < h]
-    assert h * row_bytes in sizes and not slices, sorted(sizes)[-6:]  # the table once, no copies of strips
+    series = model.series.numel() * 4
+    # the strips add their interval slices (2 planes in all, plus halos), not copies of the series
+    assert stored(path) - stored(whole) < series / 2, (stored(path), stored(whole), series)
     got = OnnxDepth(path)(captures)
     with torch.no_grad():
         want = model(captures)

@@ -132,6 +132,18 @@ def test_subpixel_fits_exact_models():
         subpixel_refine(v_cost, winner_take_all(v_cost)[0], "cubic")
 
 
+@pytest.mark.parametrize("method", ["parabola", "equiangular"])
+def test_subpixel_refine_with_one_winner_for_all_pixels(method):
+    """An int winner (static slices) gives bitwise the numbers of the same winner as an index tensor,
+    including the ends (no refinement there), and is checked against the hypothesis count."""
+    cost = torch.rand(2, 5, 6, 7, generator=torch.Generator().manual_seed(3), dtype=F64)
+    for winner in range(5):
+        index = torch.full((2, 1, 6, 7), winner, dtype=torch.long)
+        assert torch.equal(subpixel_refine(cost, winner, method), subpixel_refine(cost, index, method))
+    with pytest.raises(OptionError, match=r"index must be in \[0, 5\)"):
+        subpixel_refine(cost, 5, method)
+
+
 def test_soft_argmin_local():
     x = torch.arange(12, dtype=F64).view(1, 12, 1, 1)
     cost = ((x - 5.3) ** 2).expand(1, 12, 2, 3).clone()

@@ -4,7 +4,7 @@ import torch
 import prismstereo.matching.levels as levels
 from prismstereo import OptionError, ShapeError, thesis_setup1
 from prismstereo.epipolar.sweep import depth_to_sweep
-from prismstereo.epipolar.table import cubic_at, local_cubic
+from prismstereo.epipolar.table import series_at
 from prismstereo.matching.levels import (
     FineBand,
     LevelResult,
@@ -59,9 +59,9 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     ok0 = torch.ones_like(s0, dtype=torch.bool)
     with torch.no_grad():
         monkeypatch.setattr(levels, "_STRIP_VOXELS", 10**9)
-        whole = model.fine(ref, other, s0, ok0, model.table, model.interval)
+        whole = model.fine(ref, other, s0, ok0, model.series, model.interval)
         monkeypatch.setattr(levels, "_STRIP_VOXELS", 1)  # 16-row strips
-        strips = model.fine(ref, other, s0, ok0, model.table, model.interval)
+        strips = model.fine(ref, other, s0, ok0, model.series, model.interval)
     for a, b in zip(whole, strips, strict=True):
         assert torch.equal(a, b)
     # started 0.01 off (0.15 px; a hypothesis step is 0.069 here), the band finds the plane to ~0.04 px
@@ -70,8 +70,7 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     assert err.numel() > 0.95 * cap.covisible[..., :rig.reference_width].sum()
     assert err.median() < 0.005 and err.quantile(0.9) < 0.02
     # the band's match (interpolated between its samples) is the exact sweep's position at s
-    cubic = local_cubic(model.table, whole.s)
-    exact = cubic_at(cubic, cubic.u).squeeze(1).permute(0, 3, 1, 2)
+    exact = torch.cat(series_at(model.series, whole.s), 1)
     assert (whole.match - exact).abs().amax(1, keepdim=True)[whole.valid].max() < 1e-3
 
 
@@ -93,8 +92,8 @@ def test_fine_band_edges_reject_or_clamp(plane):
     s0 = torch.where(beyond, torch.tensor(truth - (band + 1.5) * step), torch.tensor(truth + 0.01))
     ok0 = torch.ones_like(s0, dtype=torch.bool)
     with torch.no_grad():
-        r = reject.fine(ref, other, s0, ok0, reject.table, reject.interval)
-        c = clamp.fine(ref, other, s0, ok0, clamp.table, clamp.interval)
+        r = reject.fine(ref, other, s0, ok0, reject.series, reject.interval)
+        c = clamp.fine(ref, other, s0, ok0, clamp.series, clamp.interval)
     cov = cap.covisible[..., :w]
     assert r.valid[~beyond & cov].float().mean() > 0.95 and r.valid[beyond & cov].float().mean() < 0.02
     for a, b in zip(r, c, strict=True):  # valid under 'reject': the same numbers
@@ -104,12 +103,36 @@ def test_fine_band_edges_reject_or_clamp(plane):
     moved = (c.s - s0)[clamped] / step  # from the inner neighbour (band - 1 steps up) at most half a step on
     assert float(moved.abs().min()) >= band - 1 - 1e-4 and float(moved.abs().max()) <= band - 0.5 + 1e-4
     assert float((moved > band - 1 + 1e-3).float().mean()) > 0.9, moved.unique(return_counts=True)  # towards truth
-    cubic = local_cubic(clamp.table, c.s)
-    exact = cubic_at(cubic, cubic.u).squeeze(1).permute(0, 3, 1, 2)
+    exact = torch.cat(series_at(clamp.series, c.s), 1)
     assert (c.match - exact).abs().amax(1, keepdim=True)[clamped].max() < 1e-3
     # that hypothesis is still 1-1.5 steps from the truth: it matches worse than the true match (measured
     # median NCC 0.70 against ~0.99), so min_confidence / reach_confidence can still reject it
     assert c.confidence[clamped].median() < r.confidence[r.valid].median() - 0.2
+
+
+def test_fine_band_of_three_clamped_is_the_centre_refined(plane):
+    """band=1 with 'clamp': the winner is always the centre, taken by static slices instead of a winner search
+    and gathers; on the pixels whose best of the three is the centre (valid with 'reject') the numbers are
+    bitwise those of the searched winner, and the pixels 'reject' drops are refined from the centre: s within
+    half a step of s0, the match the exact sweep's position at s."""
+    rig, cap = plane
+    reject = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, band=1)
+    clamp = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, band=1, band_edges="clamp")
+    ref, other = reject.split(cap.image)
+    truth = float(depth_to_sweep(torch.tensor(600.0), torch.tensor(reject.z_range)))
+    s0 = torch.full((1, 1, rig.image_height, rig.reference_width), truth + 0.45 * reject.fine.step)
+    ok0 = torch.ones_like(s0, dtype=torch.bool)
+    with torch.no_grad():
+        r = reject.fine(ref, other, s0, ok0, reject.series, reject.interval)
+        c = clamp.fine(ref, other, s0, ok0, clamp.series, clamp.interval)
+    assert 0.1 < float(r.valid.float().mean()) < 0.9  # the truth 0.45 steps off: some pixels' best is an edge
+    for a, b in zip(r, c, strict=True):
+        assert torch.equal(a[r.valid.expand_as(a)], b[r.valid.expand_as(b)])
+    kept = c.valid & ~r.valid
+    assert kept.sum() > 0.1 * kept.numel()
+    assert float(((c.s - s0).abs() / reject.fine.step)[kept].max()) <= 0.5 + 1e-5
+    exact = torch.cat(series_at(clamp.series, c.s), 1)
+    assert (c.match - exact).abs().amax(1, keepdim=True)[c.valid].max() < 1e-3
 
 
 def test_similarity_reference_values():
