@@ -587,7 +587,7 @@ class PrismStereo(nn.Module):
         if self.occlusion_tolerance is not None:
             occluders = None if self.occluder_confidence is None else valid & (confidence >= self.occluder_confidence)
             valid = valid & self.visible(match, depth, valid, occluders)
-        confidence = torch.where(valid, confidence, torch.zeros_like(confidence))
+        confidence = torch.where(valid, confidence, confidence.new_tensor(0.0))  # a scalar fill (see _fill)
         index = (s + 1.0) / step
         return DepthResult(depth, valid, confidence, index, match)
 

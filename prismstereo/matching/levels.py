@@ -410,7 +410,7 @@ def extend_estimate(s: torch.Tensor, valid: torch.Tensor, radius: int) -> Extend
         t = F.avg_pool2d(t, (k, 1), 1, (radius, 0), count_include_pad=False)
         return F.avg_pool2d(t, (1, k), 1, (0, radius), count_include_pad=False)
 
-    total = window_mean(torch.where(valid, s, torch.zeros_like(s)))
+    total = window_mean(torch.where(valid, s, s.new_tensor(0.0)))
     share = window_mean(valid.to(s.dtype))  # same normalisation: the ratio is the mean
     mean = total / share.clamp_min(torch.finfo(s.dtype).tiny)
     reach = valid | (share > 0)

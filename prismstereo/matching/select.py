@@ -90,7 +90,7 @@ def subpixel_refine(cost: torch.Tensor, index: torch.Tensor | int, method: Subpi
     if isinstance(index, int):
         return delta.clamp(-0.5, 0.5) + index if 0 < index < d - 1 else torch.full_like(delta, float(index))
     inner = (index > 0) & (index < d - 1)
-    delta = torch.where(inner, delta.clamp(-0.5, 0.5), torch.zeros_like(delta))
+    delta = torch.where(inner, delta.clamp(-0.5, 0.5), delta.new_tensor(0.0))
     return index.to(cost.dtype) + delta
 
 
@@ -169,7 +169,7 @@ def soft_argmin_local(
     taps = (index + offsets).clamp(0, d - 1)  # (B, 2r+1, H, W)
     local = cost.gather(1, taps)
     inside = (index + offsets >= 0) & (index + offsets <= d - 1)
-    logits = torch.where(inside, -local / temperature, torch.full_like(local, -1e9))
+    logits = torch.where(inside, -local / temperature, local.new_tensor(-1e9))
     logits = logits - logits.amax(dim=1, keepdim=True).detach()
     weights = torch.exp(logits)
     weights = weights / weights.sum(dim=1, keepdim=True)

@@ -48,3 +48,29 @@ def test_errors():
         zbuffer_visible(match, depth, valid, 10, 4, tolerance=-0.1)
     with pytest.raises(OptionError, match="other_width must be a positive int"):
         zbuffer_visible(match, depth, valid, 10, 0)
+
+
+def test_exported_graph_matches_eager(tmp_path):
+    """In an ONNX export the scatter is one ScatterElements (reduction 'min') without the exporter's If around it,
+    the indices int32; onnxruntime gives the eager result, NaN matches included (clamped into the buffer)."""
+    onnx = pytest.importorskip("onnx")
+    ort = pytest.importorskip("onnxruntime")
+    gen = torch.Generator().manual_seed(6)
+    match = torch.stack([torch.rand(2, 6, 5, generator=gen) * 7 + 9, torch.rand(2, 6, 5, generator=gen) * 6], 1)
+    match[0, :, 2, 3] = float("nan")
+    depth = 400 + 100 * torch.rand(2, 1, 6, 5, generator=gen)
+    valid = torch.rand(2, 1, 6, 5, generator=gen) > 0.2
+
+    class Graph(torch.nn.Module):
+        def forward(self, m, z, ok):
+            return zbuffer_visible(m, z, ok, split=10, other_width=4, tolerance=0.01, occluders=ok & (z < 480))
+
+    path = tmp_path / "zbuffer.onnx"
+    torch.onnx.export(Graph(), (match, depth, valid), str(path), input_names=["m", "z", "ok"], opset_version=18,
+                      dynamo=False)
+    nodes = onnx.load(str(path)).graph.node
+    assert [n.op_type for n in nodes].count("ScatterElements") == 1 and "If" not in {n.op_type for n in nodes}
+    got = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(
+        None, {"m": match.numpy(), "z": depth.numpy(), "ok": valid.numpy()})[0]
+    want = Graph()(match, depth, valid)
+    assert 0 < int(want.sum()) < want.numel() and torch.equal(torch.from_numpy(got), want)
