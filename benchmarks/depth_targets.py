@@ -28,8 +28,10 @@ hypotheses.
 neighbour instead of rejecting them (``PrismStereo(band_edges='clamp')``; with ``--downsample 2 --full-band 1``
 the fast full-resolution setting).
 
+``--coarse-factor F`` sets the coarse level's factor (the binned model's with ``--downsample``).
+
 Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--sampling] [--compare]
-[--downsample K [--full-band R]] [--band-edges clamp]
+[--downsample K [--full-band R]] [--band-edges clamp] [--coarse-factor F]
 """
 
 from __future__ import annotations
@@ -89,6 +91,9 @@ def main() -> None:
                         help="with --downsample: a final full-resolution band of 2R+1 hypotheses (full_band=R)")
     parser.add_argument("--band-edges", choices=("reject", "clamp"), default="reject",
                         help="PrismStereo(band_edges=...): pixels whose best hypothesis is on a band's edge")
+    parser.add_argument("--coarse-factor", type=int, default=None, metavar="F",
+                        help="PrismStereo(coarse_factor=F) (of the binned model with --downsample); default: the "
+                             "model's")
     args = parser.parse_args()
     torch.set_num_threads(2)
     form = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
@@ -98,7 +103,8 @@ def main() -> None:
         for sampling in ("rectified", "sweep") if args.sampling else ("rectified",):
             t0 = time.perf_counter()
             model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling, downsample=args.downsample,
-                                                   full_band=args.full_band, band_edges=args.band_edges)
+                                                   full_band=args.full_band, band_edges=args.band_edges,
+                                                   coarse_factor=args.coarse_factor)
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.summary()}; model built in "
                   f"{time.perf_counter() - t0:.1f} s")
         print(HEADER)

@@ -52,7 +52,7 @@ __all__ = ["Extended", "FineBand", "LevelResult", "RectifiedSearch", "SearchOpti
 
 _TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05}  # soft-argmin temperature per cost's units
 _STRIP_VOXELS = 400_000  # fine band voxels per strip in torch eager (~1.6 MB per float32 volume: cache-sized)
-_EXPORT_STRIP_VOXELS = 1_200_000  # per strip of an exported graph (4 strips at 1024 x 768; see FineBand)
+_EXPORT_STRIP_VOXELS = 2_000_000  # per strip of an exported graph (the pyramid's bands: one piece; see FineBand)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -264,9 +264,12 @@ class FineBand(nn.Module):
     horizontal strips whose cost and box filters see ``window // 2 + fine_box // 2`` rows beyond the strip, so
     the strips give the whole image's numbers (bitwise, measured). In torch eager strips of ~64 rows at
     1024 x 768 keep the band's (11, rows, W) volumes (~1.6 MB) in cache instead of 17 MB ones in DRAM. An
-    exported graph gets 4 strips there (the strips are unrolled into the graph, the batch axis stays dynamic):
-    onnxruntime's peak RSS over two frames 769 -> 474 MB and ~15 ms less per frame than one piece (2 and 8
-    strips were no faster; 12 slower).
+    exported graph takes bands of up to 2 M voxels in one piece (the pyramid's at 1024 x 768: a band of 5 on
+    768 x 512 pixels) and larger ones in strips (unrolled into the graph, the batch axis stays dynamic): with
+    the sweep as a power series, the default pyramid's final band in one piece instead of 2 strips of 468 rows
+    took 0.95x the frame time (paired A/B; its rows no longer copied out of the series per strip), peak RSS over
+    two frames 510 -> 537 MB. (With the earlier sweep table, 4 strips had been ~15 ms faster than one piece and
+    769 -> 474 MB.)
 
     Args:
         options: matching options of the band (cost, window, census threshold, box = the band's box window,
