@@ -3,10 +3,15 @@ with the accuracy each reaches on a rendered capture; batching, peak memory and 
 
 Everything runs on 2 threads (``torch.set_num_threads(2)``, ``cv2.setNumThreads(2)``, onnxruntime 2 intra-op
 and 1 inter-op thread, all graph optimisations) with ``thesis_setup1`` at 1024 x 768 (``--scale K`` divides the
-sensor by K for quick runs). Times: median and fastest of ``--repeats`` runs after one warm-up (as
-``benchmarks/_timing.py``). Each table says how many cores other processes used meanwhile (/proc/stat minus this
-process): on a shared 2-core machine torch's 2-thread eager mode slows down several-fold (and erratically) as
-soon as another process is busy, onnxruntime and OpenCV much less, so only trust runs where that is ~0.
+sensor by K for quick runs). Times: ``--repeats`` interleaved rounds after one warm-up call each
+(``benchmarks/_timing.py``: every method once per round, in reversed order every other round, 0.1 s apart), the
+median and fastest per method; the "x SGBM" column is the median over rounds of the method's time divided by
+SGBM's time in the same round. (Since session 9: this host drifts between phases of up to ~2x within minutes,
+and not equally for every method: in one run the 2-thread onnxruntime and torch rows were ~2x slower than in the
+next while single-threaded SGBM was not, so ratios of medians timed block by block compared different phases.)
+Each table says how many cores other processes used meanwhile (/proc/stat minus this process): on a shared 2-core
+machine torch's 2-thread eager mode slows down several-fold (and erratically) as soon as another process is busy,
+onnxruntime and OpenCV much less, so only trust runs where that is ~0.
 
 1. **Wide range** 228-1374 mm (the thesis working range): ``PrismStereo(rig, (228, 1374))`` (defaults: at
    1024 x 768 the pyramid, a 2 x 2-binned coarse-to-fine model with coarse factor 4 placing a full-resolution
@@ -18,7 +23,7 @@ soon as another process is busy, onnxruntime and OpenCV much less, so only trust
    default, i.e. P1 = P2 = 0, uniquenessRatio 0, no speckle filter, MODE_SGBM) and ``StereoBM`` (same
    numDisparities, blockSize 5, defaults). OpenCV's time is ``compute`` on the two pre-split 8-bit halves only
    (left = columns < split, right = the rest, zero-padded on the right to one width if they differ); splitting
-   and its depth conversion are not timed. Columns: ms per frame (median, fastest), the ratio to SGBM's median,
+   and its depth conversion are not timed. Columns: ms per frame (median, fastest), the same-round ratio to SGBM (median),
    the mean (and median) relative depth error % over the valid co-visible reference pixels, and the coverage,
    % of co-visible reference pixels that are valid, as in ``benchmarks/depth_targets.py``.
    ``--sampling`` adds torch and onnxruntime rows for the same model with the exact-sweep coarse level
@@ -77,7 +82,7 @@ OpenCV on bi-prism halves:
 
 Run (from the repository root; the default run takes a few minutes on a quiet 2-core machine, most of it the
 two full-resolution ONNX exports of ~25-70 s each):
-    .venv/bin/python benchmarks/onnx_speed.py [--scale 1] [--repeats 5] [--narrow-coarse-factor F] [--sampling]
+    .venv/bin/python benchmarks/onnx_speed.py [--scale 1] [--repeats 9] [--narrow-coarse-factor F] [--sampling]
 """
 
 from __future__ import annotations
@@ -100,7 +105,7 @@ import cv2
 import numpy as np
 import onnxruntime as ort
 import torch
-from _timing import times_ms  # benchmarks/_timing.py (scripts run from this folder)
+from _timing import interleaved_ms, paired_ratio  # benchmarks/_timing.py (scripts run from this folder)
 
 from prismstereo import thesis_setup1, trace_pixels
 from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients, sweep_to_depth
@@ -131,15 +136,10 @@ class Row(NamedTuple):
     name: str
     ms: float  # median
     best: float  # fastest run
+    ratio: float  # median of the same-round ratios to SGBM's time
     error: float  # mean relative depth error, %
     median: float  # median relative depth error, %
     coverage: float  # % of co-visible reference pixels that are valid
-
-
-def time_ms(fn, repeats: int) -> tuple[float, float]:
-    """(median, min) wall time (ms) of ``repeats`` calls after one warm-up call."""
-    times = times_ms(fn, repeats)
-    return statistics.median(times), min(times)
 
 
 class OtherLoad:
@@ -290,10 +290,9 @@ def spread_report(sweep: PixelSweep, capture) -> tuple[str, bool]:
 
 
 def table(title: str, rows: list[Row]) -> str:
-    sgbm = next(r.ms for r in rows if r.name.startswith("OpenCV StereoSGBM"))
     out = [title, f"{'method':50s} {'ms/frame':>9s} {'(min)':>9s} {'x SGBM':>7s} {'err %':>7s} {'(median)':>8s} "
                   f"{'cover %':>8s}"]
-    out += [f"{r.name:50s} {r.ms:9.1f} {r.best:9.1f} {r.ms / sgbm:7.2f} {r.error:7.3f} {r.median:8.3f} "
+    out += [f"{r.name:50s} {r.ms:9.1f} {r.best:9.1f} {r.ratio:7.2f} {r.error:7.3f} {r.median:8.3f} "
             f"{r.coverage:8.1f}" for r in rows]
     return "\n".join(out)
 
@@ -365,40 +364,47 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
     for i, (label, other_model) in enumerate(others):
         other_runner = OnnxDepth(export_onnx(other_model.eval(), tmp / f"{case.name}_{i}.onnx"), threads=2)
         variants.append((f"torch eager, {label}", f"onnxruntime, {label}", other_model, other_runner))
-    rows = []
-    other = OtherLoad().__enter__()
-    for torch_name, ort_name, torch_model, ort_runner in variants:
-        with torch.inference_mode():
-            ms = time_ms(lambda m=torch_model: m(image), repeats)
-            res = torch_model(image)
-        rows.append(Row(torch_name, *ms, *score(res.depth, res.valid, capture, split)))
-        ms = time_ms(lambda r=ort_runner: r(image), repeats)
-        res = ort_runner(image)
-        rows.append(Row(ort_name, *ms, *score(res.depth, res.valid, capture, split)))
     left, right = opencv_halves(image, split, mirror)
     nd = disparity_count(case.disparities, scale)
-    matchers = {
-        f"OpenCV StereoSGBM ({nd} disp, block 5)": cv2.StereoSGBM_create(minDisparity=0, numDisparities=nd,
-                                                                           blockSize=5),
-        f"OpenCV StereoBM ({nd} disp, block 5)": cv2.StereoBM_create(numDisparities=nd, blockSize=5),
-    }
-    for name, matcher in matchers.items():
-        ms = time_ms(lambda matcher=matcher: matcher.compute(left, right), repeats)
-        depth, valid = opencv_depth(sweep, matcher.compute(left, right), mirror)
-        rows.append(Row(name, *ms, *score(depth, valid, capture, split)))
+    sgbm_name = f"OpenCV StereoSGBM ({nd} disp, block 5)"
+    matchers = {sgbm_name: cv2.StereoSGBM_create(minDisparity=0, numDisparities=nd, blockSize=5),
+                f"OpenCV StereoBM ({nd} disp, block 5)": cv2.StereoBM_create(numDisparities=nd, blockSize=5)}
     # SGBM on the same 2 x 2-binned capture as the downsample-2 model (context: not the issue's reference row)
     binned_rig = rig.binned(2)
     split_b = binned_rig.reference_width
     left_b, right_b = opencv_halves(torch.nn.functional.avg_pool2d(image, 2), split_b, mirror)
     nd_b = disparity_count(case.disparities, 2 * scale)
+    sgbm_b_name = f"OpenCV StereoSGBM, 2x2-binned ({nd_b} disp)"
     sgbm_b = cv2.StereoSGBM_create(minDisparity=0, numDisparities=nd_b, blockSize=5)
-    ms = time_ms(lambda: sgbm_b.compute(left_b, right_b), repeats)
-    depth_b, valid_b = opencv_depth(pixel_sweep(binned_rig, case.z_range), sgbm_b.compute(left_b, right_b), mirror)
-    depth_b, valid_b = (upsampled(t, split, rig.image_height) for t in (depth_b, valid_b.double()))
-    rows.append(Row(f"OpenCV StereoSGBM, 2x2-binned ({nd_b} disp)", *ms,
-                    *score(depth_b, valid_b > 0.5, capture, split)))
-    other.__exit__()
-    print(table(f"-- {case.name} range: median (and fastest) of {repeats} runs after a warm-up; {other}", rows))
+
+    def eager(m: PrismStereo):
+        with torch.inference_mode():
+            return m(image)
+
+    # every method's timed call and, run once afterwards, its (depth, valid) of the reference half
+    methods, results = {}, {}
+    for torch_name, ort_name, torch_model, ort_runner in variants:
+        methods[torch_name] = lambda m=torch_model: eager(m)
+        methods[ort_name] = lambda r=ort_runner: r(image)
+        results[torch_name] = lambda m=torch_model: eager(m)[:2]
+        results[ort_name] = lambda r=ort_runner: r(image)[:2]
+    for name, matcher in matchers.items():
+        methods[name] = lambda matcher=matcher: matcher.compute(left, right)
+        results[name] = lambda matcher=matcher: opencv_depth(sweep, matcher.compute(left, right), mirror)
+
+    def binned_sgbm() -> tuple[torch.Tensor, torch.Tensor]:
+        depth_b, valid_b = opencv_depth(pixel_sweep(binned_rig, case.z_range), sgbm_b.compute(left_b, right_b), mirror)
+        depth_b, valid_b = (upsampled(t, split, rig.image_height) for t in (depth_b, valid_b.double()))
+        return depth_b, valid_b > 0.5
+
+    methods[sgbm_b_name] = lambda: sgbm_b.compute(left_b, right_b)
+    results[sgbm_b_name] = binned_sgbm
+    with OtherLoad() as other:
+        times = interleaved_ms(methods, rounds=repeats)
+    rows = [Row(name, statistics.median(t), min(t), paired_ratio(t, times[sgbm_name]),
+                *score(*results[name](), capture, split)) for name, t in times.items()]
+    print(table(f"-- {case.name} range: median (and fastest) of {repeats} interleaved rounds (every method once per "
+                f"round, 0.1 s apart) after a warm-up, x SGBM = median of the same-round ratios; {other}", rows))
     return model, path, capture
 
 
@@ -556,7 +562,8 @@ def profile(path: Path, image: torch.Tensor, tmp: Path, top: int = 8) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scale", type=int, default=1, help="sensor downscale factor (1 = 1024 x 768)")
-    parser.add_argument("--repeats", type=int, default=5, help="timed runs per row (median), >= 5 recommended")
+    parser.add_argument("--repeats", type=int, default=9,
+                        help="interleaved timing rounds (every method once per round; median), >= 5 recommended")
     parser.add_argument("--sampling", action="store_true",
                         help="wide range: also the model with the exact-sweep coarse level (torch and onnxruntime)")
     parser.add_argument("--narrow-coarse-factor", type=int, default=0,
