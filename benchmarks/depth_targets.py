@@ -28,10 +28,11 @@ hypotheses.
 neighbour instead of rejecting them (``PrismStereo(band_edges='clamp')``; with ``--downsample 2 --full-band 1``
 the fast full-resolution setting).
 
-``--coarse-factor F`` sets the coarse level's factor (the binned model's with ``--downsample``).
+``--coarse-factor F`` and ``--band R`` set the coarse level's factor and the half width of the band after it (the
+binned model's in a pyramid).
 
 Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--sampling] [--compare]
-[--downsample K [--full-band R]] [--band-edges clamp] [--coarse-factor F]
+[--downsample K [--full-band R]] [--band-edges clamp] [--coarse-factor F] [--band R]
 """
 
 from __future__ import annotations
@@ -94,6 +95,8 @@ def main() -> None:
     parser.add_argument("--coarse-factor", type=int, default=None, metavar="F",
                         help="PrismStereo(coarse_factor=F) (of the binned model with --downsample); default: the "
                              "model's")
+    parser.add_argument("--band", type=int, default=None, metavar="R",
+                        help="PrismStereo(band=R): the coarse level's fine band (the binned model's in a pyramid)")
     args = parser.parse_args()
     torch.set_num_threads(2)
     form = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
@@ -104,7 +107,7 @@ def main() -> None:
             t0 = time.perf_counter()
             model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling, downsample=args.downsample,
                                                    full_band=args.full_band, band_edges=args.band_edges,
-                                                   coarse_factor=args.coarse_factor)
+                                                   coarse_factor=args.coarse_factor, band=args.band)
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.summary()}; model built in "
                   f"{time.perf_counter() - t0:.1f} s")
         print(HEADER)

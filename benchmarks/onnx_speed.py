@@ -23,7 +23,7 @@ onnxruntime and OpenCV much less, so only trust runs where that is ~0.
    default, i.e. P1 = P2 = 0, uniquenessRatio 0, no speckle filter, MODE_SGBM) and ``StereoBM`` (same
    numDisparities, blockSize 5, defaults). OpenCV's time is ``compute`` on the two pre-split 8-bit halves only
    (left = columns < split, right = the rest, zero-padded on the right to one width if they differ); splitting
-   and its depth conversion are not timed. Columns: ms per frame (median, fastest), the same-round ratio to SGBM (median),
+   and its depth conversion are not timed. Columns: ms per frame (median, fastest), the same-round ratio to SGBM,
    the mean (and median) relative depth error % over the valid co-visible reference pixels, and the coverage,
    % of co-visible reference pixels that are valid, as in ``benchmarks/depth_targets.py``.
    ``--sampling`` adds torch and onnxruntime rows for the same model with the exact-sweep coarse level

@@ -1,3 +1,4 @@
+import math
 import threading
 
 import pytest
@@ -350,6 +351,11 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
     assert model.binned is not None and model.binned.rig == rig.binned(2) and model.binned.binned is None
     assert model.binned.num_hypotheses == blocks.num_hypotheses and model.coarse_hypotheses == blocks.num_hypotheses
     assert model.num_hypotheses == PrismStereo(rig, z_range).num_hypotheses and model.band == 2
+    # the binned model's own band only places the final one: ceil(3 f / 4) instead of f + 1, unless given
+    f = model.binned.factor
+    assert f > 1 and blocks.band == f + 1 and model.binned.band == model.binned.fine.band == math.ceil(3 * f / 4)
+    given = PrismStereo(rig, z_range, downsample=2, full_band=2, band=f + 2)
+    assert given.binned.band == given.binned.fine.band == f + 2 and given.band == 2
     cap = render(rig, slanted_plane(rig, 560.0, 30.0, seed=4), FORM)
     with torch.no_grad():
         res, low = model(cap.image), blocks(cap.image)
