@@ -189,9 +189,10 @@ class PrismStereo(nn.Module):
             lateral and disparity resolution. ``num_hypotheses``, ``coarse_factor`` and ``band`` then refer to
             the binned image. None (default): :meth:`default_downsample`, with ``full_band`` 2 when that is > 1
             (the pyramid on 1024 x 768 sensors); 1 is the full-resolution coarse level of steps 3-4. Block
-            values (k = 2, ``full_band=0``) measured at 1024 x 768: onnxruntime 32-58 ms per frame instead of
-            153-259 ms with ``downsample=1`` (setup 1, 228-1374 mm, four runs of ``benchmarks/onnx_speed.py``;
-            OpenCV SGBM 69-70 ms), slanted plane 0.040 % mean error on 98.3 % of the co-visible pixels
+            values (k = 2, ``full_band=0``) measured at 1024 x 768: onnxruntime 0.38-0.44x OpenCV SGBM's time
+            against 2.09-2.11x with ``downsample=1`` (setup 1, 228-1374 mm, two runs of
+            ``benchmarks/onnx_speed.py`` in session 9, medians of same-round ratios), slanted plane 0.040 % mean
+            error on 98.3 % of the co-visible pixels
             (``downsample=1``: 0.027 % on 98.8 %). On the thesis planes (``benchmarks/depth_targets.py
             --downsample 2 --full-band 0``, 205-1511 mm) the mean error stays <= 0.123 % (setup 1) / 0.132 %
             (setup 2), coverage 94.0-99.2 % / 93.4-97.0 % (``downsample=1``: 97.2-99.6 / 96.4-98.5 %; both with
@@ -223,16 +224,16 @@ class PrismStereo(nn.Module):
             0 gives each pixel its block's values; None (default): 2 with the default ``downsample`` when that
             is > 1, else 0 (an explicit ``downsample`` keeps block values unless ``full_band`` is given).
             ``benchmarks/depth_targets.py`` (205-1511 mm) against ``downsample=1``: mean errors 0.015-0.088 % vs
-            0.016-0.083 % (setup 1) and 0.012-0.065 % vs 0.012-0.087 % (setup 2), coverage 97.2-99.5 % vs
-            97.2-99.6 % and 95.8-98.7 % vs 96.4-98.5 %, fewer valid pixels that are not co-visible (228 mm: 3.2 vs
-            8.5 % / 2.3 vs 4.6 %), slanted plane 0.029 / 0.020 % (0.026 / 0.023 %), step 0.043 / 0.029 % (0.049 /
-            0.033 %), at ~0.5-0.7x the time (``benchmarks/onnx_speed.py``, setup 1 at 1024 x 768, 228-1374 mm,
-            four runs: onnxruntime 84-174 ms against 153-259 ms, torch 105-149 against 183-224 ms; OpenCV SGBM
-            69-70 ms). The extension radius (binned pixels; setup 2 at 1374 / 936 mm, setup 1 at 228 mm): 4 gave
-            93.5 / 94.8 / 96.2 % coverage, 8 (the default's) 95.8 / 96.6 / 97.2 %, 12 and 16 no more (96.0 / 96.6
-            / 97.0 and 95.9 / 96.4 / 96.6 %): the binned level loses a margin of about its windows near the edges
-            of the other half, which its own coarse reach does not bridge (a coarse reach of 2 inside the binned
-            model instead gave 95.2 / 96.3 / 96.8 %).
+            0.016-0.083 % (setup 1) and 0.012-0.064 % vs 0.012-0.087 % (setup 2), coverage 97.2-99.5 % vs
+            97.2-99.6 % and 95.9-98.7 % vs 96.4-98.5 %, fewer valid pixels that are not co-visible (228 mm: 2.8 vs
+            8.5 % / 1.6 vs 4.6 %), slanted plane 0.028 / 0.019 % (0.026 / 0.023 %), step 0.042 / 0.029 % (0.049 /
+            0.033 %), at ~0.45x the time (``benchmarks/onnx_speed.py``, setup 1 at 1024 x 768, 228-1374 mm, two
+            runs in session 9: onnxruntime 0.93-0.95x OpenCV SGBM's time against 2.09-2.11x, torch 1.11-1.24x
+            against 2.44-2.56x). The extension radius (binned pixels; setup 2 at 1374 / 936 mm, setup 1 at
+            228 mm): 4 gave 93.5 / 94.8 / 96.2 % coverage, 8 (the default's) 95.8 / 96.6 / 97.2 %, 12 and 16 no
+            more (96.0 / 96.6 / 97.0 and 95.9 / 96.4 / 96.6 %): the binned level loses a margin of about its
+            windows near the edges of the other half, which its own coarse reach does not bridge (a coarse reach
+            of 2 inside the binned model instead gave 95.2 / 96.3 / 96.8 %).
             With a radius of 2: R = 3 covered 0.1-1.2 points more on setup 2 with more false matches and ~15 %
             more time; R = 1 was ~7 % faster in onnxruntime and covered 1.2 points less on the slanted plane.
         band_edges: what a fine band (the pyramid's full-resolution band, and the fine band of every coarse-to-fine
@@ -245,11 +246,12 @@ class PrismStereo(nn.Module):
             (setup 2), coverage 96.9-99.6 % and 96.3-98.7 %, slanted plane 0.030 / 0.025 %, step 0.046 /
             0.034 % (the default pyramid: 0.015-0.088 %, 0.012-0.065 %, 97.2-99.5 %, 95.8-98.7 %, 0.029 / 0.020 %,
             0.043 / 0.029 %), false matches at setup 2's 1374 mm 2.0 % of the valid pixels (1.2 %), in 0.86-0.92x the
-            default's onnxruntime time (``benchmarks/onnx_speed.py``, setup 1, 228-1374 mm: 79.8 against 93.0
-            ms per frame, 1.13x OpenCV SGBM's 70.5 ms; 79 against 86 ms in an A/B);
-            without 'clamp' R = 1 covered 91.3-96.9 % on setup 2. With R = 2, 'clamp' covered 0.1-1.2 points
-            more on setup 2 (worst 96.3 %) at up to +0.008 points of mean error and ~1.8x the false matches at
-            1374 mm.
+            default's onnxruntime time (session 8). Session 9, with the binned band +-3: 0.014-0.096 % / 0.012-0.081
+            %, 96.9-99.6 % / 96.3-98.7 %, slanted 0.030 / 0.027 %, step 0.046 / 0.035 %, false 1.6 % at setup 2's
+            1374 mm; onnxruntime 0.64-0.75x OpenCV SGBM's time (``benchmarks/onnx_speed.py``, setup 1, 228-1374 mm,
+            two runs; the default pyramid 0.93-0.95x); without 'clamp' R = 1 covered 91.3-96.9 % on setup 2. With
+            R = 2, 'clamp' covered 0.1-1.2 points more on setup 2 (worst 96.3 %) at up to +0.008 points of mean
+            error and ~1.8x the false matches at 1374 mm.
 
     Example:
         >>> small = thesis_setup1().downscaled(8)
@@ -516,7 +518,8 @@ class PrismStereo(nn.Module):
         Sub-batches of 2 or 4 images per worker gave 104 / 116 against 108 ms per image (pyramid, batch 8).
         The ceiling is the machine: two images at once on one thread each cost 281 ms of CPU per image against
         217 ms for one image alone (the pyramid; the two cores slow each other down), while a second intra-op
-        thread already makes one image 1.38x faster; session 8 measured 1.16x / 1.24x for batch 8.
+        thread already makes one image 1.38x faster; session 8 measured 1.16x / 1.24x for batch 8, session 9
+        (faster single images, ~93-103 ms) 1.13x / 1.20x.
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
         b = image.shape[0]
