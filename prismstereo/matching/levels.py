@@ -102,10 +102,12 @@ def similarity(best: torch.Tensor, cost: str, channels: int, window: int) -> tor
     return (1.0 - best / (1.0 if cost == "zncc" else worst)).clamp(0.0, 1.0)
 
 
-def _refine(options: SearchOptions, local: torch.Tensor, total: torch.Tensor, index: torch.Tensor, cost: str,
+def _refine(options: SearchOptions, local: torch.Tensor, total: torch.Tensor, index: torch.Tensor | int, cost: str,
             final: bool) -> torch.Tensor:
     method = options.refinement if final and options.refinement is not None else None
     if method == "soft_argmin":
+        if isinstance(index, int):  # one winner for all pixels
+            index = torch.full_like(total[:, :1], index, dtype=torch.long)
         return soft_argmin_local(total, index, radius=2, temperature=_TEMPERATURE[cost])
     return subpixel_refine(local, index, method or ("parabola" if cost == "zncc" else "equiangular"))
 
@@ -260,7 +262,8 @@ class FineBand(nn.Module):
     parabola fits pixel-lock (quarter-res plane at 600 mm: 0.19 % -> 0.49 % mean error). A pixel whose best
     hypothesis is on the band's edge (its match lies beyond the band) is invalid with ``options.band_edges``
     'reject'; with 'clamp' its winner becomes the inner neighbour of that edge hypothesis, refined there (at
-    most half a step further out) and judged by that hypothesis' confidence. The band runs over
+    most half a step further out) and judged by that hypothesis' confidence (with R = 1 that is always the
+    centre: taken by static slices, without a winner search or gathers). The band runs over
     horizontal strips whose cost and box filters see ``window // 2 + fine_box // 2`` rows beyond the strip, so
     the strips give the whole image's numbers (bitwise, measured). In torch eager strips of ~64 rows at
     1024 x 768 keep the band's (11, rows, W) volumes (~1.6 MB) in cache instead of 17 MB ones in DRAM. An
@@ -338,10 +341,7 @@ class FineBand(nn.Module):
             j, _ = winner_take_all(local.detach())
             if o.band_edges == "clamp":  # a winner on the band's edge: refined from its inner neighbour instead
                 j = j.clamp(1, 2 * self.band - 1)
-        if isinstance(j, int) and o.refinement == "soft_argmin":
-            refined = _refine(o, local, local, torch.full_like(s0, j, dtype=torch.long), o.cost, True)
-        else:
-            refined = _refine(o, local, local, j, o.cost, True)
+        refined = _refine(o, local, local, j, o.cost, True)
         if isinstance(j, int):
             frac, s_j, ok = refined - j, s_band[:, j:j + 1], ok0 & warped.valid[:, j:j + 1]
         else:  # the winner's s and validity by arithmetic on (B, 1, H, W): the numbers of gathers from the band
