@@ -8,10 +8,12 @@ Chebyshev polynomial of degree N - 1 (~1e-10 px); evaluating it costs N terms pe
 * :func:`sweep_series`: the same polynomials truncated to the lowest degree D whose dropped Chebyshev terms
   stay within ``tolerance_px`` at every pixel, as power series in s, planar per coordinate; :func:`series_at`
   evaluates them at per-pixel coordinates by Horner's rule, 2 D multiply-adds per sample and coordinate
-  and no table lookups. Over 228-1374 mm at 1024 x 768 ``thesis_setup1`` needs D = 4 (its correspondences are
-  nearly linear in s), ``thesis_setup2`` D = 9; float32 evaluation adds ~6e-5 px of rounding (measured
-  against the float64 polynomials: 1.1e-4 / 1.0e-4 px in all). The fine band of
-  :class:`~prismstereo.matching.levels.FineBand` samples through it.
+  and no table lookups. With the default 2e-4 px over 228-1374 mm at 1024 x 768, ``thesis_setup1`` needs D = 4
+  (its correspondences are nearly linear in s), ``thesis_setup2`` D = 8; float32 evaluation adds ~6e-5 px of
+  rounding (measured against the float64 polynomials on every 3rd pixel at 5 random s each: 1.4e-4 / 2.5e-4 px
+  in all). The fine bands of :class:`~prismstereo.matching.levels.FineBand` sample through it; in onnxruntime
+  that replaced 4 gathers from a 53 MB table per band (and their index arithmetic) by 2 D multiply-adds per
+  sample, the full-resolution band of 3 alone 0.75x its time.
 * :func:`tabulate_sweep`: m tabulated at K uniform coordinates; the 4 entries around s give a local cubic
   (:func:`local_cubic`; Lagrange through u = -1, 0, 1, 2 in table units). K is the smallest of 17, 33, 65
   keeping the cubics within ``tolerance_px`` of the polynomial: measured over 205-1511 mm at full
