@@ -312,6 +312,8 @@ class FineBand(nn.Module):
         # arithmetic made the strips' slices depend on it (a batch of 4 failed in onnxruntime)
         voxels = (2 * self.band + 1) * int(reference.shape[-1]) * (1 if exporting else int(reference.shape[0]))
         rows = max(16, (_EXPORT_STRIP_VOXELS if exporting else _STRIP_VOXELS) // voxels)
+        if rows >= h:  # one piece: no slices (in an exported graph each Slice, and a Concat of one, is a copy)
+            return self._rows(reference, other, s0, ok0, series, 0, interval)
         strips = []
         for top in range(0, h, rows):
             lo, hi = max(0, top - halo), min(h, top + rows + halo)
