@@ -11,6 +11,7 @@ from __future__ import annotations
 import torch
 
 from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.matching.sweep_cost import flat_index
 
 __all__ = ["zbuffer_visible"]
 
@@ -67,16 +68,9 @@ def zbuffer_visible(
         raise OptionError(f"other_width must be a positive int, got {other_width!r}")
     b, _, h, w_ref = depth.shape
     n = h * other_width
-    # rounded and clamped in floating point, then one cast to int32 (onnxruntime casts and clamps int64 on one
-    # thread, ~4x slower); the integer clamp keeps a NaN match (cast to garbage) inside the buffer
-    x = torch.round(match[:, 0] - split).clamp(0, other_width - 1)
+    x = torch.round(match[:, 0] - split).clamp(0, other_width - 1)  # rounded and clamped in floating point
     y = torch.round(match[:, 1]).clamp(0, h - 1)
-    index_type = torch.int32 if n < 2**31 else torch.long
-    if n <= 2 / torch.finfo(match.dtype).eps:  # y W + x exact in floating point (2^24 in float32)
-        target = (y * other_width + x).to(index_type)
-    else:
-        target = y.to(index_type) * other_width + x.to(index_type)
-    target = target.clamp(0, n - 1).view(b, -1)
+    target = flat_index(y, x, other_width, n).view(b, -1)
     far = depth.new_tensor(float("inf"))  # a scalar fill: no full tensor of it per call in an exported graph
     z = torch.where(valid, depth, far).view(b, -1)
     occ = z if occluders is None else torch.where(occluders, depth, far).view(b, -1)

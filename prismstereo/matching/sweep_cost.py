@@ -28,7 +28,9 @@ from prismstereo.errors import OptionError, ShapeError, check_option, check_shap
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.cost import COSTS, Cost
 
-__all__ = ["Warped", "sample_points", "sample_slices", "shift_cost", "sweep_cost", "warp_slices", "worst_cost"]
+__all__ = [
+    "Warped", "flat_index", "sample_points", "sample_slices", "shift_cost", "sweep_cost", "warp_slices", "worst_cost",
+]
 
 
 class Warped(NamedTuple):
@@ -139,16 +141,8 @@ def _gather_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> t
     wx, wy = (x - x0).unsqueeze(1), (y - y0).unsqueeze(1)
     padded = F.pad(image, (0, 1, 0, 1), mode="replicate")  # taps right of / below the last pixel weigh 0
     # NaN positions (a NaN image upstream) cast to garbage: clamped they read a pixel and stay NaN through the
-    # weights, where onnxruntime would abort the whole frame on an out-of-range index. y0 w + x0 is exact in
-    # float32 below 2^24 = 16.7 M pixels.
-    # int32 indices where they fit (onnxruntime casts and clamps int64 single-threaded, ~4x slower, and gathers
-    # with them ~30 % slower; torch.gather takes either)
-    index_type = torch.int32 if h * w < 2**31 else torch.long
-    if h * w < 2**24:
-        index = (y0 * w + x0).to(index_type)
-    else:
-        index = y0.to(index_type) * w + x0.to(index_type)
-    index = index.clamp(0, h * w - 1).view(b, 1, -1)
+    # weights, where onnxruntime would abort the whole frame on an out-of-range index
+    index = flat_index(y0, x0, w, h * w).view(b, 1, -1)
     index = index if c == 1 else index.expand(b, c, -1)  # an Expand is a copy in onnxruntime
     # the four taps of every sample share one index into four shifted (H, W) views of the padded image
     views = (padded[..., :-1, :-1], padded[..., :-1, 1:], padded[..., 1:, :-1], padded[..., 1:, 1:])
@@ -156,6 +150,34 @@ def _gather_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> t
     top = tl + wx * (tr - tl)
     bottom = bl + wx * (br - bl)
     return top + wy * (bottom - top)
+
+
+def flat_index(row: torch.Tensor, column: torch.Tensor, width: int, size: int) -> torch.Tensor:
+    """Flat index ``row * width + column`` of whole-numbered floating-point rows and columns into an image of
+    ``size`` pixels, for gathers and scatters: int32 where it fits (onnxruntime casts and clamps int64 on one
+    thread, ~4x slower, and gathers with it ~30 % slower; torch takes either), computed in floating point where
+    that is exact (``size`` <= 2 / eps: 2^24 in float32) and cast once, and clamped to [0, size): a NaN position
+    (a NaN image upstream), cast to garbage, still indexes a pixel, where onnxruntime would abort the whole
+    frame on an out-of-range index.
+
+    Args:
+        row, column: (*) whole numbers (floor or round first), the same shape and floating dtype.
+        width: pixels per row.
+        size: pixels in the image.
+
+    Returns:
+        (*) int32 (int64 for images of 2^31 pixels or more).
+
+    Example:
+        >>> flat_index(torch.tensor([0.0, 2.0, float("nan")]), torch.tensor([3.0, 1.0, 0.0]), 4, 12).tolist()
+        [3, 9, 0]
+    """
+    index_type = torch.int32 if size < 2**31 else torch.long
+    if size <= 2 / torch.finfo(row.dtype).eps:
+        index = (row * width + column).to(index_type)
+    else:
+        index = row.to(index_type) * width + column.to(index_type)
+    return index.clamp(0, size - 1)
 
 
 def warp_slices(

@@ -6,6 +6,7 @@ from prismstereo import OptionError, ShapeError
 from prismstereo.matching.sweep_cost import (
     Warped,
     _gather_bilinear,
+    flat_index,
     sample_points,
     shift_cost,
     sweep_cost,
@@ -194,3 +195,16 @@ def test_sample_points_exported_graph_matches_eager(tmp_path):
     x[0, 0, 0, 0] = float("nan")  # a NaN position gives a NaN sample, not an out-of-range gather
     out = session.run(None, {"image": image.numpy(), "x": x.numpy(), "y": y.numpy()})[0]
     assert np.isnan(out[0, 0, 0, 0, 0]) and np.isfinite(out).sum() == out.size - 1
+
+
+def test_flat_index_int32_exact_and_clamped():
+    """row * width + column as int32, exact beyond float32's 2^24 (integer arithmetic there), in float64 too,
+    and clamped into the image (a NaN position still indexes a pixel)."""
+    rows, cols = torch.tensor([0.0, 2.0, 2.0]), torch.tensor([3.0, 1.0, 3.0])
+    index = flat_index(rows, cols, 4, 12)
+    assert index.dtype == torch.int32 and index.tolist() == [3, 9, 11]
+    assert flat_index(rows.double(), cols.double(), 4, 12).tolist() == [3, 9, 11]
+    big = flat_index(torch.tensor([4999.0]), torch.tensor([4999.0]), 5001, 5001 * 5001)  # 25 004 998 > 2^24
+    assert big.dtype == torch.int32 and big.item() == 4999 * 5001 + 4999
+    odd = flat_index(torch.tensor([float("nan"), 5.0]), torch.tensor([0.0, 9.0]), 4, 12)
+    assert 0 <= int(odd.min()) and int(odd.max()) <= 11
