@@ -58,13 +58,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from concurrent.futures import ThreadPoolExecutor
 from typing import Literal, NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo.batching import per_image
 from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.range import default_z_range
 from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
@@ -504,44 +504,13 @@ class PrismStereo(nn.Module):
     def forward(self, image: torch.Tensor) -> DepthResult:
         """Depth of the reference half of ``image`` (B, C, H, W) in [0, 1], C = 1 or 3.
 
-        In torch eager a batch is evaluated image by image, ``torch.get_num_threads()`` images at a time on
-        worker threads, each with its share of the caller's intra-op threads (one each with the default 2) and
-        the caller's grad / inference mode; the caller's thread count is restored afterwards (``torch.
-        set_num_threads`` also sets torch's process-wide default). Traced or exported it is one graph for the
-        whole batch. Why threads of one intra-op thread each (1024 x 768, 2 cores): one image with 2 threads
-        spends part of its time in kernels that do not scale (OpenMP threads spin or wait), two images with
-        2 threads each oversubscribe the cores (A/B in one process: 254 ms per image at batch 8 against
-        222 ms with one thread per worker; batch 1 254 ms). A batch of 8 as one tensor was slower (0.91x
-        batch 1: the coarse level alone 107 -> 193 ms per image, 0.9 M minor page faults per call, every volume
-        of 8 images a fresh mmap). ``benchmarks/onnx_speed.py``, nine runs with ``downsample=1``: batch 8 gave
-        1.04-1.28x the images/s of batch 1 (~185-240 ms per image at batch 1); the pyramid 1.07x in one run.
-        Sub-batches of 2 or 4 images per worker gave 104 / 116 against 108 ms per image (pyramid, batch 8).
-        The ceiling is the machine: two images at once on one thread each cost 281 ms of CPU per image against
-        217 ms for one image alone (the pyramid; the two cores slow each other down), while a second intra-op
-        thread already makes one image 1.38x faster; session 8 measured 1.16x / 1.24x for batch 8, session 9
-        (faster single images, ~93-103 ms) 1.13x / 1.20x.
+        In torch eager a batch is evaluated image by image on worker threads, each with a share of the caller's
+        intra-op threads and its grad / inference mode (:func:`~prismstereo.batching.per_image`, which also gives
+        the measurements behind it); traced or exported it is one graph for the whole batch.
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
-        b = image.shape[0]
-        if b > 1 and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
-            grad, inference = torch.is_grad_enabled(), torch.is_inference_mode_enabled()
-            threads = torch.get_num_threads()
-            workers = min(b, threads)
-
-            def one(i: int) -> DepthResult:  # grad and inference mode are thread-local: carry the caller's
-                if workers > 1:  # the caller's threads split between the images in flight
-                    torch.set_num_threads(threads // workers)
-                with torch.inference_mode(inference), torch.set_grad_enabled(grad):
-                    return self._forward(image[i:i + 1])
-
-            if workers == 1:
-                parts = [one(i) for i in range(b)]
-            else:
-                try:
-                    with ThreadPoolExecutor(workers) as pool:
-                        parts = list(pool.map(one, range(b)))
-                finally:  # the workers' setting also reached torch's process-wide default: restore it
-                    torch.set_num_threads(threads)
+        if image.shape[0] > 1 and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
+            parts = per_image(self._forward, image)
             return DepthResult(*(torch.cat(ts, 0) for ts in zip(*parts, strict=True)))
         return self._forward(image)
 
