@@ -31,8 +31,16 @@ the fast full-resolution setting).
 ``--coarse-factor F`` and ``--band R`` set the coarse level's factor and the half width of the band after it (the
 binned model's in a pyramid).
 
+``--directions 2`` limits the coarse level's semi-global aggregation to the horizontal scans.
+
+``--z-range ZMIN ZMAX`` searches another range (the planes: the thesis depths inside it, each with its seed of the
+full list), ``--slanted Z`` and ``--step NEAR FAR`` move the slanted plane and the step scene (defaults 500 mm and
+450 / 650 mm, inside the default range). The narrow range of ``benchmarks/onnx_speed.py``:
+``--z-range 600 1450 --slanted 900 --step 700 1000``.
+
 Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--sampling] [--compare]
-[--downsample K [--full-band R]] [--band-edges clamp] [--coarse-factor F] [--band R]
+[--downsample K [--full-band R]] [--band-edges clamp] [--coarse-factor F] [--band R] [--directions N]
+[--z-range ZMIN ZMAX] [--slanted Z] [--step NEAR FAR]
 """
 
 from __future__ import annotations
@@ -97,7 +105,18 @@ def main() -> None:
                              "model's")
     parser.add_argument("--band", type=int, default=None, metavar="R",
                         help="PrismStereo(band=R): the coarse level's fine band (the binned model's in a pyramid)")
+    parser.add_argument("--directions", type=int, default=4, choices=(2, 4, 8),
+                        help="PrismStereo(directions=...): SGM scan directions of the coarse level")
+    parser.add_argument("--z-range", type=float, nargs=2, default=Z_RANGE, metavar=("ZMIN", "ZMAX"),
+                        help="searched depth range, mm (default: the thesis range with 10 %% margins)")
+    parser.add_argument("--slanted", type=float, default=500.0, metavar="Z",
+                        help="the slanted plane passes through this depth, mm")
+    parser.add_argument("--step", type=float, nargs=2, default=(450.0, 650.0), metavar=("NEAR", "FAR"),
+                        help="depths of the step scene, mm")
     args = parser.parse_args()
+    z_range = tuple(args.z_range)
+    if not (0 < z_range[0] < z_range[1] and all(z_range[0] <= z <= z_range[1] for z in (args.slanted, *args.step))):
+        parser.error(f"need 0 < ZMIN < ZMAX around --slanted and --step, got {z_range}, {args.slanted}, {args.step}")
     torch.set_num_threads(2)
     form = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
     for key in args.setups:
@@ -105,27 +124,33 @@ def main() -> None:
         models = {}
         for sampling in ("rectified", "sweep") if args.sampling else ("rectified",):
             t0 = time.perf_counter()
-            model = models[sampling] = PrismStereo(rig, Z_RANGE, sampling=sampling, downsample=args.downsample,
+            model = models[sampling] = PrismStereo(rig, z_range, sampling=sampling, downsample=args.downsample,
                                                    full_band=args.full_band, band_edges=args.band_edges,
-                                                   coarse_factor=args.coarse_factor, band=args.band)
+                                                   coarse_factor=args.coarse_factor, band=args.band,
+                                                   directions=args.directions)
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.summary()}; model built in "
                   f"{time.perf_counter() - t0:.1f} s")
         print(HEADER)
         results: dict[str, list[dict[str, float]]] = {name: [] for name in models}
         tag = (lambda name: f" [{name}]") if len(models) > 1 else (lambda name: "")
         for i, z in enumerate(THESIS_DEPTHS):
+            if not z_range[0] <= z <= z_range[1]:
+                continue
             capture = render(rig, fronto_parallel_plane(rig, z, seed=i), form)
             for name, model in models.items():
                 r = evaluate(model, capture)
                 results[name].append(r)
                 print(row(f"plane {z:g} mm{tag(name)}", r), flush=True)
         for name, rs in results.items():
+            if not rs:  # no thesis depth inside the range
+                continue
             worst_mean = max(r["mean"] for r in rs)
             worst_cov = min(r["coverage"] for r in rs)
             print(f"{('planes: worst' + tag(name)):28s} {worst_mean:8.3f} {'':8s} {'':7s} {worst_cov:8.1f}   "
                   f"(targets: mean <= 0.25 %, coverage >= 95 %)")
-        scenes = (("slanted 30 deg @ 500 mm", slanted_plane(rig, 500.0, 30.0, seed=11)),
-                  ("step 450 / 650 mm", step_scene(rig, 450.0, 650.0, seed=12)))
+        near, far = args.step
+        scenes = ((f"slanted 30 deg @ {args.slanted:g} mm", slanted_plane(rig, args.slanted, 30.0, seed=11)),
+                  (f"step {near:g} / {far:g} mm", step_scene(rig, near, far, seed=12)))
         for label, scene in scenes:
             capture = render(rig, scene, form)
             for name, model in models.items():
@@ -134,10 +159,10 @@ def main() -> None:
             half = rig.downscaled(2)
             print(f"\nthesis_setup{key} at half resolution: coarse-to-fine (default) vs single-level full search")
             print(HEADER)
-            models = {"coarse-to-fine": PrismStereo(half, Z_RANGE),
-                      "single sweep": PrismStereo(half, Z_RANGE, coarse_factor=1),
-                      "single rectified": PrismStereo(half, Z_RANGE, coarse_factor=1, sampling="rectified")}
-            for z in (312.0, 625.0, 1192.0):
+            models = {"coarse-to-fine": PrismStereo(half, z_range),
+                      "single sweep": PrismStereo(half, z_range, coarse_factor=1),
+                      "single rectified": PrismStereo(half, z_range, coarse_factor=1, sampling="rectified")}
+            for z in (z for z in (312.0, 625.0, 1192.0) if z_range[0] <= z <= z_range[1]):
                 cap = render(half, fronto_parallel_plane(half, z, seed=3), form)
                 for name, m in models.items():
                     print(row(f"{name} {z:g} mm", evaluate(m, cap)), flush=True)
