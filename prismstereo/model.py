@@ -140,7 +140,10 @@ class PrismStereo(nn.Module):
         box: box aggregation window of the coarse (or single) level.
         fine_box: box window of the fine band.
         aggregation: 'sgm' (semi-global after the box) or 'box'.
-        directions: SGM scan directions, 2, 4 (default: horizontal and vertical) or 8.
+        directions: SGM scan directions, 2, 4 (default: horizontal and vertical) or 8. Over 600-1450 mm 2 saved
+            ~9 % of the default pyramid's onnxruntime time but covered down to 94.1 % on setup 2 (1374 mm; 4
+            directions: 95.7 %; ``benchmarks/depth_targets.py --z-range 600 1450 --slanted 900 --step 700 1000
+            --directions 2``, session 10).
         p1, p2: SGM penalties in units of the box-averaged cost (ZNCC: 1 - NCC in [0, 2]). The defaults 1 and 8
             are strong for ZNCC (measured better than 0.3 / 2.4 and 0.1 / 0.8 on the same captures): the coarse
             level only has to land within the fine band, which then re-estimates every pixel on its own.
@@ -251,7 +254,11 @@ class PrismStereo(nn.Module):
             1374 mm; onnxruntime 0.64-0.75x OpenCV SGBM's time (``benchmarks/onnx_speed.py``, setup 1, 228-1374 mm,
             two runs; the default pyramid 0.93-0.95x); without 'clamp' R = 1 covered 91.3-96.9 % on setup 2. With
             R = 2, 'clamp' covered 0.1-1.2 points more on setup 2 (worst 96.3 %) at up to +0.008 points of mean
-            error and ~1.8x the false matches at 1374 mm.
+            error and ~1.8x the false matches at 1374 mm. Session 10, over 600-1450 mm (``--z-range 600 1450
+            --slanted 900 --step 700 1000``): the fast setting 0.95-0.97x OpenCV SGBM's time (96 disparities;
+            the default pyramid 1.14-1.24x), errors 0.039-0.100 % / 0.041-0.098 % (default 0.038-0.091 % /
+            0.031-0.072 %), coverage 98.3-99.5 % / 96.3-98.2 % (98.2-99.4 % / 95.6-97.3 %), but on setup 2 up to
+            3.9 % false matches (default 2.2 %) and 0.67 % of pixels off by > 2 % (0.20 %).
 
     Example:
         >>> small = thesis_setup1().downscaled(8)
@@ -483,6 +490,11 @@ class PrismStereo(nn.Module):
         at full resolution (600-1450 mm, 103 hypotheses) gets f = 4: onnxruntime 267 ms per frame at 0.048 %
         mean error, against 506 ms (0.053 %) with f = 2 and ~9x the time with a single level
         (``benchmarks/onnx_speed.py``, measured before the onnxruntime tuning that brought f = 4 to 156-220 ms).
+        The pyramid's binned model of that range (52 / 94 hypotheses with setup 1 / 2) gets f = 2; f = 4 there
+        (``coarse_factor=4``, session 10) took 0.84x the onnxruntime time (1.00x OpenCV SGBM's) with errors as low
+        or lower, but covered 93.7 % of setup 2's step scene (700 / 1000 mm; f = 2: 95.6 %): the 1/8-resolution
+        windows straddle the step (neither ``coarse_reach=2`` nor a binned band of +-4 recovered it: 93.6 / 93.5
+        %).
 
         Example:
             >>> PrismStereo.default_coarse_factor(368, 768, 512), PrismStereo.default_coarse_factor(103, 768, 512)
