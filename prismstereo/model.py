@@ -476,7 +476,9 @@ class PrismStereo(nn.Module):
         if self.occlusion_tolerance is not None:
             occluders = None if self.occluder_confidence is None else valid & (confidence >= self.occluder_confidence)
             valid = valid & self.visible(match, depth, valid, occluders)
-        confidence = torch.where(valid, confidence, confidence.new_tensor(0.0))  # a scalar fill (see _fill)
+        # confidence in [0, 1] times the mask: 0 where invalid (onnxruntime runs a Where on one thread, ~0.26 ms on a
+        # 768 x 512 plane; the product ~0.05 ms)
+        confidence = confidence * valid.to(confidence.dtype)
         index = (s + 1.0) / step
         return DepthResult(depth, valid, confidence, index, match)
 

@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.epipolar.row_rectify import RectifiedLevel
-from prismstereo.epipolar.table import column_to_sweep, positions_at, series_at
+from prismstereo.epipolar.table import column_to_sweep, positions_at, series_at, series_band
 from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.matching.aggregate import box_filter, sgm_aggregate
 from prismstereo.matching.select import (
@@ -127,7 +127,7 @@ class _Search(nn.Module):
         index, _ = winner_take_all(total.detach())
         refined = _refine(o, local, total, index, o.cost, final)
         confidence = similarity(local.gather(1, index), o.cost, channels, o.window)
-        unique = uniqueness(total.detach(), index, 1.0)[1] >= o.min_uniqueness
+        unique = uniqueness(total.detach(), index, 1.0, nonnegative=True)[1] >= o.min_uniqueness  # costs are >= 0
         return index, refined, confidence, unique, total
 
 
@@ -331,13 +331,15 @@ class FineBand(nn.Module):
         """The band on rows ``top`` ... of the image (``series`` whole, ``interval`` of these rows)."""
         o, step = self.options, self.step
         offsets = torch.arange(-self.band, self.band + 1, device=reference.device).to(reference.dtype) * step
-        s_band = s0 + offsets.view(1, -1, 1, 1)  # (B, J, H, W); beyond [-1, 1]: outside the interval
-        x, y = series_at(series, s_band, top)  # full-sensor pixels
+        # the band's positions s0 + t_j from each pixel's Taylor coefficients at s0 (one 1 x 1 convolution: in
+        # onnxruntime cheaper than Horner's rule over the (B, J, H, W) coordinates), in other-half pixels
+        x, y = series_band(series, s0, offsets, top, origin=(self.split, 0.0))
         channels = reference.shape[1]
         if o.cost == "zncc":  # ZNCC compares grey windows: sample the grey image (linear)
             reference, other = _grey(reference), _grey(other)
         lo, hi = interval.to(reference).unbind(0)
-        warped = Warped(sample_points(other, x - self.split, y), (s_band >= lo) & (s_band <= hi))
+        t = offsets.view(1, -1, 1, 1)  # s0 + t_j within the pixel's interval (beyond [-1, 1]: outside it)
+        warped = Warped(sample_points(other, x, y), (t >= lo - s0) & (t <= hi - s0))
         volume = sweep_cost(reference, warped, o.cost, o.window, o.census_threshold)
         local = box_filter(volume, o.box)
         if o.band_edges == "clamp" and self.band == 1:  # the winner is always the centre: static slices
@@ -348,7 +350,7 @@ class FineBand(nn.Module):
                 j = j.clamp(1, 2 * self.band - 1)
         refined = _refine(o, local, local, j, o.cost, True)
         if isinstance(j, int):
-            frac, s_j, ok = refined - j, s_band[:, j:j + 1], ok0 & warped.valid[:, j:j + 1]
+            frac, s_j, ok = refined - j, s0 + offsets[j], ok0 & warped.valid[:, j:j + 1]
         else:  # the winner's s and validity by arithmetic on (B, 1, H, W): the numbers of gathers from the band
             frac = refined - j.to(reference.dtype)
             s_j = s0 + (j - self.band).to(reference.dtype) * step

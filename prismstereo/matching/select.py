@@ -89,9 +89,10 @@ def subpixel_refine(cost: torch.Tensor, index: torch.Tensor | int, method: Subpi
     delta = (cm - cp) / (2 * den).clamp_min(1e-12)
     if isinstance(index, int):
         return delta.clamp(-0.5, 0.5) + index if 0 < index < d - 1 else torch.full_like(delta, float(index))
-    inner = (index > 0) & (index < d - 1)
-    delta = torch.where(inner, delta.clamp(-0.5, 0.5), delta.new_tensor(0.0))
-    return index.to(cost.dtype) + delta
+    # winners at the first or last hypothesis stay integer: the delta times the mask (finite costs give a finite
+    # delta; onnxruntime runs a Where on one thread: 0.3 ms on a 768 x 512 plane, the product ~0.05 ms)
+    inner = ((index > 0) & (index < d - 1)).to(cost.dtype)
+    return index.to(cost.dtype) + delta.clamp(-0.5, 0.5) * inner
 
 
 def subpixel_refine_guarded(
@@ -176,8 +177,14 @@ def soft_argmin_local(
     return (weights * taps.to(cost.dtype)).sum(dim=1, keepdim=True)
 
 
-def uniqueness(cost: torch.Tensor, index: torch.Tensor, ratio: float = 0.9) -> tuple[torch.Tensor, torch.Tensor]:
+def uniqueness(cost: torch.Tensor, index: torch.Tensor, ratio: float = 0.9,
+               nonnegative: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Uniqueness test: the best cost must be below ``ratio`` times the best cost outside winner +- 1.
+
+    ``nonnegative``: the caller guarantees cost >= 0 (e.g. any cost of this package, aggregated or not): the
+    hypotheses near the winner are then masked by a Max with the largest float instead of a Where (which
+    onnxruntime runs on one thread: 0.46 ms on the (1, 28, 128, 193) coarse volume of a 1024 x 768 frame);
+    the same results.
 
     Returns:
         (unique (B, 1, H, W) bool, confidence (B, 1, H, W) in [0, 1] = 1 - best / second best).
@@ -196,9 +203,13 @@ def uniqueness(cost: torch.Tensor, index: torch.Tensor, ratio: float = 0.9) -> t
     # the coarse volume of a 1024 x 768 frame)
     near = (hyp >= index - 1) & (hyp <= index + 1)
     best = cost.gather(1, index)
-    # a scalar fill: onnxruntime's Where against a full tensor of inf cost ~3 ms more on the coarse volume
-    second = torch.where(near, cost.new_tensor(float("inf")), cost).amin(dim=1, keepdim=True)
-    second = torch.where(torch.isinf(second), best, second)
+    if nonnegative:  # cost >= 0: max(cost, big near the winner) is the fill
+        big = torch.finfo(cost.dtype).max
+        second = torch.maximum(cost, near.to(cost.dtype) * big).amin(dim=1, keepdim=True)
+        second = torch.where(second >= big, best, second)  # no hypothesis beyond winner +- 1 (a plane)
+    else:  # a scalar fill: onnxruntime's Where against a full tensor of inf cost ~3 ms more on the coarse volume
+        second = torch.where(near, cost.new_tensor(float("inf")), cost).amin(dim=1, keepdim=True)
+        second = torch.where(torch.isinf(second), best, second)
     confidence = (1 - best / second.clamp_min(1e-12)).clamp(0, 1)
     return best <= ratio * second, confidence
 

@@ -8,6 +8,7 @@ from prismstereo.epipolar.table import (
     cubic_at,
     local_cubic,
     series_at,
+    series_band,
     sweep_series,
     tabulate_sweep,
     valid_interval,
@@ -65,6 +66,69 @@ def test_series_match_the_polynomials(setup, degree):
     rows = series_at(series, s[..., 5:12, :], top=5)
     for a, b in zip(rows, (x, y), strict=True):
         assert torch.equal(a, b[..., 5:12, :])
+
+
+@pytest.mark.parametrize("setup", [thesis_setup1, thesis_setup2])
+def test_series_band_is_the_series_at_the_band(setup):
+    """The band's positions from each pixel's Taylor coefficients at s0 are the series at s0 + t_j: to 1e-9 px in
+    float64 (setups 1 / 2: degrees 4 / 8), within float32 rounding of positions up to ~1000 px of the float64
+    polynomials (the tolerance of series_at), exact at t = 0 up to the origin; rows of the band are bitwise the
+    rows of the whole one (the fine band's strips); the exported form (a MatMul with t_j^k) gives the same in
+    onnxruntime."""
+    import io
+
+    import onnx
+    import onnxruntime as ort
+
+    coef = _coefficients(setup().downscaled(2))
+    series = sweep_series(coef)
+    gen = torch.Generator().manual_seed(6)
+    s0 = torch.rand(2, 1, *coef.shape[1:3], generator=gen, dtype=F64) * 1.8 - 0.9
+    offsets = torch.arange(-2, 3, dtype=F64) * 0.011
+    x, y = series_band(series, s0, offsets)
+    assert x.shape == y.shape == (2, 5, *coef.shape[1:3]) and x.dtype == F64
+    hx, hy = series_at(series, s0 + offsets.view(1, -1, 1, 1))
+    assert float((x - hx).abs().max()) < 1e-9 and float((y - hy).abs().max()) < 1e-9
+    shifted = series_band(series, s0, offsets, origin=(100.0, -2.0))
+    torch.testing.assert_close(shifted[0], x - 100.0)
+    torch.testing.assert_close(shifted[1], y + 2.0)
+    exact = _exact(coef, s0 + offsets.view(1, -1, 1, 1))
+    x32, y32 = series_band(series.float(), s0.float(), offsets.float())
+    assert x32.dtype == torch.float32
+    assert float((torch.stack([x32, y32], -1).double() - exact).abs().max()) < 3e-4
+    rows = series_band(series.float(), s0[..., 5:12, :].float(), offsets.float(), top=5)
+    for a, b in zip(rows, (x32, y32), strict=True):
+        assert torch.equal(a, b[..., 5:12, :])
+
+    class Band(torch.nn.Module):
+        def forward(self, t: torch.Tensor):
+            return series_band(series.float(), t, offsets.float(), origin=(512.0, 0.0))
+
+    f = io.BytesIO()
+    torch.onnx.export(Band(), (s0[:1].float(),), f, opset_version=18, dynamo=False, input_names=["s0"])
+    assert "MatMul" in {n.op_type for n in onnx.load_from_string(f.getvalue()).graph.node}
+    session = ort.InferenceSession(f.getvalue(), providers=["CPUExecutionProvider"])
+    ox, oy = session.run(None, {"s0": s0[:1].float().numpy()})
+    torch.testing.assert_close(torch.from_numpy(ox), x32[:1] - 512.0, rtol=0, atol=3e-4)
+    torch.testing.assert_close(torch.from_numpy(oy), y32[:1], rtol=0, atol=3e-4)
+
+
+def test_series_band_reference_values_gradient_and_errors():
+    # x = 0.5 + 2 s + s^2, y = 3 s (as in the series test below), a band around s0 = 0.5
+    series = sweep_series(torch.tensor([[1.0, 0.0], [2.0, 3.0], [0.5, 0.0]], dtype=F64).view(3, 1, 1, 2))
+    x, y = series_band(series, torch.full((1, 1, 1, 1), 0.5, dtype=F64), torch.tensor([-0.5, 0.0, 1.0], dtype=F64))
+    assert x.flatten().tolist() == [0.5, 1.75, 5.75] and y.flatten().tolist() == [0.0, 1.5, 4.5]
+    constant = torch.tensor([[7.0, -1.0]], dtype=F64).view(2, 1, 1, 1)  # degree 0: the same at every offset
+    cx, cy = series_band(constant, torch.zeros(3, 1, 1, 1, dtype=F64), torch.tensor([-1.0, 1.0], dtype=F64))
+    assert cx.shape == (3, 2, 1, 1) and bool((cx == 7.0).all()) and bool((cy == -1.0).all())
+    s0 = torch.rand(2, 1, 1, 1, generator=torch.Generator().manual_seed(2), dtype=F64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: series_band(series, t, torch.tensor([-0.1, 0.2], dtype=F64)), (s0,))
+    with pytest.raises(ShapeError, match="s0"):
+        series_band(series, torch.zeros(1, 2, 1, 1, dtype=F64), torch.zeros(3, dtype=F64))
+    with pytest.raises(ShapeError, match="offsets"):
+        series_band(series, torch.zeros(1, 1, 1, 1, dtype=F64), torch.zeros(1, 3, dtype=F64))
+    with pytest.raises(ShapeError, match="no rows"):
+        series_band(series, torch.zeros(1, 1, 1, 1, dtype=F64), torch.zeros(3, dtype=F64), top=1)
 
 
 def test_series_reference_values_and_gradient():

@@ -172,6 +172,21 @@ def test_uniqueness_and_confidence():
         uniqueness(cost, idx, 1.5)
 
 
+@pytest.mark.parametrize("d", [3, 4, 9])
+def test_uniqueness_of_nonnegative_costs_is_the_same(d):
+    """The Max-masked form for costs >= 0 (a Where less in onnxruntime) gives the Where form's results exactly,
+    zeros, ties and a winner whose neighbours cover every hypothesis (D = 3) included."""
+    gen = torch.Generator().manual_seed(d)
+    cost = torch.rand(2, d, 6, 7, generator=gen)
+    cost[0, :, 0, 0] = 0.0  # all equal (zero)
+    cost[1, 0, 1, 1] = cost[1, d - 1, 1, 1] = 0.0  # two distant minima
+    idx, _ = winner_take_all(cost)
+    for ratio in (0.5, 1.0):
+        default, masked = uniqueness(cost, idx, ratio), uniqueness(cost, idx, ratio, nonnegative=True)
+        for a, b in zip(default, masked, strict=True):
+            assert torch.equal(a, b)
+
+
 def test_left_right_check_rejects_occlusion():
     # left disparity 4 everywhere except an occluded band whose (wrong) disparity points at a surface
     # with another disparity in the right view

@@ -137,17 +137,18 @@ def _bilinear_reference(image: torch.Tensor, x: float, y: float) -> torch.Tensor
     return (1 - ay) * top + ay * bottom
 
 
-@pytest.mark.parametrize("channels", [1, 3])
-def test_sample_points_both_forms_are_bilinear_with_border_clamping(channels):
+@pytest.mark.parametrize("channels, width", [(1, 5), (3, 5), (1, 7)])
+def test_sample_points_both_forms_are_bilinear_with_border_clamping(channels, width):
+    # the gather form splits the samples of a one-channel image over rows (3 x 4 x 5: 2; 3 x 4 x 7: 1, as colour)
     gen = torch.Generator().manual_seed(3)
     image = torch.rand(2, channels, 7, 9, generator=gen, dtype=torch.float64)
     # inside, on the last row / column, and beyond every edge (border padding clamps)
-    x = torch.rand(2, 3, 4, 5, generator=gen, dtype=torch.float64) * 12 - 2
-    y = torch.rand(2, 3, 4, 5, generator=gen, dtype=torch.float64) * 10 - 2
+    x = torch.rand(2, 3, 4, width, generator=gen, dtype=torch.float64) * 12 - 2
+    y = torch.rand(2, 3, 4, width, generator=gen, dtype=torch.float64) * 10 - 2
     x[0, 0, 0, :3] = torch.tensor([8.0, 0.0, 8.0], dtype=torch.float64)
     y[0, 0, 0, :3] = torch.tensor([6.0, 6.0, 0.0], dtype=torch.float64)
     eager = sample_points(image, x, y)
-    assert eager.shape == (2, channels, 3, 4, 5)
+    assert eager.shape == (2, channels, 3, 4, width)
     gathered = _gather_bilinear(image, x, y)  # the ONNX form, run eagerly
     torch.testing.assert_close(gathered, eager)
     for b, j, r, c in [(0, 0, 0, 0), (0, 0, 0, 1), (0, 0, 0, 2), (1, 2, 3, 4), (1, 1, 2, 0)]:
