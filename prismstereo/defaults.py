@@ -48,15 +48,36 @@ Why the rectified coarse level (``sampling``)
     1 and 8 are strong for ZNCC (measured better than 0.3 / 2.4 and 0.1 / 0.8 on the same captures): the coarse
     level only has to land within the fine band, which then re-estimates every pixel on its own.
 
-``coarse_factor`` (:func:`default_coarse_factor`)
+``coarse_factor`` (:func:`default_coarse_factor`, :func:`pyramid_coarse_factor` for the binned model of a pyramid)
     f = 8 on a 1024 x 768 sensor loses the pixels within ~40 px of the other half's edge: the coarse windows span
     72 px. A narrow range at full resolution (600-1450 mm, 103 hypotheses) gets f = 4: onnxruntime 267 ms per
     frame at 0.048 % mean error, against 506 ms (0.053 %) with f = 2 and ~9x the time with a single level
     (measured before the onnxruntime tuning that brought f = 4 to 156-220 ms). The pyramid's binned model of that
-    range (52 / 94 hypotheses with setup 1 / 2) gets f = 2; f = 4 there (``coarse_factor=4``, session 10) took
-    0.84x the onnxruntime time (1.00x OpenCV SGBM's) with errors as low or lower, but covered 93.7 % of setup 2's
-    step scene (700 / 1000 mm; f = 2: 95.6 %): the 1/8-resolution windows straddle the step (neither
-    ``coarse_reach=2`` nor a binned band of +-4 recovered it: 93.6 / 93.5 %).
+    range (52 / 94 hypotheses with setup 1 / 2) got f = 2 by the rule of >= 24 hypotheses; f = 4 there
+    (``coarse_factor=4``, session 10) took 0.84x the onnxruntime time (1.00x OpenCV SGBM's) with errors as low or
+    lower, but covered 93.7 % of setup 2's step scene (700 / 1000 mm; f = 2: 95.6 %) (neither ``coarse_reach=2``
+    nor a binned band of +-4 recovered it: 93.6 / 93.5 %). The pixels lost were not at the step but the ~35
+    columns before the edge of the common field of view on the near plane, where the coarse estimate was off by
+    a median 7.4 full-resolution steps (f = 2: 2.3): the shifts whose windows reach past the other half's edge
+    lost to shorter ones, the invalid entries costing the worst value (see *The shift volume's fill* below).
+    With 3/4 of it (session 12) f = 4 covers that scene at 95.1 %, and the binned model of a pyramid takes the
+    largest f leaving >= 12 hypotheses (:func:`pyramid_coarse_factor`): 600-1450 mm (``depth_targets.py
+    --z-range 600 1450 --slanted 900 --step 700 1000``), mean errors 0.036-0.087 % (setup 1) and 0.030-0.064 %
+    (setup 2; f = 2 before: 0.038-0.091 / 0.031-0.072 %), coverage 98.9-99.4 % / 95.5-97.2 % (98.8-99.4 /
+    95.7-97.3 %), slanted plane 0.046 / 0.034 % on 99.0 / 97.0 %, step 98.2 / 95.1 % (98.2 / 95.6 %), false
+    matches at setup 2's 1374 mm 1.20 % (2.22 %), in 0.84x the onnxruntime time (paired A/B); the wide range's
+    binned models have f = 4 either way.
+
+The shift volume's fill (``_SHIFT_FILL`` of :mod:`prismstereo.matching.levels`, not an option)
+    The rectified search's entries that are not real samples (past the other half's edge or outside the pixel's
+    own range) cost 3/4 of the worst cost (ZNCC: 1.5, between uncorrelated and anti-correlated) instead of the
+    worst (session 12, ``depth_targets.py``, 205-1511 mm unless said otherwise). The default pyramid: mean errors
+    0.019-0.087 % / 0.011-0.063 % (setups 1 / 2; worst fill 0.015-0.088 / 0.012-0.064 %), coverage 96.9-99.3 % /
+    96.0-98.6 % (97.2-99.5 / 95.9-98.7 %), setup 2's slanted plane 97.0 % (95.8 %), false matches at 228 mm 2.84 /
+    1.41 % (2.82 / 1.57 %). ``downsample=1``: coverage 98.9-99.5 % / 96.7-99.1 % (97.2-99.6 / 96.4-98.5 %; setup
+    1 at 228 mm 99.0 against 97.2 %), errors within 0.005 points. The half-size sensors (``--scale 2``, their
+    default model): worst coverage 96.3 / 93.7 % (92.1 / 92.3 %). A neutral fill (1.0) covered as much with up to
+    0.008 points more mean error on setup 2 (625 mm 0.030 against 0.026 %) and more errors above 2 %.
 
 ``band`` (:func:`pyramid_band` for the binned model of a pyramid)
     The binned model's estimate only places the full-resolution band. ``depth_targets.py --band 3`` against 5
@@ -95,6 +116,9 @@ Why the rectified coarse level (``sampling``)
     1) and the far ones (setup 2, 780-1374 mm).
 
 ``coarse_reach``
+    (Measured with the worst-cost fill of the shift volume; with 3/4 of it the coarse level loses less of the edge
+    itself: a half-size setup 1 at 240 mm covers 96.6 % without the reach (91.8 % before), 97.7 % with it, at
+    0.052 % mean error against 0.038 % (the reached pixels are the harder ones).)
     The coarse level loses a margin of about its window at the edges of the common field of view (at 228 mm with
     setup 1 that field is a strip of 144 of the 512 reference columns), and the bilinear upsampling of s blended
     the values of its invalid pixels into the valid ones next to them, misplacing the band there (on a half-size
@@ -146,7 +170,7 @@ import math
 
 from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["default_coarse_factor", "default_downsample", "pyramid_band"]
+__all__ = ["default_coarse_factor", "default_downsample", "pyramid_band", "pyramid_coarse_factor"]
 
 
 def default_downsample(rig: BiPrismRig) -> int:
@@ -181,8 +205,32 @@ def default_coarse_factor(num_hypotheses: int, height: int, width: int) -> int:
         >>> [default_coarse_factor(d, h, w) for d, h, w in ((368, 768, 512), (103, 768, 512), (40, 96, 64))]
         [4, 4, 1]
     """
+    return _coarse_factor(num_hypotheses, height, width, 24)
+
+
+def pyramid_coarse_factor(num_hypotheses: int, height: int, width: int) -> int:
+    """The coarse factor of a pyramid's binned model: as :func:`default_coarse_factor`, leaving >= 12 hypotheses
+    instead of 24, since its estimate only places the full-resolution band (``coarse_factor`` in the module
+    docstring: the narrow range's binned model gets f = 4 instead of 2).
+
+    Args:
+        num_hypotheses: D of the binned image.
+        height, width: the binned reference half's size (px).
+
+    Returns:
+        The coarse factor f.
+
+    Example:
+        >>> [pyramid_coarse_factor(d, 384, 256) for d in (52, 47, 222)], default_coarse_factor(52, 384, 256)
+        ([4, 2, 4], 2)
+    """
+    return _coarse_factor(num_hypotheses, height, width, 12)
+
+
+def _coarse_factor(num_hypotheses: int, height: int, width: int, least: int) -> int:
+    """The largest power of two f <= 4 leaving >= ``least`` hypotheses and >= 32 rows and columns."""
     f = 1
-    while f < 4 and num_hypotheses / (2 * f) >= 24 and min(height, width) / (2 * f) >= 32:
+    while f < 4 and num_hypotheses / (2 * f) >= least and min(height, width) / (2 * f) >= 32:
         f *= 2
     return f
 

@@ -49,7 +49,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.batching import per_image
-from prismstereo.defaults import default_coarse_factor, default_downsample, pyramid_band
+from prismstereo.defaults import default_coarse_factor, default_downsample, pyramid_band, pyramid_coarse_factor
 from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.range import default_z_range
 from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
@@ -239,8 +239,12 @@ class PrismStereo(nn.Module):
         z_range_mm = default_z_range(rig) if z_range_mm is None else z_range_mm
         self.binned: PrismStereo | None = None
         if full_band:  # a pyramid: the binned model places a full-resolution band of 2 full_band + 1 hypotheses
-            self.binned = PrismStereo(rig.binned(downsample), z_range_mm, num_hypotheses, downsample=1, full_band=0,
-                                      **level_options)
+            binned = rig.binned(downsample)
+            self.binned = PrismStereo(binned, z_range_mm, num_hypotheses, downsample=1, full_band=0, **level_options)
+            factor = pyramid_coarse_factor(self.binned.num_hypotheses, binned.image_height, binned.reference_width)
+            if coarse_factor is None and factor != self.binned.factor:  # its estimate only places the final band
+                self.binned = PrismStereo(binned, z_range_mm, self.binned.num_hypotheses, downsample=1, full_band=0,
+                                          **{**level_options, "coarse_factor": factor})
             if band is None and self.binned.factor > 1:  # its band only places the final one: see ``band``
                 self.binned._set_band(pyramid_band(self.binned.factor))
             num_hypotheses, coarse_factor, band = None, downsample, full_band

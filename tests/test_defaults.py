@@ -3,7 +3,7 @@
 import dataclasses
 
 from prismstereo import thesis_setup1, thesis_setup2
-from prismstereo.defaults import default_coarse_factor, default_downsample, pyramid_band
+from prismstereo.defaults import default_coarse_factor, default_downsample, pyramid_band, pyramid_coarse_factor
 from prismstereo.model import PrismStereo
 
 
@@ -34,3 +34,16 @@ def test_pyramid_band_and_the_models_binned_band():
     assert model.binned is not None and model.binned.band == pyramid_band(model.binned.factor) == 3
     own = PrismStereo(thesis_setup1(), (228.0, 1374.0), band=5)  # an explicit band is kept
     assert own.binned.band == 5
+
+
+def test_pyramid_coarse_factor_leaves_12_hypotheses():
+    """A pyramid's binned model only places the final band: >= 12 coarse hypotheses instead of 24, so the narrow
+    range (600-1450 mm: 52 / 94 binned hypotheses with setups 1 / 2) gets f = 4 where a model of its own gets 2;
+    the wide range and an explicit coarse_factor keep theirs."""
+    assert [pyramid_coarse_factor(d, 384, 256) for d in (52, 48, 47, 24, 23, 94, 222)] == [4, 4, 2, 2, 1, 4, 4]
+    assert default_coarse_factor(52, 384, 256) == default_coarse_factor(94, 384, 256) == 2
+    assert pyramid_coarse_factor(222, 127, 256) == 2  # >= 32 rows as before
+    narrow = PrismStereo(thesis_setup1(), (600.0, 1450.0))
+    assert narrow.binned.num_hypotheses == 52 and narrow.binned.factor == 4 and narrow.binned.band == 3
+    assert PrismStereo(thesis_setup1(), (600.0, 1450.0), coarse_factor=2).binned.factor == 2
+    assert PrismStereo(narrow.rig, **narrow.config()).binned.factor == 4  # the config round trip keeps it

@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from prismstereo import OptionError, RigError, ShapeError, thesis_setup1, thesis_setup2
+from prismstereo.defaults import default_coarse_factor, pyramid_coarse_factor
 from prismstereo.epipolar import exact_sampling_grid
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients
 from prismstereo.matching.levels import RectifiedSearch, SweepSearch
@@ -351,9 +352,13 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
     assert model.binned is not None and model.binned.rig == rig.binned(2) and model.binned.binned is None
     assert model.binned.num_hypotheses == blocks.num_hypotheses and model.coarse_hypotheses == blocks.num_hypotheses
     assert model.num_hypotheses == PrismStereo(rig, z_range).num_hypotheses and model.band == 2
-    # the binned model's own band only places the final one: ceil(3 f / 4) instead of f + 1, unless given
-    f = model.binned.factor
-    assert f > 1 and blocks.band == f + 1 and model.binned.band == model.binned.fine.band == math.ceil(3 * f / 4)
+    # the binned model's estimate only places the final band: its coarse factor leaves >= 12 hypotheses (4 here,
+    # where the block model's own default, >= 24, is 2) and its band is ceil(3 f / 4) instead of f + 1, unless given
+    f, size = model.binned.factor, (model.binned.rig.image_height, model.binned.rig.reference_width)
+    assert f == pyramid_coarse_factor(model.binned.num_hypotheses, *size) == 4
+    assert blocks.factor == default_coarse_factor(blocks.num_hypotheses, *size) == 2 and blocks.band == 3
+    assert model.binned.band == model.binned.fine.band == math.ceil(3 * f / 4)
+    assert PrismStereo(rig, z_range, downsample=2, full_band=2, coarse_factor=2).binned.factor == 2  # as given
     given = PrismStereo(rig, z_range, downsample=2, full_band=2, band=f + 2)
     assert given.binned.band == given.binned.fine.band == f + 2 and given.band == 2
     cap = render(rig, slanted_plane(rig, 560.0, 30.0, seed=4), FORM)
@@ -415,7 +420,10 @@ def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
     """At a near plane the common field of view is a narrow strip whose edge the coarse level loses (its
     windows leave the other half there). Extending its estimate by one coarse pixel (1) keeps the bilinear
     upsampling of valid estimates from blending in the invalid pixels' values and (2) lets the fine band match
-    the reached pixels, accepted at the stricter reach_confidence."""
+    the reached pixels, accepted at the stricter reach_confidence. Since the shift volume's invalid entries cost
+    3/4 of the worst cost (session 12) the coarse level loses less of the edge itself: coverage 96.6 % without
+    the reach (91.8 % before), 97.2 % with (1), 97.7 % with both (95.2 / 95.7 % before), mean errors 0.038 / 0.052 %
+    (the reached pixels are the harder ones)."""
     rig = scaled_rig(thesis_setup1(), 2)
     cap = render(rig, fronto_parallel_plane(rig, 240.0, seed=2), FORM)
     with torch.no_grad():
@@ -425,10 +433,10 @@ def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
     rel0, coverage0 = _errors(rig, plain, cap)
     rel1, coverage1 = _errors(rig, reach, cap)
     coverage_unreached = _errors(rig, unreached, cap)[1]
-    assert coverage1 > coverage_unreached > coverage0 + 0.01  # measured 95.7 > 95.2 > 91.8 %
+    assert coverage1 > coverage_unreached + 0.003 and coverage_unreached > coverage0 + 0.004  # 97.7, 97.2, 96.6 %
     reached = reach.valid & ~unreached.valid  # the same fine band otherwise: exactly the accepted reached pixels
     assert reached.sum() > 50 and reach.confidence[reached].min() >= 0.9
-    assert rel1.mean() <= rel0.mean() * 1.1 and rel1.mean() < 0.001
+    assert rel1.mean() <= rel0.mean() * 1.5 and rel1.mean() < 0.001
     with pytest.raises(OptionError, match="coarse_reach must be an int >= 0"):
         PrismStereo(rig, (220.0, 900.0), coarse_reach=-1)
     with pytest.raises(OptionError, match="reach_confidence must be in"):

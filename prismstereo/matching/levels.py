@@ -51,6 +51,12 @@ from prismstereo.matching.sweep_cost import (
 __all__ = ["Extended", "FineBand", "LevelResult", "RectifiedSearch", "SearchOptions", "SweepSearch", "extend_estimate"]
 
 _TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05}  # soft-argmin temperature per cost's units
+# the cost of an entry of the rectified shift volume that is not a real sample, as a share of the worst cost (ZNCC:
+# 1.5, between uncorrelated and anti-correlated): the worst cost made the shifts whose windows reach past the other
+# half's edge lose to shorter ones there, a margin of about the aggregated window (the binned coarse level of the
+# narrow-range pyramid with factor 4: coverage of setup 2's step scene 93.7 -> 95.1 %); measurements in
+# :mod:`prismstereo.defaults` (``coarse_factor``)
+_SHIFT_FILL = 0.75
 _STRIP_VOXELS = 400_000  # fine band voxels per strip in torch eager (~1.6 MB per float32 volume: cache-sized)
 _EXPORT_STRIP_VOXELS = 2_000_000  # per strip of an exported graph (the pyramid's bands: one piece; see FineBand)
 
@@ -228,8 +234,9 @@ class RectifiedSearch(_Search):
         b, o, t = reference.shape[0], self.options, self.transposed
         ref_r = sample_slices(reference, self.reference_grid.to(reference)[None, None], shared=True)[:, :, 0]
         oth_r = sample_slices(other, self.other_grid.to(other)[None, None], shared=True)[:, :, 0]
+        fill = _SHIFT_FILL * worst_cost(o.cost, reference.shape[1], o.window)
         volume = shift_cost(ref_r, oth_r, self.index, self.valid.unsqueeze(0), o.cost, o.window,
-                            o.census_threshold, transposed=t)
+                            o.census_threshold, transposed=t, fill=fill)
         index, refined, confidence, unique, total = self.decide(volume, reference.shape[1], final)
         ok = self.valid.unsqueeze(0).expand(b, -1, -1, -1).gather(1, index) & unique
         if t:

@@ -366,6 +366,7 @@ def shift_cost(
     window: int = 5,
     census_threshold: float = 0.0,
     transposed: bool = False,
+    fill: float | None = None,
 ) -> torch.Tensor:
     """Cost volume of a rectified pair by column shifts: hypothesis d compares reference column u with
     column ``index[d, u]`` of ``other`` on the same row (one gather builds the slices).
@@ -392,9 +393,10 @@ def shift_cost(
         window: census / ZNCC window (odd).
         census_threshold: see :func:`sweep_cost`.
         transposed: return (B, D, W, H).
+        fill: the cost of entries that are not valid (>= 0); None: the worst cost (:func:`worst_cost`).
 
     Returns:
-        (B, D, H, W) cost (or (B, D, W, H)), the worst value where not valid.
+        (B, D, H, W) cost (or (B, D, W, H)), ``fill`` where not valid.
 
     Raises:
         OptionError / ShapeError: as :func:`sweep_cost`; an index or mask of the wrong shape.
@@ -424,8 +426,12 @@ def shift_cost(
     def gather(image_t: torch.Tensor) -> torch.Tensor:  # (B, C, W_o, H) -> (B, C, D, W, H)
         return image_t[:, :, index]
 
+    if fill is not None and not (isinstance(fill, (int, float)) and fill >= 0):
+        raise OptionError(f"fill must be a number >= 0 or None, got {fill!r}")
     if cost != "zncc":
         volume = sweep_cost(ref_t, Warped(gather(other_t), valid_t), cost, window, census_threshold)
+        if fill is not None:  # sweep_cost filled the worst cost
+            volume = _fill(volume, valid_t, float(fill))
         return volume if transposed else volume.transpose(-1, -2)
     if not isinstance(window, int) or window < 1 or window % 2 == 0:
         raise OptionError(f"window must be an odd int, got {window!r}")
@@ -445,5 +451,7 @@ def shift_cost(
         left = _zncc(ref_t[..., :2 * r, :], wrp[..., :2 * r, :].unsqueeze(1) + 0.5, window)[..., :r, :]
         right = _zncc(ref_t[..., -2 * r:, :], wrp[..., -2 * r:, :].unsqueeze(1) + 0.5, window)[..., -r:, :]
         volume = torch.cat([left, volume[..., r:w - r, :], right], -2)
-    volume = _fill(volume, valid_t, worst_cost("zncc", 1, window), bounded=True)
+    worst = worst_cost("zncc", 1, window)
+    value = worst if fill is None else float(fill)  # ZNCC lies in [0, worst]: a fill >= worst is max(volume, fill)
+    volume = _fill(volume, valid_t, value, bounded=value >= worst)
     return volume if transposed else volume.transpose(-1, -2)

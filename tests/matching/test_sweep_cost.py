@@ -106,6 +106,15 @@ def test_shift_cost_is_sweep_cost_on_shifted_slices(cost, transposed):
     torch.testing.assert_close(vol.transpose(-1, -2) if transposed else vol, expected)
     win = expected.masked_fill(~valid, 1e9).argmin(1)
     assert (win == 6)[valid[:, 6].expand_as(win)].double().mean() > 0.95
+    # another cost for the entries that are not real samples (the rectified search's 3/4 of the worst): exactly
+    # that there, the same volume elsewhere; a fill >= the worst cost is the default's bounded form
+    valid_v = valid.transpose(-1, -2) if transposed else valid
+    worst = worst_cost(cost, 1, 5)
+    for fill in (0.75 * worst, 0.0, 3.0 * worst):
+        filled = shift_cost(reference, other, index, valid_v, cost, 5, transposed=transposed, fill=fill)
+        filled, default = (t.transpose(-1, -2) if transposed else t for t in (filled, vol))
+        assert torch.equal(filled[valid.expand_as(filled)], default[valid.expand_as(default)])
+        assert bool((filled[~valid.expand_as(filled)] == fill).all())
 
 
 def test_shift_cost_gradients_and_errors():
@@ -123,6 +132,8 @@ def test_shift_cost_gradients_and_errors():
         shift_cost(reference, other, index, valid, "ssd")
     with pytest.raises(OptionError, match="window must be an odd int"):
         shift_cost(reference, other, index, valid, "zncc", 4)
+    with pytest.raises(OptionError, match="fill must be a number >= 0"):
+        shift_cost(reference, other, index, valid, "zncc", 3, fill=-1.0)
 
 
 def _bilinear_reference(image: torch.Tensor, x: float, y: float) -> torch.Tensor:
