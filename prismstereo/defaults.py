@@ -6,7 +6,9 @@ are this package's renders (``thesis_setup1`` / ``thesis_setup2`` at 1024 x 768 
 read noise 1/255, 2 x 2 supersampling); "coverage" is the share of co-visible reference pixels that are valid,
 "false matches" the share of valid pixels that are not co-visible. Scripts: ``benchmarks/depth_targets.py``
 (accuracy; 205-1511 mm unless ``--z-range`` says otherwise) and ``benchmarks/onnx_speed.py`` (speed, setup 1;
-ratios are medians of same-round ratios to OpenCV StereoSGBM's time).
+ratios are medians of same-round ratios to OpenCV StereoSGBM's time). Numbers from before session 12 were
+measured with the shift volume's invalid entries at the worst cost (see *The shift volume's fill*) and slower
+graphs; each is dated where it matters.
 
 Why coarse-to-fine
     Over the thesis' working range the correspondence moves ~365 px across the other half (``thesis_setup1``);
