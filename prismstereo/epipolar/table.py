@@ -176,12 +176,7 @@ def series_at(series: torch.Tensor, s: torch.Tensor, top: int = 0) -> tuple[torc
     """
     check_shape(series, [2, "K", "H", "W"], "series")
     check_shape(s, ["B", "J", "H_s", "W"], "s")
-    h, w = series.shape[-2:]
-    rows = s.shape[-2]
-    if s.shape[-1] != w or not 0 <= top <= h - rows:
-        raise ShapeError(f"series {tuple(series.shape)} has no rows {top}..{top + rows - 1} of width {s.shape[-1]}")
-    if top or rows != h:
-        series = series[..., top:top + rows, :]
+    series = _rows_of(series, s, top)
     out = []
     for planes in series.to(s).unbind(0):  # (D + 1, H_s, W) per coordinate
         acc = planes[-1].expand_as(s) if planes.shape[0] == 1 else planes[-1] * s + planes[-2]
@@ -198,10 +193,11 @@ def series_band(series: torch.Tensor, s0: torch.Tensor, offsets: torch.Tensor, t
     Each pixel's series is re-expanded about its own s0: p(s0 + t) = sum_k a_k t^k with
     a_k = sum_{i >= k} C(i, k) c_i s0^(i - k) (the Taylor coefficients, by repeated synthetic division: D (D + 1) / 2
     multiply-adds over (B, 1, H, W) planes per coordinate), and the J positions are then one product with the
-    (J, D + 1) matrix t_j^k: in an ONNX export one 1 x 1 convolution, where Horner's rule at each s0 + t_j takes
-    2 D passes over (B, J, H, W) volumes. Torch eager evaluates sum_k a_k t^k by Horner's rule in t instead
-    (element by element, so a band's rows give the same bits whichever rows are computed with them; oneDNN's
-    convolution does not). The same numbers as ``series_at(series, s0 + t)`` up to float rounding.
+    (J, D + 1) matrix t_j^k: in an ONNX export one MatMul (a 1 x 1 Conv became 16-channel NCHWc blocks in
+    onnxruntime), where Horner's rule at each s0 + t_j takes 2 D passes over (B, J, H, W) volumes. Torch eager
+    evaluates sum_k a_k t^k by Horner's rule in t instead (element by element, so a band's rows give the same bits
+    whichever rows are computed with them; oneDNN's convolution did not). The same numbers as
+    ``series_at(series, s0 + t)`` up to float rounding.
 
     Args:
         series: (2, D + 1, H, W) from :func:`sweep_series`.
@@ -225,12 +221,7 @@ def series_band(series: torch.Tensor, s0: torch.Tensor, offsets: torch.Tensor, t
     check_shape(series, [2, "K", "H", "W"], "series")
     check_shape(s0, ["B", 1, "H_s", "W"], "s0")
     check_shape(offsets, ["J"], "offsets")
-    h, w = series.shape[-2:]
-    rows = s0.shape[-2]
-    if s0.shape[-1] != w or not 0 <= top <= h - rows:
-        raise ShapeError(f"series {tuple(series.shape)} has no rows {top}..{top + rows - 1} of width {s0.shape[-1]}")
-    if top or rows != h:
-        series = series[..., top:top + rows, :]
+    series = _rows_of(series, s0, top)
     n = series.shape[1] - 1
     t = offsets.to(s0)
     exporting = torch.onnx.is_in_onnx_export()
@@ -254,6 +245,15 @@ def series_band(series: torch.Tensor, s0: torch.Tensor, offsets: torch.Tensor, t
             acc = acc * t + b[k]
         out.append(acc.expand(s0.shape[0], -1, -1, -1) if acc.shape[0] != s0.shape[0] else acc)
     return out[0], out[1]
+
+
+def _rows_of(series: torch.Tensor, s: torch.Tensor, top: int) -> torch.Tensor:
+    """The rows ``top`` ... of ``series`` (2, D + 1, H, W) that the coordinates ``s`` (..., H_s, W) cover."""
+    h, w = series.shape[-2:]
+    rows = s.shape[-2]
+    if s.shape[-1] != w or not 0 <= top <= h - rows:
+        raise ShapeError(f"series {tuple(series.shape)} has no rows {top}..{top + rows - 1} of width {s.shape[-1]}")
+    return series[..., top:top + rows, :] if top or rows != h else series
 
 
 def tabulate_sweep(coefficients: torch.Tensor, tolerance_px: float = 1e-3) -> torch.Tensor:

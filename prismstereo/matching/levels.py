@@ -338,7 +338,7 @@ class FineBand(nn.Module):
         """The band on rows ``top`` ... of the image (``series`` whole, ``interval`` of these rows)."""
         o, step = self.options, self.step
         offsets = torch.arange(-self.band, self.band + 1, device=reference.device).to(reference.dtype) * step
-        # the band's positions s0 + t_j from each pixel's Taylor coefficients at s0 (one 1 x 1 convolution: in
+        # the band's positions s0 + t_j from each pixel's Taylor coefficients at s0 (exported as one MatMul: in
         # onnxruntime cheaper than Horner's rule over the (B, J, H, W) coordinates), in other-half pixels
         x, y = series_band(series, s0, offsets, top, origin=(self.split, 0.0))
         channels = reference.shape[1]

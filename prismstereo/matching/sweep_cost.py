@@ -242,7 +242,7 @@ _VAR_FLOOR = 1e-5  # (0.8 / 255)^2: below the variance of 8-bit read noise of 1 
 
 _box = box_filter  # (B, D, H, W) window mean, separable
 # onnxruntime's GatherElements runs the rows of its index (all axes before the gathered one) on its threads and one
-# row on one thread: the bilinear taps gather from the image repeated on this many rows (an Expand, a copy of the
+# row on one thread: the bilinear taps gather from the image repeated on this many rows (a Concat, a copy of the
 # image), the samples split between them (micro-benchmark, 2 M samples from a 768 x 512 image, 2 threads, the copy
 # included: 1 row 1.07 ms, 2 rows 0.67 ms, 4 rows 0.73 ms, 8 rows 0.96 ms). One-channel images (the grey samples of
 # ZNCC); images of several channels gather on one row per channel
