@@ -26,6 +26,7 @@ import torch
 from prismstereo.conventions import HALVES as _HALVES
 from prismstereo.conventions import Half
 from prismstereo.errors import RigError, check_floating, check_option, check_shape
+from prismstereo.geometry.distortion import distort, undistort
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 
 __all__ = [
@@ -127,7 +128,9 @@ def refract(incident: torch.Tensor, normal: torch.Tensor, eta: torch.Tensor | fl
 def pixel_directions(rig: BiPrismRig | RigParameters, uv: torch.Tensor) -> torch.Tensor:
     """Unit directions of the real camera's rays through pixels (thesis ray R1, eq. 3.2).
 
-    d = normalize(((u - cx) s, (v - cy) s, f)) with s the pixel size: pinhole in the camera frame.
+    d = normalize(((u - cx) s, (v - cy) s, f)) with s the pixel size: pinhole in the camera frame. A rig with
+    lens distortion first undistorts the pixel's normalised coordinates
+    (:func:`~prismstereo.geometry.distortion.undistort`, OpenCV's model): d = normalize((x f, y f, f)).
 
     Args:
         rig: the rig.
@@ -157,8 +160,13 @@ def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def _pixel_directions(p: RigParameters, uv: torch.Tensor) -> torch.Tensor:
-    x = (uv[..., 0] - p.cx) * p.pixel_size
-    y = (uv[..., 1] - p.cy) * p.pixel_size
+    if p.distortion is None:
+        x = (uv[..., 0] - p.cx) * p.pixel_size
+        y = (uv[..., 1] - p.cy) * p.pixel_size
+    else:  # the lens' distortion undone on normalised coordinates (Newton, fixed steps)
+        fpx = p.f / p.pixel_size
+        xy = undistort(torch.stack([(uv[..., 0] - p.cx) / fpx, (uv[..., 1] - p.cy) / fpx], dim=-1), p.distortion)
+        x, y = xy[..., 0] * p.f, xy[..., 1] * p.f
     d = torch.stack([x, y, p.f.expand_as(x)], dim=-1)
     return d / d.norm(dim=-1, keepdim=True)
 
@@ -509,7 +517,10 @@ def _initial_guess(p: RigParameters, points: torch.Tensor, half: str) -> torch.T
     w = w + cross + _cross(v.expand_as(w), cross) / (1.0 + a[2])
     z = w[..., 2].clamp_min(1e-6)
     fpx = p.f / p.pixel_size
-    return torch.stack([p.cx + fpx * w[..., 0] / z, p.cy + fpx * w[..., 1] / z], dim=-1)
+    xy = torch.stack([w[..., 0] / z, w[..., 1] / z], dim=-1)
+    if p.distortion is not None:
+        xy = distort(xy, p.distortion)
+    return torch.stack([p.cx + fpx * xy[..., 0], p.cy + fpx * xy[..., 1]], dim=-1)
 
 
 # ----------------------------------------------------------------------------------- rig check

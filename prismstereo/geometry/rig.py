@@ -27,7 +27,8 @@ import torch
 
 from prismstereo.errors import RigError
 
-__all__ = ["BiPrismRig", "RigParameters", "as_parameters", "thesis_setup1", "thesis_setup2", "PRESETS", "load_rig"]
+__all__ = ["BiPrismRig", "RigParameters", "as_parameters", "thesis_setup1", "thesis_setup2", "PRESETS", "load_rig",
+           "split_column"]
 
 _REQUIRED = (
     "alpha_deg",
@@ -39,7 +40,7 @@ _REQUIRED = (
     "image_width",
     "image_height",
 )
-_OPTIONAL = ("principal_point", "prism_offset_x_mm", "prism_tilt_deg")
+_OPTIONAL = ("principal_point", "prism_offset_x_mm", "prism_tilt_deg", "distortion")
 
 
 class RigParameters(NamedTuple):
@@ -59,6 +60,9 @@ class RigParameters(NamedTuple):
         cy: principal point row (px).
         d: x offset of the apex line (mm).
         tilt: (3,) prism rotation about the apex point (rad): about x, y, z, applied as R_z R_y R_x.
+        distortion: (5,) lens distortion ``(k1, k2, p1, p2, k3)`` (OpenCV's model on the real camera's
+            normalised coordinates, :mod:`prismstereo.geometry.distortion`), or None for a distortion-free lens
+            (the pinhole formulas, no undistortion iterations).
         width: image width (px).
         height: image height (px).
     """
@@ -73,6 +77,7 @@ class RigParameters(NamedTuple):
     cy: torch.Tensor
     d: torch.Tensor
     tilt: torch.Tensor
+    distortion: torch.Tensor | None
     width: int
     height: int
 
@@ -84,8 +89,13 @@ class RigParameters(NamedTuple):
             >>> thesis_setup1().parameters().reference_width
             512
         """
-        apex = self.cx + self.f / self.pixel_size * self.d / self.T_o
-        return min(self.width, max(0, math.ceil(float(apex.detach()))))
+        def f(x: torch.Tensor) -> Any:
+            return x.detach().tolist()
+
+        k = None if self.distortion is None else f(self.distortion)
+        column = split_column(float(f(self.cx)), float(f(self.cy)), float(f(self.f / self.pixel_size)),
+                              float(f(self.d)), float(f(self.T_o)), f(self.tilt), k, self.height)
+        return min(self.width, max(0, math.ceil(column)))
 
     def to(self, like: torch.Tensor) -> RigParameters:
         """Return the parameters on ``like``'s device and dtype (autograd is preserved).
@@ -123,7 +133,12 @@ class BiPrismRig:
             the sensor.
         prism_offset_x_mm: d, x translation of the prism (thesis sec. 5.5), default 0.
         prism_tilt_deg: rotation of the prism about its apex point (d, 0, T_o), degrees about x, y, z
-            (applied as R_z R_y R_x); default (0, 0, 0). Each angle must be in (-45, 45).
+            (applied as R_z R_y R_x); default (0, 0, 0). Each angle must be in (-45, 45). The angle about z is
+            the prism's roll: its apex line is then not parallel to the sensor columns and the split between
+            the half-images is slanted (see :attr:`reference_width`).
+        distortion: lens distortion ``(k1, k2, p1, p2, k3)`` of the real camera, OpenCV's order and meaning on
+            its normalised coordinates (:mod:`prismstereo.geometry.distortion`); default all zeros, the
+            pinhole. Must be invertible over the sensor (the lens model may not fold over).
 
     Raises:
         RigError: on any invalid value (the message names the field).
@@ -147,6 +162,7 @@ class BiPrismRig:
     principal_point: tuple[float, float] | None = None
     prism_offset_x_mm: float = 0.0
     prism_tilt_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         for name in ("alpha_deg", "refractive_index", "focal_length_mm", "prism_thickness_mm",
@@ -186,6 +202,10 @@ class BiPrismRig:
         if any(abs(t) >= 45.0 for t in tilt):
             raise RigError(f"prism_tilt_deg angles must be in (-45, 45) degrees, got {tilt}")
         object.__setattr__(self, "prism_tilt_deg", tilt)
+        distortion = _float_tuple(self.distortion, 5, "distortion")
+        object.__setattr__(self, "distortion", distortion)
+        if any(distortion):
+            _check_distortion(self)
         # The geometric check needs the ray tracer; imported here to keep the module graph acyclic.
         from prismstereo.geometry.optics import check_rig_images
 
@@ -219,21 +239,37 @@ class BiPrismRig:
 
     @property
     def apex_column(self) -> float:
-        """Image column u where the apex point (d, 0, T_o) projects: cx + f d / (T_o pixel_size).
+        """Image column u where the apex point (d, 0, T_o) projects: cx + f d / (T_o pixel_size) (pinhole).
 
-        Columns u < apex_column form the left (reference) half-image when the prism is not tilted.
+        Columns u < apex_column form the left (reference) half-image when the prism is neither rolled nor
+        tilted about x and the lens is distortion-free.
         """
         return self.cx + self.focal_length_px * self.prism_offset_x_mm / self.apex_distance_mm
 
     @property
+    def distorted(self) -> bool:
+        """True if any distortion coefficient is non-zero."""
+        return any(self.distortion)
+
+    @property
     def reference_width(self) -> int:
-        """W_ref: the number of image columns left of the apex column (u < apex_column), clamped to [0, W].
+        """W_ref: the columns that go to the reference half, clamped to [0, W].
+
+        The columns left of the apex line's image. When the prism is rolled (or tilted about x) or the lens
+        distorts, that image is a slanted or curved line and W_ref is its rightmost column over the sensor's
+        rows (:func:`split_column`), so the reference crop holds every left-half pixel; the few right-half
+        pixels it also holds are masked by the tracer's ``left`` flag wherever the library builds masks.
 
         Example:
             >>> thesis_setup1().reference_width
             512
+            >>> thesis_setup1().replace(prism_tilt_deg=(0.0, 0.0, 0.3)).reference_width
+            514
         """
-        return min(self.image_width, max(0, math.ceil(self.apex_column)))
+        column = split_column(self.cx, self.cy, self.focal_length_px, self.prism_offset_x_mm, self.apex_distance_mm,
+                              [math.radians(a) for a in self.prism_tilt_deg],
+                              self.distortion if self.distorted else None, self.image_height)
+        return min(self.image_width, max(0, math.ceil(column)))
 
     # ----------------------------------------------------------------------------- tensors
     def parameters(
@@ -276,6 +312,7 @@ class BiPrismRig:
             cy=t(self.cy),
             d=t(self.prism_offset_x_mm),
             tilt=t([math.radians(a) for a in self.prism_tilt_deg]),
+            distortion=t(list(self.distortion)) if (self.distorted or requires_grad) else None,
             width=self.image_width,
             height=self.image_height,
         )
@@ -328,6 +365,7 @@ class BiPrismRig:
         out = dataclasses.asdict(self)
         out["principal_point"] = list(self.principal_point)  # type: ignore[arg-type]
         out["prism_tilt_deg"] = list(self.prism_tilt_deg)
+        out["distortion"] = list(self.distortion)
         return out
 
     @classmethod
@@ -356,6 +394,8 @@ class BiPrismRig:
             kwargs["principal_point"] = _float_tuple(kwargs["principal_point"], 2, "principal_point")
         if "prism_tilt_deg" in kwargs:
             kwargs["prism_tilt_deg"] = _float_tuple(kwargs["prism_tilt_deg"], 3, "prism_tilt_deg")
+        if "distortion" in kwargs:
+            kwargs["distortion"] = _float_tuple(kwargs["distortion"], 5, "distortion")
         return cls(**kwargs)
 
     def to_json(self, path: str | Path | None = None) -> str:
@@ -410,6 +450,54 @@ def as_parameters(rig: BiPrismRig | RigParameters, like: torch.Tensor) -> RigPar
     if isinstance(rig, RigParameters):
         return rig.to(like)
     raise RigError(f"rig must be a BiPrismRig or RigParameters, got {type(rig).__name__}")
+
+
+def split_column(cx: float, cy: float, focal_px: float, d: float, T_o: float, tilt_rad: Any,
+                 distortion: Any, height: int) -> float:
+    """The rightmost image column of the prism's apex line over the sensor rows [-0.5, H - 0.5] (px).
+
+    The apex line A + t a, A = (d, 0, T_o), a = R (0, 1, 0) with R the prism's tilt, projected through the
+    pinhole and the lens distortion (if any). Untilted about x and z and distortion-free it is the vertical
+    line u = cx + f_px d / T_o (returned exactly); otherwise the line is sampled densely (4097 points over
+    twice the sensor's height, enough for < 1e-3 px on the thesis rigs).
+
+    Example:
+        >>> split_column(511.5, 383.5, 5376.3, 0.0, 170.0, [0.0, 0.0, 0.0], None, 768)
+        511.5
+    """
+    tx, ty, tz = (float(a) for a in tilt_rad)
+    if tx == 0.0 and tz == 0.0 and distortion is None:
+        return cx + focal_px * d / T_o
+    # a = R_z R_y R_x e_y
+    ax, ay, az = 0.0, math.cos(tx), math.sin(tx)
+    ax, az = ax * math.cos(ty) + az * math.sin(ty), -ax * math.sin(ty) + az * math.cos(ty)
+    ax, ay = ax * math.cos(tz) - ay * math.sin(tz), ax * math.sin(tz) + ay * math.cos(tz)
+    reach = height / focal_px * T_o  # the sensor's height seen at the apex depth, mm
+    t = torch.linspace(-reach, reach, 4097, dtype=torch.float64)
+    x, y, z = d + t * ax, t * ay, T_o + t * az
+    xy = torch.stack([x / z, y / z], dim=-1)
+    if distortion is not None:
+        from prismstereo.geometry.distortion import distort
+
+        xy = distort(xy, torch.tensor(list(distortion), dtype=torch.float64))
+    u, v = cx + focal_px * xy[:, 0], cy + focal_px * xy[:, 1]
+    on = (v >= -0.5) & (v <= height - 0.5)
+    return float(u[on].max()) if bool(on.any()) else cx + focal_px * d / T_o
+
+
+def _check_distortion(rig: BiPrismRig) -> None:
+    """Raise RigError unless the lens model is invertible over the sensor (round trip < 1e-6 px, no fold)."""
+    from prismstereo.geometry.distortion import max_round_trip_px
+
+    f = rig.focal_length_px
+    u = torch.linspace(-0.5, rig.image_width - 0.5, 17, dtype=torch.float64)
+    v = torch.linspace(-0.5, rig.image_height - 0.5, 17, dtype=torch.float64)
+    uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1).reshape(-1, 2)
+    xy = torch.stack([(uv[:, 0] - rig.cx) / f, (uv[:, 1] - rig.cy) / f], dim=-1)
+    err = max_round_trip_px(torch.tensor(rig.distortion, dtype=torch.float64), xy, f)
+    if not err < 1e-6:
+        raise RigError(f"distortion {rig.distortion} is not invertible over the sensor (the lens model folds over or "
+                       f"its inverse does not converge: round trip {err:.3g} px)")
 
 
 def _float_tuple(value: Any, length: int, name: str) -> tuple[float, ...]:

@@ -432,8 +432,9 @@ class _Optics(torch.nn.Module):
         return rays.origins, rays.directions, proj.uv, proj.valid
 
 
-def test_onnx_export_matches_torch(tmp_path):
-    rig = thesis_setup1().replace(prism_offset_x_mm=0.5)
+@pytest.mark.parametrize("distortion", [(0.0,) * 5, (-0.08, 0.02, 5e-4, -5e-4, 0.0)], ids=["pinhole", "distorted"])
+def test_onnx_export_matches_torch(tmp_path, distortion):
+    rig = thesis_setup1().replace(prism_offset_x_mm=0.5, distortion=distortion)
     model = _Optics(rig)
     uv = random_pixels(rig, 64, torch.float32)
     pts = points_at_depth(trace_pixels(rig, uv[:32] * torch.tensor([0.45, 1.0])), 700.0)
