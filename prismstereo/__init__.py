@@ -8,7 +8,7 @@ The public API (conventions: :mod:`prismstereo.conventions`):
 * errors: :class:`PrismStereoError` and its family
 """
 
-from prismstereo.errors import OptionError, PrismStereoError, RigError, ShapeError
+from prismstereo.errors import CalibrationError, OptionError, PrismStereoError, RigError, ShapeError
 from prismstereo.geometry.optics import (
     Projection,
     RayBundle,
@@ -41,6 +41,7 @@ __all__ = [
     "RigError",
     "ShapeError",
     "OptionError",
+    "CalibrationError",
     "BiPrismRig",
     "RigParameters",
     "thesis_setup1",

@@ -15,6 +15,7 @@ from pathlib import Path
 import torch
 
 from prismstereo import __version__
+from prismstereo.cli_calibrate import add_calibrate_parser
 from prismstereo.cli_depth import add_depth_parser, add_export_parser
 from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
@@ -392,6 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_depth_parser(sub)
     add_export_parser(sub)
+    add_calibrate_parser(sub)
 
     demo = sub.add_parser("demo", help="run the main job on a built-in default")
     demo.add_argument("--rig", default="thesis_setup1", help="rig JSON file or preset name")

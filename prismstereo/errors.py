@@ -17,6 +17,7 @@ __all__ = [
     "RigError",
     "ShapeError",
     "OptionError",
+    "CalibrationError",
     "check_shape",
     "check_option",
     "check_floating",
@@ -37,6 +38,10 @@ class ShapeError(PrismStereoError, ValueError):
 
 class OptionError(PrismStereoError, ValueError):
     """An option string (a ``Literal[...]`` argument) is not one of the valid choices."""
+
+
+class CalibrationError(PrismStereoError, ValueError):
+    """A calibration that cannot be run or did not succeed: bad target, too few views, a diverged fit."""
 
 
 def check_shape(x: Any, shape: Sequence[str | int], name: str = "tensor") -> None:

@@ -151,7 +151,13 @@ def undistort(xy_distorted: torch.Tensor, coefficients: torch.Tensor, steps: int
 def max_round_trip_px(coefficients: torch.Tensor, corners: torch.Tensor, focal_px: float) -> float:
     """Largest |distort(undistort(c)) - c| in pixels over normalised sensor points ``corners`` (*, 2), and inf where
     the distortion folds over (Jacobian determinant <= 0): the rig's check that the lens model is invertible on its
-    sensor."""
+    sensor.
+
+    Example:
+        >>> corners = torch.tensor([[0.5, 0.4], [-0.5, -0.4]], dtype=torch.float64)
+        >>> max_round_trip_px(torch.tensor([-0.1, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64), corners, 1000.0) < 1e-9
+        True
+    """
     with torch.no_grad():
         xy = undistort(corners, coefficients)
         j = _jacobian(xy, coefficients)

@@ -1,0 +1,205 @@
+"""Calibrate a rig from captures of a board: detection, observability, bundle adjustment, statistics.
+
+:func:`calibrate_board` is the procedure a user runs on a bench: captures of a checkerboard or ChArUco board
+through the prism at several poses, the nominal rig file, and which parameters to hold fixed. It returns the
+calibrated rig with the report OpenCV's ``calibrateCameraExtended`` gives (RMS and per-view reprojection
+error, standard errors of every estimated parameter) plus the before/after values and outlier views.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from prismstereo.calibration.board import BoardProblem, Observations, gather_observations
+from prismstereo.calibration.parameters import (
+    NAMES,
+    check_names,
+    rig_vector,
+    to_display,
+    tolerance_vector,
+    vector_to_rig,
+)
+from prismstereo.calibration.solver import levenberg_marquardt
+from prismstereo.calibration.targets import Board, ViewDetection, detect_board
+from prismstereo.errors import CalibrationError, RigError
+from prismstereo.geometry.rig import BiPrismRig
+
+__all__ = ["CalibrationResult", "DEFAULT_FIXED", "calibrate_board", "view_outliers"]
+
+# Held at their nominal values unless freed: the prism's thickness trades against its distance (both move the
+# virtual centres along z) and is known from the part's drawing; k3 matters only for wide-angle lenses (OpenCV's
+# usual CALIB_FIX_K3).
+DEFAULT_FIXED: tuple[str, ...] = ("prism_thickness_mm", "k3")
+
+
+class CalibrationResult(NamedTuple):
+    """A calibration's outcome.
+
+    Attributes:
+        rig: the calibrated rig.
+        nominal: the rig it started from.
+        free: names of the estimated rig parameters.
+        data_share: (16,) how much of each estimate came from the views rather than the prior,
+            1 - posterior variance / prior variance (NaN for parameters not estimated).
+        weak: names of estimated parameters with data_share < 0.5: the views barely determine them, their
+            values stay near nominal by their tolerance.
+        sigma_px: the corner noise estimated from the residuals (px per coordinate).
+        before: (16,) nominal values of :data:`~prismstereo.calibration.parameters.NAMES` (reported units).
+        after: (16,) calibrated values.
+        std_error: (16,) standard errors (NaN for parameters not estimated).
+        rms_px: RMS reprojection error over every corner (px).
+        view_rms_px: (V, 2) RMS per kept view and half (left, right), px.
+        views: indices of the kept views among the inputs.
+        outlier_views: indices (among the inputs) of views whose error is an outlier.
+        residuals: (M, 2) projection minus detection per corner (px).
+        observations: the corners (:class:`~prismstereo.calibration.board.Observations`).
+        poses: (V, 6) board poses (axis-angle rad, translation mm) of the kept views.
+        iterations: solver iterations.
+        message: why the solver stopped.
+    """
+
+    rig: BiPrismRig
+    nominal: BiPrismRig
+    free: tuple[str, ...]
+    data_share: torch.Tensor
+    weak: tuple[str, ...]
+    sigma_px: float
+    before: torch.Tensor
+    after: torch.Tensor
+    std_error: torch.Tensor
+    rms_px: float
+    view_rms_px: torch.Tensor
+    views: tuple[int, ...]
+    outlier_views: tuple[int, ...]
+    residuals: torch.Tensor
+    observations: Observations
+    poses: torch.Tensor
+    iterations: int
+    message: str
+
+
+def view_outliers(view_rms: torch.Tensor, views: Sequence[int], factor: float = 3.0, floor_px: float = 0.1) -> tuple:
+    """Views whose RMS (over both halves) exceeds ``factor`` x the median view's and ``floor_px``.
+
+    Example:
+        >>> view_outliers(torch.tensor([[0.1, 0.1], [0.1, 0.12], [0.9, 1.0]]), [0, 1, 2])
+        (2,)
+    """
+    per_view = view_rms.pow(2).nan_to_num(0.0).mean(dim=1).sqrt()
+    if per_view.numel() < 3:
+        return ()
+    med = float(per_view.median())
+    return tuple(views[i] for i in range(len(views)) if float(per_view[i]) > max(factor * med, floor_px))
+
+
+def _per_view_rms(res: torch.Tensor, obs: Observations) -> torch.Tensor:
+    out = torch.full((len(obs.views), 2), float("nan"), dtype=torch.float64)
+    sq = res.pow(2).sum(dim=1)
+    for k in range(len(obs.views)):
+        for j, mask in enumerate((obs.left, ~obs.left)):
+            sel = (obs.view == k) & mask
+            if bool(sel.any()):
+                out[k, j] = sq[sel].mean().sqrt()
+    return out
+
+
+def calibrate_board(
+    rig: BiPrismRig,
+    captures: Sequence[torch.Tensor | np.ndarray | ViewDetection],
+    board: Board,
+    *,
+    fix: Sequence[str] = (),
+    free: Sequence[str] = (),
+    min_views: int = 3,
+    max_iterations: int = 100,
+    max_rms_px: float = 2.0,
+    tolerances: dict[str, float] | None = None,
+    progress: bool = False,
+) -> CalibrationResult:
+    """Calibrate ``rig`` from captures of ``board`` through the prism (target-based, bundle adjustment).
+
+    Args:
+        rig: the nominal rig: the start of every parameter and the value of every fixed one.
+        captures: images ((C, H, W) / (H, W) float tensors in [0, 1] or uint8 arrays) or their
+            :class:`~prismstereo.calibration.targets.ViewDetection`.
+        board: the target.
+        fix: rig parameters to hold at their nominal values, besides :data:`DEFAULT_FIXED`.
+        free: parameters of :data:`DEFAULT_FIXED` to estimate after all.
+        min_views: views with the board in both halves required.
+        max_iterations: Levenberg-Marquardt iterations at most.
+        max_rms_px: a final RMS above this is a diverged fit (error).
+        tolerances: 1-sigma priors overriding :data:`~prismstereo.calibration.parameters.TOLERANCES` (reported
+            units, absolute; ``inf`` for none): how well the nominal rig is known.
+        progress: progress bars for detection and the fit.
+
+    Returns:
+        CalibrationResult.
+
+    Raises:
+        CalibrationError: fewer than ``min_views`` captures, the board not found in both halves of enough views,
+            images of the wrong size, unknown parameter names, or a fit that diverged (RMS > ``max_rms_px``,
+            or a rig the optics reject).
+
+    Example:
+        >>> from prismstereo.calibration import parse_target
+        >>> calibrate_board(thesis_setup1(), [], parse_target("checkerboard:4x7:6"))
+        Traceback (most recent call last):
+        ...
+        prismstereo.errors.CalibrationError: too few views: 0 captures, need at least 3
+    """
+    fixed = set(check_names(fix)) | (set(DEFAULT_FIXED) - set(check_names(free)))
+    if len(captures) < min_views:
+        raise CalibrationError(f"too few views: {len(captures)} captures, need at least {min_views}")
+    detections = [c if isinstance(c, ViewDetection) else detect_board(c, rig, board)
+                  for c in tqdm(captures, desc="detect", disable=not progress, leave=False)]
+    obs = gather_observations(detections, board)
+    if len(obs.views) < min_views:
+        found = [f"{i}: left {'yes' if d.left is not None else 'no'}, right {'yes' if d.right is not None else 'no'}"
+                 for i, d in enumerate(detections)]
+        raise CalibrationError(f"board {board.describe()} found in both halves of {len(obs.views)} of "
+                               f"{len(detections)} views, need {min_views} ({'; '.join(found)})")
+    names = [n for n in NAMES if n not in fixed]
+    tol = tolerance_vector(rig, tolerances)
+    problem = BoardProblem(rig, obs, names, tol, sigma_px=0.1)
+    x, iterations, message = problem.x0, 0, ""
+    for _ in range(3):  # the corner noise sets the views' weight against the priors: estimate it, refit
+        fit = levenberg_marquardt(problem.residuals, problem.jacobian, x, max_iterations=max_iterations,
+                                  progress=progress, description="calibrate")
+        x, iterations, message = fit.x, iterations + fit.iterations, fit.message
+        res = problem.projections(x)[0] - obs.uv
+        dof = max(1, res.numel() - 6 * len(obs.views) - problem.num_rig)
+        sigma = max(float(res.pow(2).sum() / dof) ** 0.5, 1e-3)
+        settled = 0.8 < sigma / problem.sigma_px < 1.25
+        problem.sigma_px = sigma
+        if settled:
+            break
+    rms = float(res.pow(2).sum(dim=1).mean().sqrt())
+    if not rms <= max_rms_px:
+        raise CalibrationError(f"the fit diverged: RMS reprojection error {rms:.3g} px > {max_rms_px} px after "
+                               f"{iterations} iterations ({message}); check the nominal rig, the target and "
+                               "the images")
+    full = problem.full_vector(x)
+    try:
+        calibrated = vector_to_rig(full, rig)
+    except RigError as exc:
+        raise CalibrationError(f"the fit diverged to an invalid rig: {exc}") from exc
+    j = problem.jacobian(x)
+    var = torch.linalg.pinv(j.T @ j, hermitian=True).diagonal()[: problem.num_rig].clamp_min(0)
+    std = torch.full((len(NAMES),), float("nan"), dtype=torch.float64)
+    std[problem.index] = var.sqrt()
+    share = torch.full((len(NAMES),), float("nan"), dtype=torch.float64)
+    share[problem.index] = (1.0 - var * problem.prior_weight.pow(2)).clamp(0.0, 1.0)
+    weak = tuple(n for n in problem.free if float(share[NAMES.index(n)]) < 0.5)
+    view_rms = _per_view_rms(res, obs)
+    return CalibrationResult(
+        rig=calibrated, nominal=rig, free=problem.free, data_share=share, weak=weak, sigma_px=problem.sigma_px,
+        before=to_display(rig_vector(rig)), after=to_display(full.detach()), std_error=to_display(std),
+        rms_px=rms, view_rms_px=view_rms, views=obs.views, outlier_views=view_outliers(view_rms, obs.views),
+        residuals=res, observations=obs, poses=x[problem.num_rig:].view(-1, 6), iterations=iterations,
+        message=message,
+    )

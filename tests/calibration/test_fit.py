@@ -1,0 +1,157 @@
+import math
+
+import pytest
+import torch
+
+from prismstereo import CalibrationError
+from prismstereo.calibration import DEFAULT_FIXED, NAMES, calibrate_board, detect_board
+from prismstereo.calibration.board import BoardProblem, gather_observations, initial_poses
+from prismstereo.calibration.parameters import rig_vector, to_display, tolerance_vector, vector_to_rig
+from prismstereo.calibration.report import format_report, plot_residuals
+from prismstereo.calibration.solver import covariance, levenberg_marquardt, unobservable
+from tests.calibration.conftest import BOARD, NOMINAL, board_captures
+
+F64 = torch.float64
+
+
+# ----------------------------------------------------------------------------- solver
+def test_levenberg_marquardt_and_covariance_match_linear_regression():
+    g = torch.Generator().manual_seed(0)
+    x = torch.linspace(0, 1, 50, dtype=F64)
+    a = torch.stack([torch.ones_like(x), x], 1)
+    y = a @ torch.tensor([1.0, -2.0], dtype=F64) + 0.01 * torch.randn(50, generator=g, dtype=F64)
+    res = levenberg_marquardt(lambda p: a @ p - y, lambda p: a, torch.zeros(2, dtype=F64))
+    ls = torch.linalg.lstsq(a, y[:, None]).solution[:, 0]
+    assert res.converged and torch.allclose(res.x, ls, atol=1e-10)
+    r = a @ res.x - y
+    cov = covariance(a, float(r @ r))
+    expected = float(r @ r) / 48 * torch.linalg.inv(a.T @ a)  # the textbook OLS covariance
+    assert torch.allclose(cov, expected, rtol=1e-10)
+
+
+def test_unobservable_finds_a_pure_scale_and_a_dead_parameter():
+    g = torch.Generator().manual_seed(1)
+    j = torch.randn(40, 4, generator=g, dtype=F64)
+    j[:, 2] = 3.0 * j[:, 0]  # a scale: column 2 reproduces column 0
+    j[:, 3] = 0.0  # no effect at all
+    removed = unobservable(j, [0, 1, 2, 3])
+    assert 3 in removed and len(set(removed) & {0, 2}) == 1 and 1 not in removed
+    assert unobservable(torch.randn(40, 3, generator=g, dtype=F64), [0, 1, 2]) == []
+
+
+def test_parameter_vector_round_trip():
+    rig = NOMINAL.replace(prism_tilt_deg=(0.1, -0.2, 0.3), distortion=(-0.05, 0.01, 0.0, 0.0, 0.0))
+    assert vector_to_rig(rig_vector(rig), rig) == rig
+    tol = tolerance_vector(rig, {"k1": 0.05, "roll_deg": 0.2})
+    assert float(tol[NAMES.index("k1")]) == 0.05 and math.isclose(float(tol[NAMES.index("roll_deg")]),
+                                                                   math.radians(0.2))
+    assert math.isclose(float(tol[NAMES.index("focal_length_mm")]), 0.02 * rig.focal_length_mm)
+    with pytest.raises(CalibrationError, match="unknown rig parameter.*valid: focal_length_mm"):
+        tolerance_vector(rig, {"focal": 1.0})
+
+
+def test_board_jacobian_matches_finite_differences():
+    rig = NOMINAL.replace(distortion=(-0.05, 0.0, 0.0, 0.0, 0.0))
+    cap = board_captures(rig, 3, seed=5)
+    obs = gather_observations([detect_board(im, rig, BOARD) for im in cap.image], BOARD)
+    problem = BoardProblem(rig, obs, ["focal_length_mm", "k1", "alpha_deg", "roll_deg"], sigma_px=1.0)
+    x = problem.x0.clone()
+    j = problem.jacobian(x)
+    for col in (0, 1, 2, 3, 4, 6 + 4, 4 + 6 * 2 + 5):
+        h = 1e-6 * max(1.0, abs(float(x[col])))
+        dx = torch.zeros_like(x)
+        dx[col] = h
+        fd = (problem.residuals(x + dx) - problem.residuals(x - dx)) / (2 * h)
+        assert torch.allclose(j[:, col], fd, atol=1e-4 * float(fd.abs().max()) + 1e-7), col
+
+
+# ----------------------------------------------------------------------------- calibration
+PERTURBED = {
+    "roll_deg": ({"prism_tilt_deg": (0.0, 0.0, 0.3)}, True),
+    # setup 1's narrow field of view (normalised radius <= 0.12, so k1 = 0.1 moves a corner pixel by ~0.1 px at
+    # quarter resolution) leaves k1 and T_o weakly determined by 8 quarter-resolution views (standard errors
+    # ~0.1 and ~2.5 mm, measured): they must come back within their error bars, not necessarily closer
+    "k1": ({"distortion": (-0.09, 0.0, 0.0, 0.0, 0.0)}, False),
+    "apex_distance_mm": ({"apex_distance_mm": 172.0}, False),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PERTURBED))
+def test_single_perturbed_parameter_is_recovered(name):
+    """One parameter of the rig perturbed, every default-free parameter estimated: each estimate within 3.5
+    standard errors of the truth, and a well-determined perturbed parameter far closer than nominal."""
+    changes, determined = PERTURBED[name]
+    true = NOMINAL.replace(**changes)
+    cap = board_captures(true, 8, seed=2)
+    result = calibrate_board(NOMINAL, list(cap.image), BOARD)
+    truth = to_display(rig_vector(true))
+    z = ((result.after - truth) / result.std_error)
+    i = NAMES.index(name)
+    assert abs(float(z[i])) < 3
+    if determined:
+        assert abs(float(result.after[i] - truth[i])) < 0.35 * abs(float(result.before[i] - truth[i]))
+        assert float(result.data_share[i]) > 0.95
+    assert bool((z[torch.isfinite(z)].abs() < 3.5).all()), z
+    assert result.rms_px < 0.25 and set(result.free).isdisjoint(DEFAULT_FIXED)
+    assert result.rig.prism_thickness_mm == NOMINAL.prism_thickness_mm
+    assert "prism_offset_x_mm" in result.weak  # the views barely see d: the report says so
+
+
+@pytest.fixture(scope="module")
+def calibrated():
+    true = NOMINAL.replace(prism_tilt_deg=(0.2, -0.3, 0.2), prism_offset_x_mm=0.3, alpha_deg=6.45,
+                           distortion=(-0.06, 0.0, 0.0, 0.0, 0.0))
+    cap = board_captures(true, 9, seed=4)
+    return true, cap, calibrate_board(NOMINAL, list(cap.image), BOARD, fix=["p1", "p2"], tolerances={"k2": 0.05})
+
+
+def test_result_report_and_plot(calibrated, tmp_path):
+    true, cap, result = calibrated
+    assert "p1" not in result.free and "k2" in result.free
+    assert result.view_rms_px.shape == (9, 2) and result.poses.shape == (9, 6)
+    assert result.residuals.shape == result.observations.uv.shape
+    assert math.isclose(result.rms_px, float(result.residuals.pow(2).sum(1).mean().sqrt()))
+    text = format_report(result, [f"img{i}.png" for i in range(9)])
+    assert text.startswith("Calibrated from 9 views") and "img8.png" in text and "(fixed)" in text
+    assert "prism_thickness_mm" in text and "roll_deg" in text
+    plot_residuals(result, tmp_path / "r.png")
+    assert (tmp_path / "r.png").stat().st_size > 10_000
+
+
+def test_outlier_view_is_flagged(calibrated):
+    true, cap, result = calibrated
+    dets = [detect_board(im, NOMINAL, BOARD) for im in cap.image]
+    left = dets[3].left
+    dets[3] = dets[3]._replace(left=left._replace(uv=left.uv + torch.tensor([1.5, -1.0], dtype=F64) *
+                                                   torch.linspace(-1, 1, left.uv.shape[0], dtype=F64)[:, None]))
+    bad = calibrate_board(NOMINAL, dets, BOARD, fix=["p1", "p2"])
+    assert bad.outlier_views == (3,)
+    assert "warning: view 3 has an outlier" in format_report(bad)
+
+
+def test_initial_poses_triangulate_the_boards(calibrated):
+    true, cap, result = calibrated
+    obs = result.observations
+    poses = initial_poses(true, obs)
+    # from the true rig, the triangulated poses are close to the calibrated ones
+    assert (poses[:, 3:] - result.poses[:, 3:]).norm(dim=1).max() < 0.02 * float(poses[:, 5].min())
+
+
+def test_calibration_errors():
+    with pytest.raises(CalibrationError, match="too few views: 2 captures, need at least 3"):
+        calibrate_board(NOMINAL, [torch.zeros(1, 192, 256)] * 2, BOARD)
+    with pytest.raises(CalibrationError, match="found in both halves of 0 of 3 views, need 3"):
+        calibrate_board(NOMINAL, [torch.zeros(1, 192, 256)] * 3, BOARD)
+    with pytest.raises(CalibrationError, match="image is 10x10 px"):
+        calibrate_board(NOMINAL, [torch.zeros(1, 10, 10)] * 3, BOARD)
+    with pytest.raises(CalibrationError, match="unknown rig parameter"):
+        calibrate_board(NOMINAL, [torch.zeros(1, 192, 256)] * 3, BOARD, fix=["zoom"])
+
+
+def test_diverged_fit_is_an_error(calibrated):
+    """A wrong nominal rig (setup 1's prism called 4.4 deg) cannot explain the corners: a clear error."""
+    true, cap, result = calibrated
+    dets = [detect_board(im, NOMINAL, BOARD) for im in cap.image]
+    wrong = NOMINAL.replace(alpha_deg=4.4)
+    with pytest.raises(CalibrationError, match="diverged|do not triangulate"):
+        calibrate_board(wrong, dets, BOARD, max_iterations=3, max_rms_px=0.5)

@@ -1,0 +1,69 @@
+import json
+
+import cv2
+import pytest
+
+from prismstereo.cli import main
+from prismstereo.geometry.rig import BiPrismRig
+from tests.calibration.conftest import NOMINAL, board_captures
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("bench")
+    true = NOMINAL.replace(prism_tilt_deg=(0.0, 0.0, 0.25), distortion=(-0.07, 0.0, 0.0, 0.0, 0.0))
+    cap = board_captures(true, 6, seed=7)
+    paths = []
+    for k, image in enumerate(cap.image):
+        path = folder / f"board{k}.png"
+        cv2.imwrite(str(path), (image[0].numpy() * 255).round().astype("uint8"))
+        paths.append(str(path))
+    rig = folder / "nominal.json"
+    NOMINAL.to_json(rig)
+    return folder, str(rig), paths
+
+
+def test_calibrate_cli_writes_a_rig_and_reports(bench, capsys):
+    folder, rig, paths = bench
+    out, plot = folder / "calibrated.json", folder / "residuals.png"
+    before = (folder / "nominal.json").read_text()
+    code = main(["calibrate", "--rig", rig, *paths, "--out", str(out), "--target", "checkerboard:4x7:6",
+                 "--fix", "p1", "p2", "--plot", str(plot), "--quiet"])
+    text = capsys.readouterr().out
+    assert code == 0
+    assert text.startswith("Calibrated from 6 views") and "board5.png" in text and f"wrote {out}" in text
+    calibrated = BiPrismRig.from_json(out)
+    assert abs(calibrated.prism_tilt_deg[2] - 0.25) < 0.05 and abs(calibrated.distortion[0] + 0.07) < 0.04
+    assert calibrated.distortion[2:4] == (0.0, 0.0)  # fixed
+    assert json.loads(out.read_text())["image_width"] == 256
+    assert plot.stat().st_size > 10_000
+    assert (folder / "nominal.json").read_text() == before
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--target", "checkerboard:4x7"], "cannot parse target"),
+        (["--target", "checkerboard:4x7:6", "--fix", "zoom"], "unknown rig parameter"),
+        ([], "--target is required"),
+        (["--target", "checkerboard:9x6:6"], "found in both halves of 0 of 6 views"),
+    ],
+)
+def test_calibrate_cli_errors(bench, capsys, extra, message):
+    folder, rig, paths = bench
+    assert main(["calibrate", "--rig", rig, *paths, "--out", str(folder / "x.json"), "--quiet", *extra]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_calibrate_cli_refuses_bad_inputs(bench, capsys, tmp_path):
+    folder, rig, paths = bench
+    assert main(["calibrate", "--rig", rig, *paths, "--out", rig, "--target", "checkerboard:4x7:6"]) == 2
+    assert "never overwritten" in capsys.readouterr().err
+    assert main(["calibrate", "--rig", rig, *paths[:2], "--out", str(tmp_path / "x.json"),
+                 "--target", "checkerboard:4x7:6"]) == 2
+    assert "too few views: 2 captures" in capsys.readouterr().err
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), cv2.imread(paths[0])[:100])
+    assert main(["calibrate", "--rig", rig, str(small), *paths, "--out", str(tmp_path / "x.json"),
+                 "--target", "checkerboard:4x7:6"]) == 2
+    assert "is 256x100 px but the rig's sensor is 256x192" in capsys.readouterr().err
