@@ -30,7 +30,7 @@ from prismstereo import thesis_setup1, thesis_setup2
 from prismstereo.calibration import calibrate_board, parse_target
 from prismstereo.calibration.parameters import NAMES, rig_vector, to_display
 from prismstereo.model import PrismStereo
-from prismstereo.synthetic import ImageFormation, checkerboard_target, fronto_parallel_plane, render
+from prismstereo.synthetic import ImageFormation, calibration_views, fronto_parallel_plane, render
 
 
 def perturb(nominal, g: torch.Generator, scale: int):
@@ -44,16 +44,6 @@ def perturb(nominal, g: torch.Generator, scale: int):
         refractive_index=nominal.refractive_index + u(-0.01, 0.01),
         focal_length_mm=nominal.focal_length_mm * u(0.99, 1.01),
         principal_point=(cx + u(-5, 5) / scale, cy + u(-5, 5) / scale), distortion=(u(-0.1, 0.05), 0.0, 0.0, 0.0, 0.0))
-
-
-def board_views(g: torch.Generator, n: int, depth_range: tuple[float, float]):
-    scenes = []
-    for _ in range(n):
-        z = depth_range[0] + (depth_range[1] - depth_range[0]) * float(torch.rand(1, generator=g))
-        rx, ry, rz = ((torch.rand(3, generator=g) * 2 - 1) * torch.tensor([45.0, 45.0, 10.0])).tolist()
-        x, y = ((torch.rand(2, generator=g) * 2 - 1) * torch.tensor([3.0, 15.0])).tolist()
-        scenes.append(checkerboard_target((x, y, z), (rx, ry, rz), rows=8, cols=5, square_mm=6.0))
-    return scenes
 
 
 def depth_error(rig, true_rig, cap, z_range) -> float:
@@ -89,8 +79,8 @@ def main() -> None:
     for run in range(args.runs):
         true = perturb(nominal, g, args.scale)
         t0 = time.time()
-        caps = render(true, board_views(g, args.views, depths), ImageFormation(supersample=3, noise_sigma=2 / 255,
-                                                                               seed=run))
+        views = calibration_views(args.views, 1000 * args.seed + run, depths)
+        caps = render(true, views, ImageFormation(supersample=3, noise_sigma=2 / 255, seed=run))
         result = calibrate_board(nominal, list(caps.image), board)
         truth = to_display(rig_vector(true))
         z = ((result.after - truth) / result.std_error).abs()

@@ -36,6 +36,7 @@ from prismstereo.synthetic.textures import (
 )
 
 __all__ = [
+    "calibration_views",
     "Hit",
     "Surface",
     "Plane",
@@ -545,3 +546,26 @@ def circle_grid_target(
     texture = CircleGridTexture(rows, cols, spacing_mm, radius_mm)
     plane = _target(texture, (cols * spacing_mm, rows * spacing_mm), spacing_mm / 2, centre_mm, rotation_deg)
     return Scene([plane], background=background, name=f"circlegrid_{rows}x{cols}")
+
+
+def calibration_views(
+    n: int, seed: int = 0, depth_range_mm: tuple[float, float] = (550.0, 850.0), max_tilt_deg: float = 45.0,
+    rows: int = 8, cols: int = 5, square_mm: float = 6.0, spread_mm: tuple[float, float] = (3.0, 15.0),
+) -> list[Scene]:
+    """``n`` checkerboards at seeded random poses for calibration captures: depths uniform in ``depth_range_mm``,
+    tilts uniform within +-``max_tilt_deg`` about x and y and +-10 deg about z, centres within +-``spread_mm`` of the
+    axis. The defaults fit a 5 x 8-square board of 6 mm (4 x 7 inner corners) into the common field of view of
+    ``thesis_setup1``'s halves; strong tilts are what make a narrow-angle camera's focal length observable.
+
+    Example:
+        >>> [s.name for s in calibration_views(2)]
+        ['checkerboard_8x5', 'checkerboard_8x5']
+    """
+    g = torch.Generator().manual_seed(seed)
+    scenes = []
+    for _ in range(n):
+        z = depth_range_mm[0] + (depth_range_mm[1] - depth_range_mm[0]) * float(torch.rand(1, generator=g))
+        rx, ry, rz = ((torch.rand(3, generator=g) * 2 - 1) * torch.tensor([max_tilt_deg, max_tilt_deg, 10.0])).tolist()
+        x, y = ((torch.rand(2, generator=g) * 2 - 1) * torch.tensor(spread_mm)).tolist()
+        scenes.append(checkerboard_target((x, y, z), (rx, ry, rz), rows=rows, cols=cols, square_mm=square_mm))
+    return scenes
