@@ -4,8 +4,10 @@ For each of ``--runs`` seeded perturbations of the nominal rig (drawn uniformly 
 x offset +-0.5 mm, T_o +-2 mm, tilt about x and y +-0.5 deg, roll +-0.3 deg, alpha +-0.1 deg, n +-0.01, f +-1 %,
 principal point +-5 full-resolution px, k1 in [-0.1, 0.05]):
 
-1. render ``--views`` checkerboard captures through the *perturbed* rig (board 5 x 8 squares of 6 mm, 4 x 7
-   inner corners, 550-850 mm, tilted up to 45 deg about x and y, 8-bit, noise 2/255);
+1. render ``--views`` board captures through the *perturbed* rig (550-850 mm, tilted up to 45 deg about x and y,
+   8-bit, noise 2/255): by default a ChArUco board of 16 x 12 squares of 8 mm, larger than either half's view,
+   so every half sees ~40-120 corners spread over it (``--board checkerboard``: 5 x 8 squares of 6 mm, 4 x 7
+   inner corners, which must fit whole in both halves' common field of view);
 2. calibrate from the *nominal* rig (``calibrate_board``: default fixed T and k3, default tolerances);
 3. render two fresh textured planes (560 and 820 mm) through the perturbed rig and run ``PrismStereo`` built
    from the true, the nominal and the calibrated rig.
@@ -63,15 +65,24 @@ def main() -> None:
     parser.add_argument("--scale", type=int, default=2, help="sensor downscaling (1 = 1024 x 768)")
     parser.add_argument("--setup", type=int, default=1, choices=(1, 2))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--board", choices=("charuco", "checkerboard"), default="charuco",
+                        help="charuco (default): a 16 x 12-square board of 8 mm, larger than either half's view; "
+                             "checkerboard: 5 x 8 squares of 6 mm, seen whole by both halves")
     args = parser.parse_args()
     base = thesis_setup1() if args.setup == 1 else thesis_setup2()
     nominal = base.downscaled(args.scale) if args.scale > 1 else base
-    board = parse_target("checkerboard:4x7:6")
+    if args.board == "charuco":
+        board = parse_target("charuco:16x12:8:6:DICT_4X4_250")
+        layout = dict(kind="charuco", cols=16, rows=12, square_mm=8.0, spread_mm=(10.0, 10.0))
+    else:
+        board = parse_target("checkerboard:4x7:6")
+        layout = {}
     depths = (550.0, 850.0) if args.setup == 1 else (300.0, 500.0)
     planes = (560.0, 820.0) if args.setup == 1 else (320.0, 480.0)
     z_range = (450.0, 1000.0) if args.setup == 1 else (250.0, 700.0)
     g = torch.Generator().manual_seed(args.seed)
-    print(f"setup {args.setup}, {nominal.image_width} x {nominal.image_height} px, {args.views} board views per run")
+    print(f"setup {args.setup}, {nominal.image_width} x {nominal.image_height} px, {args.views} views of "
+          f"{board.describe()} per run")
     print(f"{'run':>3} {'RMS px':>7} {'max z':>6} {'worst':>18} {'depth % true':>13} {'nominal':>8} {'calibrated':>10} "
           f"{'ratio':>6} {'s':>5}")
     worst_z, ratios, within = [], [], 0
@@ -79,7 +90,7 @@ def main() -> None:
     for run in range(args.runs):
         true = perturb(nominal, g, args.scale)
         t0 = time.time()
-        views = calibration_views(args.views, 1000 * args.seed + run, depths)
+        views = calibration_views(args.views, 1000 * args.seed + run, depths, **layout)
         caps = render(true, views, ImageFormation(supersample=3, noise_sigma=2 / 255, seed=run))
         result = calibrate_board(nominal, list(caps.image), board)
         truth = to_display(rig_vector(true))

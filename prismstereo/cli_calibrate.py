@@ -6,9 +6,10 @@ Contract (other tools drive it)::
         --target checkerboard:COLSxROWS:SQUARE_MM | charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT
         [--fix NAME ...] [--plot RESIDUALS.png]
 
-The report goes to stdout, progress bars to stderr; the output is a normal rig file. Errors exit with status 2 and
-a message: board not found in enough views, too few views, images of the wrong size, a fit that diverged, an
-output path equal to the nominal rig file.
+Without ``--target`` it self-calibrates from the captures' texture
+(:func:`~prismstereo.calibration.selfcal.calibrate_self`). The report goes to stdout, progress bars to stderr; the
+output is a normal rig file. Errors exit with status 2 and a message: board not found in enough views, too few
+views, images of the wrong size, a fit that diverged, an output path equal to the nominal rig file.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ __all__ = ["add_calibrate_parser"]
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from prismstereo.calibration import calibrate_board, parse_target
+    from prismstereo.calibration import calibrate_board, calibrate_self, parse_target
     from prismstereo.calibration.parameters import check_names
     from prismstereo.calibration.report import format_report, plot_residuals
     from prismstereo.geometry.rig import load_rig
@@ -31,10 +32,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if Path(args.rig).exists() and out.resolve() == Path(args.rig).resolve():
         raise CalibrationError(f"--out {out} is the nominal rig file: it is never overwritten, choose another path")
-    if args.target is None:
-        raise CalibrationError("--target is required (the target-free self-calibration is not part of this release)")
     rig = load_rig(args.rig)
-    board = parse_target(args.target)
+    board = parse_target(args.target) if args.target is not None else None
     fix = check_names(args.fix or ())
     free = check_names(args.free or ())
     images = []
@@ -45,7 +44,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
             raise CalibrationError(f"image {path} is {w}x{h} px but the rig's sensor is "
                                    f"{rig.image_width}x{rig.image_height} px")
         images.append(image)
-    result = calibrate_board(rig, images, board, fix=fix, free=free, progress=not args.quiet)
+    if board is None:  # no target: self-calibration from the scenes' texture
+        result = calibrate_self(rig, images, fix=fix, free=free, progress=not args.quiet)
+    else:
+        result = calibrate_board(rig, images, board, fix=fix, free=free, progress=not args.quiet)
     names = [Path(p).name for p in args.images]
     print(format_report(result, names))
     result.rig.to_json(out)
@@ -60,7 +62,7 @@ def add_calibrate_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``prismstereo calibrate`` on the main parser's subcommands."""
     from prismstereo.calibration import DEFAULT_FIXED, NAMES
 
-    cal = sub.add_parser("calibrate", help="calibrate a rig from board captures through the prism",
+    cal = sub.add_parser("calibrate", help="calibrate a rig from board captures (or textured scenes) through the prism",
                          description="Bundle-adjust the rig (intrinsics, distortion, prism pose, alpha, n) to the "
                                      "board corners found in both halves of every capture, starting from the nominal "
                                      "rig; writes the calibrated rig file and prints the report.")
@@ -69,7 +71,9 @@ def add_calibrate_parser(sub: argparse._SubParsersAction) -> None:
     cal.add_argument("--out", required=True, help="the calibrated rig file to write")
     cal.add_argument("--target", default=None,
                      help="checkerboard:COLSxROWS:SQUARE_MM (inner corners) or "
-                          "charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT (squares), e.g. checkerboard:9x6:25")
+                          "charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT (squares), e.g. checkerboard:9x6:25; without "
+                          "it, self-calibration from the scenes' texture (1-3 captures: it fixes the epipolar geometry "
+                          "- roll, tilt, offset, distortion - but no metric scale, see the report)")
     cal.add_argument("--fix", nargs="+", metavar="NAME", default=None,
                      help=f"hold these at their nominal values (besides {', '.join(DEFAULT_FIXED)}); "
                           f"names: {', '.join(NAMES)}")

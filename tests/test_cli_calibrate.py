@@ -45,7 +45,6 @@ def test_calibrate_cli_writes_a_rig_and_reports(bench, capsys):
     [
         (["--target", "checkerboard:4x7"], "cannot parse target"),
         (["--target", "checkerboard:4x7:6", "--fix", "zoom"], "unknown rig parameter"),
-        ([], "--target is required"),
         (["--target", "checkerboard:9x6:6"], "found in both halves of 0 of 6 views"),
     ],
 )

@@ -2,12 +2,15 @@
 
 Data path: boards found in both half-images (:mod:`~prismstereo.calibration.targets`) -> the rig parameters to
 estimate (:mod:`~prismstereo.calibration.parameters`) -> a bundle adjustment through the exact optics
-(:mod:`~prismstereo.calibration.board`, solved by :mod:`~prismstereo.calibration.solver`) -> the calibrated rig
-and its report (:mod:`~prismstereo.calibration.fit`, :mod:`~prismstereo.calibration.report`).
+(:mod:`~prismstereo.calibration.board`, solved by :mod:`~prismstereo.calibration.solver` on the structure of
+:mod:`~prismstereo.calibration.problem`) -> the calibrated rig and its report (:mod:`~prismstereo.calibration.fit`,
+:mod:`~prismstereo.calibration.report`). Without a target: correspondences between the halves and the exact
+epipolar curves (:mod:`~prismstereo.calibration.selfcal`).
 """
 
 from prismstereo.calibration.fit import DEFAULT_FIXED, CalibrationResult, calibrate_board
 from prismstereo.calibration.parameters import NAMES
+from prismstereo.calibration.selfcal import Correspondences, calibrate_self, find_correspondences
 from prismstereo.calibration.targets import Board, HalfDetection, ViewDetection, detect_board, parse_target
 
 __all__ = [
@@ -18,6 +21,9 @@ __all__ = [
     "ViewDetection",
     "CalibrationResult",
     "calibrate_board",
+    "calibrate_self",
+    "Correspondences",
+    "find_correspondences",
     "detect_board",
     "parse_target",
 ]

@@ -3,11 +3,9 @@
 Unknowns: the free rig parameters (:mod:`prismstereo.calibration.parameters`) and one pose per view (board
 -> camera, axis-angle and translation: X = R(w) P + t). Residuals: for every detected corner of every half,
 the exact projection of its board point through that half of the prism (:func:`~prismstereo.geometry.optics.
-solve_projection`, lens distortion included) minus the detected pixel. Solved by Levenberg-Marquardt
-(:mod:`prismstereo.calibration.solver`) from the nominal rig, with Jacobians by forward-mode autograd. The
-poses' columns are block-sparse (a view's pose moves only its own corners), so one forward-mode pass with a
-shared pose increment gives all of them at once: a Jacobian costs (rig parameters + 6) projections of every
-corner, whatever the number of views.
+solve_projection`, lens distortion included) minus the detected pixel, with the priors and Jacobian of
+:class:`~prismstereo.calibration.problem.RigProblem`; solved by Levenberg-Marquardt
+(:mod:`prismstereo.calibration.solver`) from the nominal rig.
 
 Initial poses: each corner seen in both halves is triangulated with the nominal rig (the two traced rays'
 midpoint, the thesis' mid-point theorem) and the board is fitted to those points by Kabsch/Umeyama.
@@ -20,13 +18,12 @@ from typing import NamedTuple
 
 import kornia
 import torch
-from torch.func import jacfwd
 
-from prismstereo.calibration.parameters import NAMES, check_names, rig_parameters, rig_vector
+from prismstereo.calibration.problem import RigProblem
 from prismstereo.calibration.targets import Board, ViewDetection
 from prismstereo.errors import CalibrationError
 from prismstereo.geometry.optics import solve_projection, trace_pixels
-from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
 __all__ = ["Observations", "gather_observations", "initial_poses", "BoardProblem"]
@@ -128,16 +125,9 @@ def initial_poses(rig: BiPrismRig, obs: Observations) -> torch.Tensor:
     return torch.stack(poses) if poses else torch.zeros(0, 6, dtype=F64)
 
 
-class BoardProblem:
-    """The least-squares problem of a target calibration: residuals and Jacobian of x = [free rig values, poses].
-
-    Residuals are dimensionless: pixel residuals divided by the corner noise ``sigma_px``, then one prior row
-    per free rig parameter, (value - nominal) / tolerance. The priors are the bench tolerances of the nominal rig
-    (:data:`~prismstereo.calibration.parameters.TOLERANCES`): a narrow-angle camera's focal length, principal
-    point and distortion trade against the board poses, and the prism's alpha against n, so that some
-    combinations are barely determined by any set of board views; the prior keeps them at their nominal values
-    instead of letting them drift along the valley, and the report says how much of each estimate came from the
-    views.
+class BoardProblem(RigProblem):
+    """The least-squares problem of a target calibration: x = [free rig values, board poses (V, 6)]; the
+    residuals, priors and Jacobian are :class:`~prismstereo.calibration.problem.RigProblem`'s.
 
     Args:
         rig: the nominal rig (start values of the rig parameters, pixel size, sensor).
@@ -156,76 +146,22 @@ class BoardProblem:
 
     def __init__(self, rig: BiPrismRig, obs: Observations, free: Sequence[str],
                  tolerance: torch.Tensor | None = None, sigma_px: float = 0.1) -> None:
-        self.rig, self.obs, self.sigma_px = rig, obs, float(sigma_px)
-        self.free = check_names(free)
-        self.index = torch.tensor([NAMES.index(n) for n in self.free], dtype=torch.int64)
-        self.base = rig_vector(rig)
-        self.distorted = rig.distorted or any(n in self.free for n in ("k1", "k2", "p1", "p2", "k3"))
-        self.num_views = len(obs.views)
-        self._warm: torch.Tensor | None = None
+        self.obs = obs
         self._left_rows = torch.nonzero(obs.left).squeeze(1)
         self._right_rows = torch.nonzero(~obs.left).squeeze(1)
         self._order = torch.argsort(torch.cat([self._left_rows, self._right_rows]))
-        poses = initial_poses(rig, obs) if self.num_views else torch.zeros(0, 6, dtype=F64)
-        self.x0 = torch.cat([self.base[self.index], poses.reshape(-1)])
-        tol = torch.full((len(NAMES),), float("inf"), dtype=F64) if tolerance is None else tolerance.to(F64)
-        self.prior_weight = 1.0 / tol[self.index]  # 0 where there is no prior
+        poses = initial_poses(rig, obs) if obs.views else torch.zeros(0, 6, dtype=F64)
+        super().__init__(rig, free, obs.uv, obs.view, poses, tolerance, sigma_px)
 
-    @property
-    def num_rig(self) -> int:
-        """Number of free rig parameters (the first entries of x)."""
-        return len(self.free)
-
-    def full_vector(self, x: torch.Tensor) -> torch.Tensor:
-        """(16,) rig vector with the free entries taken from x."""
-        return self.base.to(x).index_put((self.index,), x[: self.num_rig])
-
-    def _project(self, x_rig: torch.Tensor, poses: torch.Tensor, warm: torch.Tensor | None,
-                 iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
-        p = rig_parameters(self.full_vector(x_rig), self.rig, self.distorted)
+    def predict(self, p: RigParameters, blocks: torch.Tensor, warm: torch.Tensor | None,
+                iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The exact projection of every corner's board point, posed by its view's (axis-angle, translation)."""
         obs = self.obs
-        rot = kornia.geometry.conversions.axis_angle_to_rotation_matrix(poses[:, :3])  # (V, 3, 3)
-        pts = (rot[obs.view] @ obs.points.to(poses).unsqueeze(-1)).squeeze(-1) + poses[obs.view, 3:]
+        rot = kornia.geometry.conversions.axis_angle_to_rotation_matrix(blocks[:, :3])  # (V, 3, 3)
+        pts = (rot[obs.view] @ obs.points.to(blocks).unsqueeze(-1)).squeeze(-1) + blocks[obs.view, 3:]
         uvs, valids = [], []
         for half, rows in (("left", self._left_rows), ("right", self._right_rows)):
             proj = solve_projection(p, pts[rows], half, iterations, None if warm is None else warm[rows])
             uvs.append(proj.uv)
             valids.append(proj.valid)
         return torch.cat(uvs)[self._order], torch.cat(valids)[self._order]
-
-    def _split(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return x[: self.num_rig], x[self.num_rig:].view(-1, 6)
-
-    def projections(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(M, 2) exact projections of every observed corner at x, and (M,) their validity."""
-        with torch.no_grad():
-            x_rig, poses = self._split(x)
-            uv, valid = self._project(x_rig, poses, self._warm, 5)
-            self._warm = uv.detach()
-        return uv, valid
-
-    def residuals(self, x: torch.Tensor) -> torch.Tensor:
-        """(2M + P,) (projection - detection) / sigma_px, u and v interleaved per corner, then the P prior rows."""
-        uv, _ = self.projections(x)
-        prior = (x[: self.num_rig] - self.base[self.index]) * self.prior_weight
-        return torch.cat([(uv - self.obs.uv).reshape(-1) / self.sigma_px, prior])
-
-    def jacobian(self, x: torch.Tensor) -> torch.Tensor:
-        """(2M, n) Jacobian of :meth:`residuals` by forward-mode autograd (one pass per rig parameter + 6)."""
-        x_rig, poses = self._split(x)
-        warm, _ = self.projections(x)  # converged start: one Newton step carries the derivative
-
-        def f(z: torch.Tensor) -> torch.Tensor:
-            return self._project(z[: self.num_rig], poses + z[self.num_rig:], warm, 1)[0]
-
-        z = torch.cat([x_rig, torch.zeros(6, dtype=x.dtype)])
-        j = jacfwd(f)(z).reshape(-1, self.num_rig + 6)  # (2M, P + 6)
-        m = j.shape[0]
-        full = torch.zeros(m + self.num_rig, x.numel(), dtype=x.dtype)
-        full[:m, : self.num_rig] = j[:, : self.num_rig] / self.sigma_px
-        rows = torch.arange(m)
-        view = self.obs.view.repeat_interleave(2)
-        for c in range(6):
-            full[rows, self.num_rig + 6 * view + c] = j[:, self.num_rig + c] / self.sigma_px
-        full[m + torch.arange(self.num_rig), torch.arange(self.num_rig)] = self.prior_weight
-        return full

@@ -24,12 +24,14 @@ from prismstereo.calibration.parameters import (
     tolerance_vector,
     vector_to_rig,
 )
+from prismstereo.calibration.problem import RigProblem
 from prismstereo.calibration.solver import levenberg_marquardt
 from prismstereo.calibration.targets import Board, ViewDetection, detect_board
 from prismstereo.errors import CalibrationError, RigError
 from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["CalibrationResult", "DEFAULT_FIXED", "calibrate_board", "view_outliers"]
+__all__ = ["CalibrationResult", "DEFAULT_FIXED", "SolvedProblem", "calibrate_board", "solve_rig_problem",
+           "view_outliers"]
 
 # Held at their nominal values unless freed: the prism's thickness trades against its distance (both move the
 # virtual centres along z) and is known from the part's drawing; k3 matters only for wide-angle lenses (OpenCV's
@@ -48,6 +50,8 @@ class CalibrationResult(NamedTuple):
             1 - posterior variance / prior variance (NaN for parameters not estimated).
         weak: names of estimated parameters with data_share < 0.5: the views barely determine them, their
             values stay near nominal by their tolerance.
+        unobservable: names the data cannot determine at all (self-calibration: e.g. a length scale), held at
+            their nominal values; empty for a target calibration.
         sigma_px: the corner noise estimated from the residuals (px per coordinate).
         before: (16,) nominal values of :data:`~prismstereo.calibration.parameters.NAMES` (reported units).
         after: (16,) calibrated values.
@@ -68,6 +72,7 @@ class CalibrationResult(NamedTuple):
     free: tuple[str, ...]
     data_share: torch.Tensor
     weak: tuple[str, ...]
+    unobservable: tuple[str, ...]
     sigma_px: float
     before: torch.Tensor
     after: torch.Tensor
@@ -164,15 +169,65 @@ def calibrate_board(
         raise CalibrationError(f"board {board.describe()} found in both halves of {len(obs.views)} of "
                                f"{len(detections)} views, need {min_views} ({'; '.join(found)})")
     names = [n for n in NAMES if n not in fixed]
-    tol = tolerance_vector(rig, tolerances)
-    problem = BoardProblem(rig, obs, names, tol, sigma_px=0.1)
+    problem = BoardProblem(rig, obs, names, tolerance_vector(rig, tolerances), sigma_px=0.1)
+    solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)
+    res = solved.residuals
+    view_rms = _per_view_rms(res, obs)
+    return CalibrationResult(
+        rig=solved.rig, nominal=rig, free=problem.free, data_share=solved.data_share, weak=solved.weak,
+        unobservable=(), sigma_px=problem.sigma_px, before=to_display(rig_vector(rig)), after=solved.after,
+        std_error=solved.std_error, rms_px=solved.rms_px, view_rms_px=view_rms, views=obs.views,
+        outlier_views=view_outliers(view_rms, obs.views), residuals=res, observations=obs,
+        poses=problem.blocks(solved.x), iterations=solved.iterations, message=solved.message,
+    )
+
+
+class SolvedProblem(NamedTuple):
+    """:func:`solve_rig_problem`'s result.
+
+    Attributes:
+        x: the solution vector.
+        rig: the calibrated rig.
+        residuals: (M, 2) predicted - observed pixels.
+        rms_px: RMS of the residuals' lengths (px).
+        after: (16,) the rig's values (reported units).
+        std_error: (16,) standard errors (reported units, NaN where not estimated).
+        data_share: (16,) 1 - posterior / prior variance (NaN where not estimated).
+        weak: estimated names with data_share < 0.5.
+        iterations: solver iterations over all passes.
+        message: why the last pass stopped.
+    """
+
+    x: torch.Tensor
+    rig: BiPrismRig
+    residuals: torch.Tensor
+    rms_px: float
+    after: torch.Tensor
+    std_error: torch.Tensor
+    data_share: torch.Tensor
+    weak: tuple[str, ...]
+    iterations: int
+    message: str
+
+
+def solve_rig_problem(problem: RigProblem, *, max_iterations: int = 100, max_rms_px: float = 2.0,
+                      progress: bool = False) -> SolvedProblem:
+    """Solve a calibration problem: Levenberg-Marquardt, re-weighted until ``problem.sigma_px`` matches the noise the
+    residuals show (it sets the views' weight against the priors), then the statistics.
+
+    Raises:
+        CalibrationError: RMS > ``max_rms_px`` or a rig the optics reject (a diverged fit).
+
+    Example:
+        >>> solve_rig_problem(problem)  # doctest: +SKIP
+    """
     x, iterations, message = problem.x0, 0, ""
-    for _ in range(3):  # the corner noise sets the views' weight against the priors: estimate it, refit
+    for _ in range(3):
         fit = levenberg_marquardt(problem.residuals, problem.jacobian, x, max_iterations=max_iterations,
                                   progress=progress, description="calibrate")
         x, iterations, message = fit.x, iterations + fit.iterations, fit.message
-        res = problem.projections(x)[0] - obs.uv
-        dof = max(1, res.numel() - 6 * len(obs.views) - problem.num_rig)
+        res = problem.projections(x)[0] - problem.observed
+        dof = max(1, res.numel() - x.numel())
         sigma = max(float(res.pow(2).sum() / dof) ** 0.5, 1e-3)
         settled = 0.8 < sigma / problem.sigma_px < 1.25
         problem.sigma_px = sigma
@@ -181,11 +236,10 @@ def calibrate_board(
     rms = float(res.pow(2).sum(dim=1).mean().sqrt())
     if not rms <= max_rms_px:
         raise CalibrationError(f"the fit diverged: RMS reprojection error {rms:.3g} px > {max_rms_px} px after "
-                               f"{iterations} iterations ({message}); check the nominal rig, the target and "
-                               "the images")
+                               f"{iterations} iterations ({message}); check the nominal rig, the target and the images")
     full = problem.full_vector(x)
     try:
-        calibrated = vector_to_rig(full, rig)
+        calibrated = vector_to_rig(full, problem.rig)
     except RigError as exc:
         raise CalibrationError(f"the fit diverged to an invalid rig: {exc}") from exc
     j = problem.jacobian(x)
@@ -195,11 +249,5 @@ def calibrate_board(
     share = torch.full((len(NAMES),), float("nan"), dtype=torch.float64)
     share[problem.index] = (1.0 - var * problem.prior_weight.pow(2)).clamp(0.0, 1.0)
     weak = tuple(n for n in problem.free if float(share[NAMES.index(n)]) < 0.5)
-    view_rms = _per_view_rms(res, obs)
-    return CalibrationResult(
-        rig=calibrated, nominal=rig, free=problem.free, data_share=share, weak=weak, sigma_px=problem.sigma_px,
-        before=to_display(rig_vector(rig)), after=to_display(full.detach()), std_error=to_display(std),
-        rms_px=rms, view_rms_px=view_rms, views=obs.views, outlier_views=view_outliers(view_rms, obs.views),
-        residuals=res, observations=obs, poses=x[problem.num_rig:].view(-1, 6), iterations=iterations,
-        message=message,
-    )
+    return SolvedProblem(x, calibrated, res, rms, to_display(full.detach()), to_display(std), share, weak,
+                         iterations, message)

@@ -43,18 +43,22 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
             lines.append(f"{name:<20} {unit:<4} {before:>12.6g} {after:>12.6g} {after - before:>+11.4g} "
                          f"{float(result.std_error[i]):>10.3g} {share:>9.0%}")
         else:
-            lines.append(f"{name:<20} {unit:<4} {before:>12.6g} {'(fixed)':>12}")
+            why = "(unobservable)" if name in result.unobservable else "(fixed)"
+            lines.append(f"{name:<20} {unit:<4} {before:>12.6g} {why:>14}")
     lines += ["", f"{'view':<24} {'left RMS px':>11} {'right RMS px':>12}"]
     for k, v in enumerate(result.views):
-        left, right = (float(x) for x in result.view_rms_px[k])
+        left, right = (f"{float(x):.4f}" if x == x else "-" for x in result.view_rms_px[k])
         flag = "  <- outlier" if v in result.outlier_views else ""
-        lines.append(f"{names[v]:<24} {left:>11.4f} {right:>12.4f}{flag}")
+        lines.append(f"{names[v]:<24} {left:>11} {right:>12}{flag}")
     skipped = [names[i] for i in range(len(names)) if i not in result.views]
     if skipped:
         lines.append(f"views without the board in both halves (not used): {', '.join(skipped)}")
     for v in result.outlier_views:
         lines.append(f"warning: view {names[v]} has an outlier reprojection error (over 3x the median view's); "
                      "check its detection or remove it")
+    if result.unobservable:
+        lines.append(f"not observable from these captures, held at their nominal values: "
+                     f"{', '.join(result.unobservable)}")
     if result.weak:
         lines.append(f"note: the views barely determine {', '.join(result.weak)} (under half of their estimate came "
                      "from the views; they stay near their nominal values within their tolerances). Boards tilted "
