@@ -12,9 +12,11 @@ principal point +-5 full-resolution px, k1 in [-0.1, 0.05]):
 3. render two fresh textured planes (560 and 820 mm) through the perturbed rig and run ``PrismStereo`` built
    from the true, the nominal and the calibrated rig.
 
-Prints per run the RMS, the largest |estimate - truth| / standard error over the estimated parameters, and
-the depth errors (mean |relative error| over co-visible valid pixels); then the summary against the targets:
-parameters within 3 standard errors, calibrated depth error <= 1.5 x the true rig's.
+Prints per run the RMS, the largest |estimate - truth| / standard error over the estimated parameters, the
+depth errors (mean |relative error| over co-visible valid pixels) and the depth uncertainty the calibration
+predicts for itself (its covariance propagated to depth); then per parameter the errors before and after over the
+runs, and the summary against the targets: parameters within 3 standard errors, calibrated depth error <= 1.5 x
+the true rig's. ``--board none`` self-calibrates from three textured scenes instead (no target).
 
 Captures come from this package's renderer at half resolution (512 x 384) by default (``--scale 1`` for the full
 1024 x 768 sensor, ~4x slower). ``--setup 2`` uses thesis setup 2.
@@ -29,10 +31,19 @@ import time
 import torch
 
 from prismstereo import thesis_setup1, thesis_setup2
-from prismstereo.calibration import calibrate_board, parse_target
-from prismstereo.calibration.parameters import NAMES, rig_vector, to_display
+from prismstereo.calibration import calibrate_board, calibrate_self, parse_target
+from prismstereo.calibration.parameters import NAMES, rig_vector, to_display, tolerance_vector
+from prismstereo.calibration.uncertainty import depth_uncertainty
 from prismstereo.model import PrismStereo
-from prismstereo.synthetic import ImageFormation, calibration_views, fronto_parallel_plane, render
+from prismstereo.synthetic import (
+    ImageFormation,
+    calibration_views,
+    fronto_parallel_plane,
+    render,
+    slanted_plane,
+    sphere_scene,
+    step_scene,
+)
 
 
 def perturb(nominal, g: torch.Generator, scale: int):
@@ -58,56 +69,93 @@ def depth_error(rig, true_rig, cap, z_range) -> float:
     return float(rel.mean())
 
 
+def parameter_table(nominal_err: torch.Tensor, fitted_err: torch.Tensor, zs: torch.Tensor) -> str:
+    """Per parameter over the runs: RMS |nominal - truth|, RMS |calibrated - truth|, median and max |z|."""
+    lines = [f"{'parameter':<20} {'RMS error nominal':>18} {'calibrated':>11} {'median |z|':>11} {'max |z|':>8}"]
+    for i, name in enumerate(NAMES):
+        est = torch.isfinite(zs[:, i])
+        if not bool(est.any()):
+            continue
+        a = float(nominal_err[:, i].pow(2).mean().sqrt())
+        b = float(fitted_err[:, i].pow(2).mean().sqrt())
+        z = zs[est, i].abs()
+        lines.append(f"{name:<20} {a:>18.4g} {b:>11.4g} {float(z.median()):>11.2f} {float(z.max()):>8.2f}")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--runs", type=int, default=10)
-    parser.add_argument("--views", type=int, default=12)
+    parser.add_argument("--views", type=int, default=12, help="board views per run (self-calibration: 3 scenes)")
     parser.add_argument("--scale", type=int, default=2, help="sensor downscaling (1 = 1024 x 768)")
     parser.add_argument("--setup", type=int, default=1, choices=(1, 2))
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--board", choices=("charuco", "checkerboard"), default="charuco",
+    parser.add_argument("--tolerance-scale", type=float, default=1.0,
+                        help="multiply every default prior tolerance (TOLERANCES) by this factor")
+    parser.add_argument("--board", choices=("charuco", "checkerboard", "none"), default="charuco",
                         help="charuco (default): a 16 x 12-square board of 8 mm, larger than either half's view; "
-                             "checkerboard: 5 x 8 squares of 6 mm, seen whole by both halves")
+                             "checkerboard: 5 x 8 squares of 6 mm, seen whole by both halves; none: self-calibration "
+                             "from 3 textured scenes (slanted plane, step, sphere)")
     args = parser.parse_args()
     base = thesis_setup1() if args.setup == 1 else thesis_setup2()
     nominal = base.downscaled(args.scale) if args.scale > 1 else base
+    board, layout = None, {}
     if args.board == "charuco":
         board = parse_target("charuco:16x12:8:6:DICT_4X4_250")
         layout = dict(kind="charuco", cols=16, rows=12, square_mm=8.0, spread_mm=(10.0, 10.0))
-    else:
+    elif args.board == "checkerboard":
         board = parse_target("checkerboard:4x7:6")
-        layout = {}
     depths = (550.0, 850.0) if args.setup == 1 else (300.0, 500.0)
     planes = (560.0, 820.0) if args.setup == 1 else (320.0, 480.0)
     z_range = (450.0, 1000.0) if args.setup == 1 else (250.0, 700.0)
     g = torch.Generator().manual_seed(args.seed)
-    print(f"setup {args.setup}, {nominal.image_width} x {nominal.image_height} px, {args.views} views of "
-          f"{board.describe()} per run")
+    tolerances = {n: float(v) * args.tolerance_scale for n, v in
+                  zip(NAMES, to_display(tolerance_vector(nominal)), strict=True)} if args.tolerance_scale != 1 else None
+    what = f"{args.views} views of {board.describe()}" if board is not None else "self-calibration from 3 scenes"
+    print(f"setup {args.setup}, {nominal.image_width} x {nominal.image_height} px, {what} per run")
     print(f"{'run':>3} {'RMS px':>7} {'max z':>6} {'worst':>18} {'depth % true':>13} {'nominal':>8} {'calibrated':>10} "
-          f"{'ratio':>6} {'s':>5}")
-    worst_z, ratios, within = [], [], 0
-    total = 0
+          f"{'ratio':>6} {'predicted %':>11} {'s':>5}")
+    worst_z, ratios, within, total = [], [], 0, 0
+    nominal_err, fitted_err, zs = [], [], []
+    unobservable: dict[str, int] = {}
     for run in range(args.runs):
         true = perturb(nominal, g, args.scale)
         t0 = time.time()
-        views = calibration_views(args.views, 1000 * args.seed + run, depths, **layout)
-        caps = render(true, views, ImageFormation(supersample=3, noise_sigma=2 / 255, seed=run))
-        result = calibrate_board(nominal, list(caps.image), board)
+        if board is not None:
+            views = calibration_views(args.views, 1000 * args.seed + run, depths, **layout)
+            caps = render(true, views, ImageFormation(supersample=3, noise_sigma=2 / 255, seed=run))
+            result = calibrate_board(nominal, list(caps.image), board, tolerances=tolerances)
+        else:
+            mid = sum(depths) / 2
+            scenes = [slanted_plane(true, mid, 20.0, seed=run), step_scene(true, depths[0], depths[1], seed=run + 50),
+                      sphere_scene(true, mid, 0.1 * mid, depths[1] + 100.0, seed=run + 90)]
+            caps = render(true, scenes, ImageFormation(supersample=2, noise_sigma=2 / 255, seed=run))
+            result = calibrate_self(nominal, list(caps.image), tolerances=tolerances)
+            for name in result.unobservable:
+                unobservable[name] = unobservable.get(name, 0) + 1
         truth = to_display(rig_vector(true))
         z = ((result.after - truth) / result.std_error).abs()
         est = torch.isfinite(z)
         within += int((z[est] <= 3).sum())
         total += int(est.sum())
+        nominal_err.append((result.before - truth).abs())
+        fitted_err.append((result.after - truth).abs())
+        zs.append(z)
         k = int(torch.nan_to_num(z, nan=-1).argmax())
         fresh = render(true, [fronto_parallel_plane(true, d, seed=100 + run) for d in planes],
                        ImageFormation(supersample=2, noise_sigma=1 / 255, seed=run))
         errs = [depth_error(r, true, fresh, z_range) * 100 for r in (true, nominal, result.rig)]
+        predicted = 100 * float(depth_uncertainty(result.rig, result.covariance, planes).relative_std.mean())
         ratio = errs[2] / errs[0]
         worst_z.append(float(z[k]))
         ratios.append(ratio)
         print(f"{run:>3} {result.rms_px:>7.3f} {float(z[k]):>6.2f} {NAMES[k]:>18} {errs[0]:>13.3f} {errs[1]:>8.2f} "
-              f"{errs[2]:>10.3f} {ratio:>6.2f} {time.time() - t0:>5.0f}")
-    print(f"\nparameters within 3 standard errors: {within} / {total}; worst |z| per run median "
+              f"{errs[2]:>10.3f} {ratio:>6.2f} {predicted:>11.3f} {time.time() - t0:>5.0f}", flush=True)
+    print("\nparameter errors before (nominal rig) and after calibration, over the runs (reported units):")
+    print(parameter_table(torch.stack(nominal_err), torch.stack(fitted_err), torch.stack(zs)))
+    if unobservable:
+        print("reported unobservable (runs): " + ", ".join(f"{k} {v}" for k, v in sorted(unobservable.items())))
+    print(f"\nestimated parameters within 3 standard errors: {within} / {total}; worst |z| per run median "
           f"{sorted(worst_z)[len(worst_z) // 2]:.2f}, max {max(worst_z):.2f}")
     print(f"calibrated / true-rig depth error: median {sorted(ratios)[len(ratios) // 2]:.2f}, max {max(ratios):.2f} "
           f"(target <= 1.5); runs meeting it: {sum(r <= 1.5 for r in ratios)} / {len(ratios)}")

@@ -12,7 +12,8 @@ NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.i
 def test_notebooks_exist():
     names = {p.name for p in NOTEBOOKS}
     for required in ("01_prism_geometry.ipynb", "02_synthetic_capture.ipynb", "03_epipolar.ipynb",
-                     "04_depth.ipynb", "05_onnx_deployment.ipynb", "06_fov_and_error_analysis.ipynb"):
+                     "04_depth.ipynb", "05_onnx_deployment.ipynb", "06_fov_and_error_analysis.ipynb",
+                     "07_calibration.ipynb"):
         assert required in names
 
 

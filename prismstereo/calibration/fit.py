@@ -27,11 +27,12 @@ from prismstereo.calibration.parameters import (
 from prismstereo.calibration.problem import RigProblem
 from prismstereo.calibration.solver import levenberg_marquardt
 from prismstereo.calibration.targets import Board, ViewDetection, detect_board
+from prismstereo.calibration.uncertainty import DepthUncertainty, depth_uncertainty
 from prismstereo.errors import CalibrationError, RigError
 from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["CalibrationResult", "DEFAULT_FIXED", "SolvedProblem", "calibrate_board", "solve_rig_problem",
-           "view_outliers"]
+           "view_depth_uncertainty", "view_outliers"]
 
 # Held at their nominal values unless freed: the prism's thickness trades against its distance (both move the
 # virtual centres along z) and is known from the part's drawing; k3 matters only for wide-angle lenses (OpenCV's
@@ -56,7 +57,13 @@ class CalibrationResult(NamedTuple):
         before: (16,) nominal values of :data:`~prismstereo.calibration.parameters.NAMES` (reported units).
         after: (16,) calibrated values.
         std_error: (16,) standard errors (NaN for parameters not estimated).
+        covariance: (16, 16) covariance of the rig vector (internal units, angles in rad): the fit's for the
+            estimated parameters, the prior tolerance squared for the ones held fixed (they are known only to
+            their tolerance), no correlation between the two groups.
         rms_px: RMS reprojection error over every corner (px).
+        depth_uncertainty: the calibration's own depth uncertainty (the covariance propagated to triangulated
+            depth, :func:`~prismstereo.calibration.uncertainty.depth_uncertainty`) at the nearest, median and
+            farthest depth of the views.
         view_rms_px: (V, 2) RMS per kept view and half (left, right), px.
         views: indices of the kept views among the inputs.
         outlier_views: indices (among the inputs) of views whose error is an outlier.
@@ -77,7 +84,9 @@ class CalibrationResult(NamedTuple):
     before: torch.Tensor
     after: torch.Tensor
     std_error: torch.Tensor
+    covariance: torch.Tensor
     rms_px: float
+    depth_uncertainty: DepthUncertainty
     view_rms_px: torch.Tensor
     views: tuple[int, ...]
     outlier_views: tuple[int, ...]
@@ -100,6 +109,19 @@ def view_outliers(view_rms: torch.Tensor, views: Sequence[int], factor: float = 
         return ()
     med = float(per_view.median())
     return tuple(views[i] for i in range(len(views)) if float(per_view[i]) > max(factor * med, floor_px))
+
+
+def view_depth_uncertainty(rig: BiPrismRig, covariance: torch.Tensor, depths: torch.Tensor) -> DepthUncertainty:
+    """:func:`~prismstereo.calibration.uncertainty.depth_uncertainty` at the smallest, median and largest of ``depths``
+    (the views' depths, mm).
+
+    Example:
+        >>> view_depth_uncertainty(thesis_setup1(), torch.zeros(16, 16, dtype=torch.float64),
+        ...                        torch.tensor([500.0, 700.0])).relative_std
+        tensor([0., 0., 0.], dtype=torch.float64)
+    """
+    z = depths.detach().to(torch.float64)
+    return depth_uncertainty(rig, covariance, [float(z.min()), float(z.median()), float(z.max())])
 
 
 def _per_view_rms(res: torch.Tensor, obs: Observations) -> torch.Tensor:
@@ -176,7 +198,10 @@ def calibrate_board(
     return CalibrationResult(
         rig=solved.rig, nominal=rig, free=problem.free, data_share=solved.data_share, weak=solved.weak,
         unobservable=(), sigma_px=problem.sigma_px, before=to_display(rig_vector(rig)), after=solved.after,
-        std_error=solved.std_error, rms_px=solved.rms_px, view_rms_px=view_rms, views=obs.views,
+        std_error=solved.std_error, covariance=solved.covariance, rms_px=solved.rms_px,
+        depth_uncertainty=view_depth_uncertainty(solved.rig, solved.covariance, problem.blocks(solved.x)[:, 5]),
+        view_rms_px=view_rms,
+        views=obs.views,
         outlier_views=view_outliers(view_rms, obs.views), residuals=res, observations=obs,
         poses=problem.blocks(solved.x), iterations=solved.iterations, message=solved.message,
     )
@@ -192,6 +217,7 @@ class SolvedProblem(NamedTuple):
         rms_px: RMS of the residuals' lengths (px).
         after: (16,) the rig's values (reported units).
         std_error: (16,) standard errors (reported units, NaN where not estimated).
+        covariance: (16, 16) covariance of the rig vector (see :class:`CalibrationResult`).
         data_share: (16,) 1 - posterior / prior variance (NaN where not estimated).
         weak: estimated names with data_share < 0.5.
         iterations: solver iterations over all passes.
@@ -204,6 +230,7 @@ class SolvedProblem(NamedTuple):
     rms_px: float
     after: torch.Tensor
     std_error: torch.Tensor
+    covariance: torch.Tensor
     data_share: torch.Tensor
     weak: tuple[str, ...]
     iterations: int
@@ -243,11 +270,15 @@ def solve_rig_problem(problem: RigProblem, *, max_iterations: int = 100, max_rms
     except RigError as exc:
         raise CalibrationError(f"the fit diverged to an invalid rig: {exc}") from exc
     j = problem.jacobian(x)
-    var = torch.linalg.pinv(j.T @ j, hermitian=True).diagonal()[: problem.num_rig].clamp_min(0)
+    cov_free = torch.linalg.pinv(j.T @ j, hermitian=True)[: problem.num_rig, : problem.num_rig]
+    var = cov_free.diagonal().clamp_min(0)
+    prior_var = problem.tolerance.pow(2).nan_to_num(posinf=0.0)
+    cov = torch.diag(prior_var)
+    cov[problem.index[:, None], problem.index[None, :]] = cov_free
     std = torch.full((len(NAMES),), float("nan"), dtype=torch.float64)
     std[problem.index] = var.sqrt()
     share = torch.full((len(NAMES),), float("nan"), dtype=torch.float64)
     share[problem.index] = (1.0 - var * problem.prior_weight.pow(2)).clamp(0.0, 1.0)
     weak = tuple(n for n in problem.free if float(share[NAMES.index(n)]) < 0.5)
-    return SolvedProblem(x, calibrated, res, rms, to_display(full.detach()), to_display(std), share, weak,
+    return SolvedProblem(x, calibrated, res, rms, to_display(full.detach()), to_display(std), cov, share, weak,
                          iterations, message)

@@ -61,6 +61,7 @@ class RigProblem:
         self.block_size = blocks0.shape[1]
         self.x0 = torch.cat([self.base[self.index], blocks0.to(F64).reshape(-1)])
         tol = torch.full((len(NAMES),), float("inf"), dtype=F64) if tolerance is None else tolerance.to(F64)
+        self.tolerance = tol
         self.prior_weight = 1.0 / tol[self.index]  # 0 where there is no prior
         self._warm: torch.Tensor | None = None
 

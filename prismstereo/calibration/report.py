@@ -45,6 +45,11 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
         else:
             why = "(unobservable)" if name in result.unobservable else "(fixed)"
             lines.append(f"{name:<20} {unit:<4} {before:>12.6g} {why:>14}")
+    unc = result.depth_uncertainty
+    parts = [f"{100 * float(s):.2f} % at {float(z):.0f} mm"
+             for z, s in zip(unc.depth_mm, unc.relative_std, strict=True)]
+    lines += ["", f"depth uncertainty from the calibration (1 sigma, fixed parameters at their tolerance): "
+              f"{', '.join(parts)}"]
     lines += ["", f"{'view':<24} {'left RMS px':>11} {'right RMS px':>12}"]
     for k, v in enumerate(result.views):
         left, right = (f"{float(x):.4f}" if x == x else "-" for x in result.view_rms_px[k])
@@ -60,9 +65,10 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
         lines.append(f"not observable from these captures, held at their nominal values: "
                      f"{', '.join(result.unobservable)}")
     if result.weak:
+        hint = (" Boards tilted further (30-45 deg), larger (ChArUco, seen partly by each half) and at more depths "
+                "determine them better." if bool(obs.left.any()) else "")
         lines.append(f"note: the views barely determine {', '.join(result.weak)} (under half of their estimate came "
-                     "from the views; they stay near their nominal values within their tolerances). Boards tilted "
-                     "further (30-45 deg) and at more depths determine them better.")
+                     f"from the views; they stay near their nominal values within their tolerances).{hint}")
     return "\n".join(lines)
 
 

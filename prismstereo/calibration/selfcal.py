@@ -31,7 +31,13 @@ import torch
 from tqdm.auto import tqdm
 
 from prismstereo.calibration.board import Observations
-from prismstereo.calibration.fit import DEFAULT_FIXED, CalibrationResult, solve_rig_problem, view_outliers
+from prismstereo.calibration.fit import (
+    DEFAULT_FIXED,
+    CalibrationResult,
+    solve_rig_problem,
+    view_depth_uncertainty,
+    view_outliers,
+)
 from prismstereo.calibration.parameters import NAMES, check_names, rig_vector, to_display, tolerance_vector
 from prismstereo.calibration.problem import RigProblem
 from prismstereo.calibration.solver import unobservable
@@ -242,7 +248,9 @@ def calibrate_self(
         rig=solved.rig, nominal=rig, free=problem.free, data_share=solved.data_share,
         weak=solved.weak, unobservable=unobservable_names, sigma_px=problem.sigma_px,
         before=to_display(rig_vector(rig)),
-        after=solved.after, std_error=solved.std_error, rms_px=solved.rms_px, view_rms_px=rms, views=views,
+        after=solved.after, std_error=solved.std_error, covariance=solved.covariance, rms_px=solved.rms_px,
+        depth_uncertainty=view_depth_uncertainty(solved.rig, solved.covariance, depths[:, 0]), view_rms_px=rms,
+        views=views,
         outlier_views=view_outliers(rms[:, 1:].nan_to_num(0.0), views), residuals=solved.residuals, observations=obs,
         poses=depths, iterations=solved.iterations, message=solved.message,
     )
