@@ -26,7 +26,7 @@ from prismstereo.geometry.optics import solve_projection, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
-__all__ = ["Observations", "gather_observations", "initial_poses", "BoardProblem"]
+__all__ = ["Observations", "gather_observations", "initial_poses", "rigid_fit", "BoardProblem"]
 
 F64 = torch.float64
 
@@ -80,8 +80,16 @@ def gather_observations(detections: Sequence[ViewDetection], board: Board, min_c
     return Observations(torch.cat(view), torch.cat(left), torch.cat(points), torch.cat(uv), tuple(kept))
 
 
-def _kabsch(src: torch.Tensor, dst: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """R, t minimising |R src + t - dst|^2 (proper rotation)."""
+def rigid_fit(src: torch.Tensor, dst: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The proper rotation R (3, 3) and translation t (3,) minimising |R src + t - dst|^2 (Kabsch / Umeyama
+    without scale) for matched points src, dst (N, 3), N >= 3 not on a line.
+
+    Example:
+        >>> src = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=torch.float64)
+        >>> r, t = rigid_fit(src, src + torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+        >>> t.round(decimals=6).tolist()
+        [1.0, 2.0, 3.0]
+    """
     cs, cd = src.mean(0), dst.mean(0)
     h = (src - cs).T @ (dst - cd)
     u, _, vt = torch.linalg.svd(h)
@@ -119,7 +127,7 @@ def initial_poses(rig: BiPrismRig, obs: Observations) -> torch.Tensor:
         if int(ok.sum()) < 3 or torch.linalg.matrix_rank(board_pts[ok] - board_pts[ok].mean(0)) < 2:
             raise CalibrationError(f"view {obs.views[k]}: its corners do not triangulate to a board in front of the "
                                    "prism with the nominal rig (is the rig file the right one?)")
-        r, t = _kabsch(board_pts[ok], x[ok])
+        r, t = rigid_fit(board_pts[ok], x[ok])
         w = kornia.geometry.conversions.rotation_matrix_to_axis_angle(r[None])[0]
         poses.append(torch.cat([w, t]))
     return torch.stack(poses) if poses else torch.zeros(0, 6, dtype=F64)

@@ -97,7 +97,8 @@ class CalibrationResult(NamedTuple):
     message: str
 
 
-def view_outliers(view_rms: torch.Tensor, views: Sequence[int], factor: float = 3.0, floor_px: float = 0.1) -> tuple:
+def view_outliers(view_rms: torch.Tensor, views: Sequence[int], factor: float = 3.0,
+                  floor_px: float = 0.1) -> tuple[int, ...]:
     """Views whose RMS (over both halves) exceeds ``factor`` x the median view's and ``floor_px``.
 
     Example:
