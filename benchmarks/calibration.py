@@ -90,6 +90,8 @@ def main() -> None:
     parser.add_argument("--scale", type=int, default=2, help="sensor downscaling (1 = 1024 x 768)")
     parser.add_argument("--setup", type=int, default=1, choices=(1, 2))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--squares", default="16x12", help="ChArUco board size in squares (COLSxROWS)")
+    parser.add_argument("--square-mm", type=float, default=8.0, help="ChArUco square size (markers 3/4 of it)")
     parser.add_argument("--tolerance-scale", type=float, default=1.0,
                         help="multiply every default prior tolerance (TOLERANCES) by this factor")
     parser.add_argument("--board", choices=("charuco", "checkerboard", "none"), default="charuco",
@@ -101,8 +103,9 @@ def main() -> None:
     nominal = base.downscaled(args.scale) if args.scale > 1 else base
     board, layout = None, {}
     if args.board == "charuco":
-        board = parse_target("charuco:16x12:8:6:DICT_4X4_250")
-        layout = dict(kind="charuco", cols=16, rows=12, square_mm=8.0, spread_mm=(10.0, 10.0))
+        cols, rows = (int(k) for k in args.squares.split("x"))
+        board = parse_target(f"charuco:{cols}x{rows}:{args.square_mm:g}:{0.75 * args.square_mm:g}:DICT_4X4_250")
+        layout = dict(kind="charuco", cols=cols, rows=rows, square_mm=args.square_mm, spread_mm=(10.0, 10.0))
     elif args.board == "checkerboard":
         board = parse_target("checkerboard:4x7:6")
     depths = (550.0, 850.0) if args.setup == 1 else (300.0, 500.0)

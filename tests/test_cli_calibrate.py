@@ -66,3 +66,24 @@ def test_calibrate_cli_refuses_bad_inputs(bench, capsys, tmp_path):
     assert main(["calibrate", "--rig", rig, str(small), *paths, "--out", str(tmp_path / "x.json"),
                  "--target", "checkerboard:4x7:6"]) == 2
     assert "is 256x100 px but the rig's sensor is 256x192" in capsys.readouterr().err
+
+
+def test_calibrate_cli_without_target_self_calibrates(tmp_path, capsys):
+    from prismstereo.synthetic import ImageFormation, render, slanted_plane, step_scene
+
+    true = NOMINAL.replace(prism_tilt_deg=(0.0, 0.0, 0.3))
+    cap = render(true, [slanted_plane(true, 600.0, 20.0, seed=1), step_scene(true, 500.0, 800.0, seed=2)],
+                 ImageFormation(supersample=2, noise_sigma=2 / 255, seed=3))
+    paths = []
+    for k, image in enumerate(cap.image):
+        paths.append(str(tmp_path / f"scene{k}.png"))
+        cv2.imwrite(paths[-1], (image[0].numpy() * 255).round().astype("uint8"))
+    out = tmp_path / "self.json"
+    assert main(["calibrate", "--rig", "thesis_setup1", *paths, "--out", str(out), "--quiet"]) == 2  # wrong size
+    assert "is 256x192 px but the rig's sensor is 1024x768" in capsys.readouterr().err
+    rig = tmp_path / "nominal.json"
+    NOMINAL.to_json(rig)
+    assert main(["calibrate", "--rig", str(rig), *paths, "--out", str(out), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "not observable from these captures" in text and "scene1.png" in text
+    assert abs(BiPrismRig.from_json(out).prism_tilt_deg[2] - 0.3) < 0.03

@@ -176,6 +176,7 @@ def calibrate_self(
     max_iterations: int = 100,
     max_rms_px: float = 2.0,
     min_correspondences: int = 50,
+    max_correspondences: int = 800,
     observability_threshold: float = 1e6,
     outlier_px: float = 3.0,
     progress: bool = False,
@@ -191,6 +192,8 @@ def calibrate_self(
         max_iterations: solver iterations per pass.
         max_rms_px: a final RMS above this is a diverged fit.
         min_correspondences: matches required after the gates.
+        max_correspondences: at most this many matches are used (a seeded random subset, spread over the captures):
+            a dozen rig parameters need hundreds of matches, not thousands, and the cost grows with them.
         observability_threshold: variance inflation above which a parameter counts as not observable from the
             matches and is held at nominal (reported as ``unobservable``).
         outlier_px: after a first fit, matches off their curve by more than this many sigma are dropped, and the
@@ -220,6 +223,10 @@ def calibrate_self(
     if corr.left.shape[0] < min_correspondences:
         raise CalibrationError(f"{corr.left.shape[0]} correspondences between the halves, need {min_correspondences}: "
                                "the scenes need texture seen by both halves")
+    if corr.left.shape[0] > max_correspondences:
+        keep = torch.randperm(corr.left.shape[0], generator=torch.Generator().manual_seed(0))[:max_correspondences]
+        keep = keep.sort().values
+        corr = Correspondences(corr.left[keep], corr.right[keep], corr.view[keep])
     names = [n for n in NAMES if n not in fixed]
     tol = tolerance_vector(rig, tolerances)
     problem = SelfProblem(rig, corr, names, tol)
