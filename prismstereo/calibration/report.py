@@ -78,16 +78,14 @@ def plot_residuals(result: CalibrationResult, path: str | Path, view_names: Sequ
     Example:
         >>> plot_residuals(result, "residuals.png")  # doctest: +SKIP
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: the caller's backend (e.g. a notebook's) stays as it is
 
     obs = result.observations
     names = list(view_names) if view_names is not None else [str(v) for v in result.views]
     if view_names is not None:
         names = [names[v] for v in result.views]
-    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig = Figure(figsize=(12, 4.5))
+    ax0, ax1 = fig.subplots(1, 2)
     x = range(len(result.views))
     ax0.bar([i - 0.2 for i in x], result.view_rms_px[:, 0].numpy(), 0.4, label="left (reference)")
     ax0.bar([i + 0.2 for i in x], result.view_rms_px[:, 1].numpy(), 0.4, label="right")
@@ -107,4 +105,3 @@ def plot_residuals(result: CalibrationResult, path: str | Path, view_names: Sequ
     ax1.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(str(path), dpi=110)
-    plt.close(fig)
