@@ -92,6 +92,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--squares", default="16x12", help="ChArUco board size in squares (COLSxROWS)")
     parser.add_argument("--square-mm", type=float, default=8.0, help="ChArUco square size (markers 3/4 of it)")
+    parser.add_argument("--max-tilt", type=float, default=45.0, help="board tilt range about x and y (deg)")
+    parser.add_argument("--board-depths", type=float, nargs=2, default=None, metavar=("ZMIN", "ZMAX"),
+                        help="board depth range (mm), default 550-850 (setup 1) / 300-500 (setup 2)")
     parser.add_argument("--tolerance-scale", type=float, default=1.0,
                         help="multiply every default prior tolerance (TOLERANCES) by this factor")
     parser.add_argument("--board", choices=("charuco", "checkerboard", "none"), default="charuco",
@@ -109,6 +112,8 @@ def main() -> None:
     elif args.board == "checkerboard":
         board = parse_target("checkerboard:4x7:6")
     depths = (550.0, 850.0) if args.setup == 1 else (300.0, 500.0)
+    if args.board_depths is not None:
+        depths = tuple(args.board_depths)
     planes = (560.0, 820.0) if args.setup == 1 else (320.0, 480.0)
     z_range = (450.0, 1000.0) if args.setup == 1 else (250.0, 700.0)
     g = torch.Generator().manual_seed(args.seed)
@@ -125,7 +130,7 @@ def main() -> None:
         true = perturb(nominal, g, args.scale)
         t0 = time.time()
         if board is not None:
-            views = calibration_views(args.views, 1000 * args.seed + run, depths, **layout)
+            views = calibration_views(args.views, 1000 * args.seed + run, depths, max_tilt_deg=args.max_tilt, **layout)
             caps = render(true, views, ImageFormation(supersample=3, noise_sigma=2 / 255, seed=run))
             result = calibrate_board(nominal, list(caps.image), board, tolerances=tolerances)
         else:

@@ -4,7 +4,7 @@ Contract (other tools drive it)::
 
     prismstereo calibrate --rig NOMINAL.json IMAGE... --out CALIBRATED.json
         --target checkerboard:COLSxROWS:SQUARE_MM | charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT
-        [--fix NAME ...] [--plot RESIDUALS.png]
+        [--fix NAME ...] [--free NAME ...] [--plot RESIDUALS.png] [--quiet]
 
 Without ``--target`` it self-calibrates from the captures' texture
 (:func:`~prismstereo.calibration.selfcal.calibrate_self`). The report goes to stdout, progress bars to stderr; the

@@ -90,11 +90,14 @@ def rigid_fit(src: torch.Tensor, dst: torch.Tensor) -> tuple[torch.Tensor, torch
         >>> t.round(decimals=6).tolist()
         [1.0, 2.0, 3.0]
     """
+    if src.shape != dst.shape or src.dim() != 2 or src.shape[1] != 3 or src.shape[0] < 3:
+        raise CalibrationError(f"rigid_fit needs matched (N, 3) point sets with N >= 3, got {tuple(src.shape)} and "
+                               f"{tuple(dst.shape)}")
     cs, cd = src.mean(0), dst.mean(0)
     h = (src - cs).T @ (dst - cd)
     u, _, vt = torch.linalg.svd(h)
     d = torch.sign(torch.det(vt.T @ u.T))
-    s = torch.diag(torch.tensor([1.0, 1.0, float(d)], dtype=F64))
+    s = torch.diag(torch.stack([torch.ones_like(d), torch.ones_like(d), d]))
     r = vt.T @ s @ u.T
     return r, cd - r @ cs
 

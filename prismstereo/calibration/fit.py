@@ -8,9 +8,11 @@ error, standard errors of every estimated parameter) plus the before/after value
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
+import kornia
 import numpy as np
 import torch
 from tqdm.auto import tqdm
@@ -125,12 +127,19 @@ def view_depth_uncertainty(rig: BiPrismRig, covariance: torch.Tensor, depths: to
     return depth_uncertainty(rig, covariance, [float(z.min()), float(z.median()), float(z.max())])
 
 
+def _board_depths(problem: BoardProblem, x: torch.Tensor) -> torch.Tensor:
+    """(V,) depth (mm) of each posed board's centre."""
+    poses = problem.blocks(x)
+    rot = kornia.geometry.conversions.axis_angle_to_rotation_matrix(poses[:, :3])
+    return (rot @ problem.obs.points.mean(0).to(poses))[:, 2] + poses[:, 5]
+
+
 def _per_view_rms(res: torch.Tensor, obs: Observations) -> torch.Tensor:
     out = torch.full((len(obs.views), 2), float("nan"), dtype=torch.float64)
     sq = res.pow(2).sum(dim=1)
     for k in range(len(obs.views)):
         for j, mask in enumerate((obs.left, ~obs.left)):
-            sel = (obs.view == k) & mask
+            sel = (obs.view == k) & mask & torch.isfinite(sq)
             if bool(sel.any()):
                 out[k, j] = sq[sel].mean().sqrt()
     return out
@@ -180,6 +189,9 @@ def calibrate_board(
         ...
         prismstereo.errors.CalibrationError: too few views: 0 captures, need at least 3
     """
+    if isinstance(captures, (torch.Tensor, np.ndarray)):
+        raise CalibrationError("captures must be a list of images (one tensor or array per capture), got one "
+                               f"{type(captures).__name__}")
     fixed = set(check_names(fix)) | (set(DEFAULT_FIXED) - set(check_names(free)))
     if len(captures) < min_views:
         raise CalibrationError(f"too few views: {len(captures)} captures, need at least {min_views}")
@@ -200,7 +212,7 @@ def calibrate_board(
         rig=solved.rig, nominal=rig, free=problem.free, data_share=solved.data_share, weak=solved.weak,
         unobservable=(), sigma_px=problem.sigma_px, before=to_display(rig_vector(rig)), after=solved.after,
         std_error=solved.std_error, covariance=solved.covariance, rms_px=solved.rms_px,
-        depth_uncertainty=view_depth_uncertainty(solved.rig, solved.covariance, problem.blocks(solved.x)[:, 5]),
+        depth_uncertainty=view_depth_uncertainty(solved.rig, solved.covariance, _board_depths(problem, solved.x)),
         view_rms_px=view_rms,
         views=obs.views,
         outlier_views=view_outliers(view_rms, obs.views), residuals=res, observations=obs,
@@ -214,7 +226,8 @@ class SolvedProblem(NamedTuple):
     Attributes:
         x: the solution vector.
         rig: the calibrated rig.
-        residuals: (M, 2) predicted - observed pixels.
+        residuals: (M, 2) predicted - observed pixels (NaN for observations left out: not projectable through
+            the nominal rig).
         rms_px: RMS of the residuals' lengths (px).
         after: (16,) the rig's values (reported units).
         std_error: (16,) standard errors (reported units, NaN where not estimated).
@@ -249,19 +262,30 @@ def solve_rig_problem(problem: RigProblem, *, max_iterations: int = 100, max_rms
     Example:
         >>> solve_rig_problem(problem)  # doctest: +SKIP
     """
+    _, valid = problem.projections(problem.x0)
+    problem.active = valid.clone()
+    dropped = int((~valid).sum())
+    if dropped > valid.numel() // 2:
+        raise CalibrationError(f"{dropped} of {valid.numel()} observations cannot be projected through the nominal rig "
+                               "(is the rig file the right one?)")
     x, iterations, message = problem.x0, 0, ""
     for _ in range(3):
         fit = levenberg_marquardt(problem.residuals, problem.jacobian, x, max_iterations=max_iterations,
                                   progress=progress, description="calibrate")
         x, iterations, message = fit.x, iterations + fit.iterations, fit.message
+        if not fit.converged and not math.isfinite(fit.cost):
+            raise CalibrationError(f"the fit diverged: {fit.message}")
         res = problem.projections(x)[0] - problem.observed
-        dof = max(1, res.numel() - x.numel())
-        sigma = max(float(res.pow(2).sum() / dof) ** 0.5, 1e-3)
+        res = torch.where(problem.active.unsqueeze(-1), res, torch.full_like(res, float("nan")))
+        dof = max(1, int(problem.active.sum()) * 2 - x.numel())
+        sigma = max(float(res.pow(2).nansum() / dof) ** 0.5, 1e-3)
         settled = 0.8 < sigma / problem.sigma_px < 1.25
         problem.sigma_px = sigma
         if settled:
             break
-    rms = float(res.pow(2).sum(dim=1).mean().sqrt())
+    rms = float(res.pow(2).sum(dim=1).nanmean().sqrt())
+    if dropped:
+        message += f"; {dropped} observations not projectable through the nominal rig were left out"
     if not rms <= max_rms_px:
         raise CalibrationError(f"the fit diverged: RMS reprojection error {rms:.3g} px > {max_rms_px} px after "
                                f"{iterations} iterations ({message}); check the nominal rig, the target and the images")
@@ -273,7 +297,7 @@ def solve_rig_problem(problem: RigProblem, *, max_iterations: int = 100, max_rms
     j = problem.jacobian(x)
     cov_free = torch.linalg.pinv(j.T @ j, hermitian=True)[: problem.num_rig, : problem.num_rig]
     var = cov_free.diagonal().clamp_min(0)
-    prior_var = problem.tolerance.pow(2).nan_to_num(posinf=0.0)
+    prior_var = problem.tolerance.pow(2).nan_to_num(posinf=0.0)  # no prior (inf): no variance assumed
     cov = torch.diag(prior_var)
     cov[problem.index[:, None], problem.index[None, :]] = cov_free
     std = torch.full((len(NAMES),), float("nan"), dtype=torch.float64)

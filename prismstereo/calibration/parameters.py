@@ -140,6 +140,9 @@ def tolerance_vector(rig: BiPrismRig, overrides: dict[str, float] | None = None)
     """
     overrides = dict(overrides or {})
     check_names(overrides)
+    bad = {k: v for k, v in overrides.items() if not (isinstance(v, (int, float)) and float(v) > 0)}
+    if bad:
+        raise CalibrationError(f"tolerances must be positive numbers (inf for no prior), got {bad}")
     nominal = to_display(rig_vector(rig))
     out = []
     for i, name in enumerate(NAMES):

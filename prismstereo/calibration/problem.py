@@ -64,6 +64,9 @@ class RigProblem:
         self.tolerance = tol
         self.prior_weight = 1.0 / tol[self.index]  # 0 where there is no prior
         self._warm: torch.Tensor | None = None
+        # observations that take part; solve_rig_problem drops the ones the start cannot project (a fixed mask:
+        # rows that dropped out during the fit would lower the cost without fitting anything)
+        self.active = torch.ones(observed.shape[0], dtype=torch.bool)
 
     @property
     def num_rig(self) -> int:
@@ -93,14 +96,17 @@ class RigProblem:
         """(M, 2) predicted pixels at x and (M,) their validity (no autograd)."""
         with torch.no_grad():
             uv, valid = self._predict(x[: self.num_rig], self.blocks(x), self._warm, 5)
-            self._warm = uv.detach()
+            # unconverged rows restart from the virtual-pinhole guess next time (solve_projection's NaN start)
+            self._warm = torch.where(valid.unsqueeze(-1), uv.detach(), torch.full_like(uv, float("nan")))
         return uv, valid
 
     def residuals(self, x: torch.Tensor) -> torch.Tensor:
-        """(2M + P,) (predicted - observed) / sigma_px, u and v interleaved, then the P prior rows."""
+        """(2M + P,) (predicted - observed) / sigma_px, u and v interleaved (zero for inactive observations), then
+        the P prior rows."""
         uv, _ = self.projections(x)
         prior = (x[: self.num_rig] - self.base[self.index]) * self.prior_weight
-        return torch.cat([(uv - self.observed).reshape(-1) / self.sigma_px, prior])
+        res = torch.where(self.active.unsqueeze(-1), uv - self.observed, torch.zeros_like(uv))
+        return torch.cat([res.reshape(-1) / self.sigma_px, prior])
 
     def jacobian(self, x: torch.Tensor) -> torch.Tensor:
         """(2M + P, n) Jacobian of :meth:`residuals` by forward-mode autograd."""
@@ -120,5 +126,6 @@ class RigProblem:
         block = self.block.repeat_interleave(2)
         for c in range(b):
             full[rows, p + b * block + c] = j[:, p + c] / self.sigma_px
+        full[:m] *= self.active.repeat_interleave(2).unsqueeze(-1).to(full)
         full[m + torch.arange(p), torch.arange(p)] = self.prior_weight
         return full

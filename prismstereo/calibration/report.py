@@ -28,8 +28,11 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
         'Calibrated from 12 views, 672 corners: RMS 0.103 px (corner noise 0.074 px), 9 iterations'
     """
     obs = result.observations
+    board = bool(obs.left.any())  # a self-calibration's observations are matches in the right half
+    points, missing = ("corners", "views without the board in both halves") if board else \
+        ("matches", "captures without matches")
     names = list(view_names) if view_names is not None else [str(i) for i in range(max(result.views, default=-1) + 1)]
-    lines = [f"Calibrated from {len(result.views)} views, {obs.uv.shape[0]} corners: RMS {result.rms_px:.4f} px "
+    lines = [f"Calibrated from {len(result.views)} views, {obs.uv.shape[0]} {points}: RMS {result.rms_px:.4f} px "
              f"(corner noise {result.sigma_px:.4f} px per coordinate), {result.iterations} iterations "
              f"({result.message})",
              "",
@@ -57,7 +60,7 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
         lines.append(f"{names[v]:<24} {left:>11} {right:>12}{flag}")
     skipped = [names[i] for i in range(len(names)) if i not in result.views]
     if skipped:
-        lines.append(f"views without the board in both halves (not used): {', '.join(skipped)}")
+        lines.append(f"{missing} (not used): {', '.join(skipped)}")
     for v in result.outlier_views:
         lines.append(f"warning: view {names[v]} has an outlier reprojection error (over 3x the median view's); "
                      "check its detection or remove it")
@@ -66,7 +69,7 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
                      f"{', '.join(result.unobservable)}")
     if result.weak:
         hint = (" Boards tilted further (30-45 deg), larger (ChArUco, seen partly by each half) and at more depths "
-                "determine them better." if bool(obs.left.any()) else "")
+                "determine them better." if board else "")
         lines.append(f"note: the views barely determine {', '.join(result.weak)} (under half of their estimate came "
                      f"from the views; they stay near their nominal values within their tolerances).{hint}")
     return "\n".join(lines)

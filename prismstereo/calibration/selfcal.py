@@ -47,7 +47,7 @@ from prismstereo.geometry.optics import points_at_depth, solve_projection, trace
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
-__all__ = ["Correspondences", "find_correspondences", "SelfProblem", "calibrate_self"]
+__all__ = ["Correspondences", "find_correspondences", "gate", "SelfProblem", "calibrate_self"]
 
 F64 = torch.float64
 
@@ -128,9 +128,24 @@ def find_correspondences(
         return empty
     left = torch.tensor([kl[i].pt for i, _ in pairs], dtype=F64)
     right = torch.tensor([kr[j].pt for _, j in pairs], dtype=F64) + torch.tensor([float(split), 0.0], dtype=F64)
-    x, gap = _triangulate(rig, left, right)
+    return gate(rig, Correspondences(left, right, torch.full((left.shape[0],), view, dtype=torch.long)), gate_px)
+
+
+def gate(rig: BiPrismRig, corr: Correspondences, gate_px: float = 25.0) -> Correspondences:
+    """Keep the matches the nominal rig can explain: both traced rays valid (the left pixel in the left half, the
+    right one in the right half), meeting within ``gate_px`` pixels, in front of the prism's back plane.
+
+    Example:
+        >>> c = Correspondences(torch.tensor([[100.0, 50.0]], dtype=torch.float64),
+        ...                     torch.tensor([[20.0, 50.0]], dtype=torch.float64), torch.zeros(1, dtype=torch.long))
+        >>> gate(thesis_setup1().downscaled(4), c).left.shape  # the "right" pixel is in the left half
+        torch.Size([0, 2])
+    """
+    if corr.left.numel() == 0:
+        return corr
+    x, gap = _triangulate(rig, corr.left.to(F64), corr.right.to(F64))
     keep = (gap < gate_px) & (x[:, 2] > rig.apex_distance_mm + rig.prism_thickness_mm)
-    return Correspondences(left[keep], right[keep], torch.full((int(keep.sum()),), view, dtype=torch.long))
+    return Correspondences(corr.left[keep].to(F64), corr.right[keep].to(F64), corr.view[keep])
 
 
 class SelfProblem(RigProblem):
@@ -178,7 +193,8 @@ def calibrate_self(
     min_correspondences: int = 50,
     max_correspondences: int = 800,
     observability_threshold: float = 1e6,
-    outlier_px: float = 3.0,
+    outlier_sigma: float = 4.0,
+    gate_px: float = 25.0,
     progress: bool = False,
 ) -> CalibrationResult:
     """Self-calibrate ``rig`` from one to a few ordinary captures of textured scenes (no target).
@@ -196,8 +212,9 @@ def calibrate_self(
             a dozen rig parameters need hundreds of matches, not thousands, and the cost grows with them.
         observability_threshold: variance inflation above which a parameter counts as not observable from the
             matches and is held at nominal (reported as ``unobservable``).
-        outlier_px: after a first fit, matches off their curve by more than this many sigma are dropped, and the
-            fit is repeated.
+        outlier_sigma: after a first fit, matches whose residual exceeds this many sigma (of one coordinate; the
+            residual is essentially across the curve, the depth absorbs the rest) are dropped and the fit repeated.
+        gate_px: the nominal rig's gate on the matches (:func:`gate`), applied to given correspondences too.
         progress: progress bars.
 
     Returns:
@@ -214,10 +231,14 @@ def calibrate_self(
         ...
         prismstereo.errors.CalibrationError: no captures to self-calibrate from
     """
+    if isinstance(captures, (torch.Tensor, np.ndarray)):
+        raise CalibrationError("captures must be a list of images (one tensor or array per capture), got one "
+                               f"{type(captures).__name__}")
     if not captures:
         raise CalibrationError("no captures to self-calibrate from")
     fixed = set(check_names(fix)) | (set(DEFAULT_FIXED) - set(check_names(free)))
-    found = [c if isinstance(c, Correspondences) else find_correspondences(c, rig, view=i)
+    found = [gate(rig, c, gate_px) if isinstance(c, Correspondences) else find_correspondences(c, rig, view=i,
+                                                                                               gate_px=gate_px)
              for i, c in enumerate(tqdm(captures, desc="match", disable=not progress, leave=False))]
     corr = Correspondences(*(torch.cat(t) for t in zip(*found, strict=True)))
     if corr.left.shape[0] < min_correspondences:
@@ -236,7 +257,7 @@ def calibrate_self(
     names = [n for n in names if n not in unobservable_names]
     problem = SelfProblem(rig, corr, names, tol)
     solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)
-    off = solved.residuals.norm(dim=-1) > outlier_px * problem.sigma_px * 2 ** 0.5
+    off = solved.residuals.norm(dim=-1) > outlier_sigma * problem.sigma_px
     if bool(off.any()) and int((~off).sum()) >= min_correspondences:
         corr = Correspondences(corr.left[~off], corr.right[~off], corr.view[~off])
         problem = SelfProblem(solved.rig, corr, names, tol, problem.sigma_px)
@@ -246,7 +267,7 @@ def calibrate_self(
     rms = torch.full((len(views), 2), float("nan"), dtype=F64)
     for k, v in enumerate(views):
         sel = corr.view == v
-        rms[k, 1] = solved.residuals[sel].pow(2).sum(dim=1).mean().sqrt()
+        rms[k, 1] = solved.residuals[sel].pow(2).sum(dim=1).nanmean().sqrt()
     depths = problem.blocks(solved.x)
     points = points_at_depth(trace_pixels(solved.rig, corr.left, "left"), depths[:, 0])
     obs = Observations(torch.tensor([views.index(v) for v in corr.view.tolist()], dtype=torch.long),

@@ -14,6 +14,7 @@ variance inflation of each column (the diagonal of the inverse of the column-nor
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -83,6 +84,8 @@ def levenberg_marquardt(
     r = residuals(x)
     cost = float(r @ r)
     initial = cost
+    if not math.isfinite(cost):
+        return LMResult(x, cost, initial, 0, False, "the cost is not finite at the start (NaN or inf residuals)")
     lam = initial_damping
     message, converged = f"reached max_iterations = {max_iterations}", False
     bar = tqdm(total=max_iterations, desc=description, disable=not progress, leave=False)

@@ -60,6 +60,9 @@ class Board:
         least = 3 if self.kind == "checkerboard" else 2
         if not (isinstance(self.cols, int) and isinstance(self.rows, int) and min(self.cols, self.rows) >= least):
             raise CalibrationError(f"a {self.kind} needs integer COLSxROWS >= {least}, got {self.cols}x{self.rows}")
+        if self.kind == "checkerboard" and self.cols == self.rows:
+            raise CalibrationError(f"a checkerboard needs COLS != ROWS (a square grid of corners has no orientation, "
+                                   f"so the two halves' corners could not be matched), got {self.cols}x{self.rows}")
         if not self.square_mm > 0:
             raise CalibrationError(f"square_mm must be positive, got {self.square_mm}")
         if self.kind == "charuco":
@@ -157,6 +160,8 @@ def to_gray_u8(image: torch.Tensor | np.ndarray) -> np.ndarray:
         (4, 5)
     """
     if isinstance(image, torch.Tensor):
+        if image.dtype == torch.uint8:
+            image = image.float() / 255.0
         img = image.detach().float()
         if img.dim() == 3:
             img = img.mean(0)
@@ -165,7 +170,10 @@ def to_gray_u8(image: torch.Tensor | np.ndarray) -> np.ndarray:
         return (img.clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
     arr = np.asarray(image)
     if arr.ndim == 3:
-        arr = cv2.cvtColor(arr, cv2.COLOR_BGR2GRAY)
+        if arr.shape[2] not in (1, 3):
+            raise CalibrationError(f"an array image must be (H, W) or (H, W, 3) (OpenCV's layout), got {arr.shape}")
+        arr = arr[..., 0] if arr.shape[2] == 1 else cv2.cvtColor(arr.astype(np.float32) if arr.dtype != np.uint8
+                                                                 else arr, cv2.COLOR_BGR2GRAY)
     if arr.ndim != 2:
         raise CalibrationError(f"image must be (H, W) or (H, W, 3), got shape {arr.shape}")
     if arr.dtype != np.uint8:

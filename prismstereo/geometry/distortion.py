@@ -10,7 +10,8 @@ normalised, *distorted* position (OpenCV ``projectPoints``, coefficients ``(k1, 
 and the pixel is (u, v) = (cx + f_px x_d, cy + f_px y_d). Tracing a pixel needs the inverse: :func:`undistort`
 solves the two equations for (x, y) by a fixed number of Newton steps with the analytic 2 x 2 Jacobian
 (OpenCV's ``undistortPoints`` uses a fixed-point iteration that stops at ~1e-3 px for strong distortion; the
-Newton form reaches float64 rounding in three steps for |k1| <= 0.5 over a sensor of normalised radius 0.5).
+Newton form reaches float64 rounding in four steps for |k1| <= 0.5 over a sensor of normalised radius 0.5; the
+default takes six, then the differentiable one).
 The steps run without autograd and a last step carries the gradient, which is then the implicit-function
 gradient -J^-1 dD/dtheta: exact at convergence, cheap, and ONNX-traceable (no data-dependent loop).
 

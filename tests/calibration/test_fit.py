@@ -6,7 +6,7 @@ import torch
 
 from prismstereo import CalibrationError
 from prismstereo.calibration import DEFAULT_FIXED, NAMES, calibrate_board, detect_board
-from prismstereo.calibration.board import BoardProblem, gather_observations, initial_poses
+from prismstereo.calibration.board import BoardProblem, gather_observations, initial_poses, rigid_fit
 from prismstereo.calibration.parameters import rig_vector, to_display, tolerance_vector, vector_to_rig
 from prismstereo.calibration.report import format_report, plot_residuals
 from prismstereo.calibration.solver import covariance, levenberg_marquardt, unobservable
@@ -164,3 +164,21 @@ def test_diverged_fit_is_an_error(calibrated):
     wrong = NOMINAL.replace(alpha_deg=4.4)
     with pytest.raises(CalibrationError, match="diverged|do not triangulate"):
         calibrate_board(wrong, dets, BOARD, max_iterations=3, max_rms_px=0.5)
+
+
+def test_review_guards():
+    """Bad inputs fail with clear errors instead of crashing or being fitted silently."""
+    res = levenberg_marquardt(lambda x: x * float("nan"), lambda x: torch.eye(2, dtype=F64),
+                              torch.ones(2, dtype=F64))
+    assert not res.converged and "not finite" in res.message
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(CalibrationError, match="tolerances must be positive"):
+            tolerance_vector(NOMINAL, {"k1": bad})
+    assert math.isinf(float(tolerance_vector(NOMINAL, {"k1": float("inf")})[NAMES.index("k1")]))
+    with pytest.raises(CalibrationError, match="captures must be a list of images"):
+        calibrate_board(NOMINAL, torch.zeros(3, 192, 256), BOARD)
+    src = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    r, t = rigid_fit(src, src + 1.0)  # float32 in, float32 out
+    assert r.dtype == torch.float32 and torch.allclose(t, torch.ones(3))
+    with pytest.raises(CalibrationError, match="N >= 3"):
+        rigid_fit(src[:2], src[:2])

@@ -69,6 +69,13 @@ def test_self_calibration_recovers_the_roll_and_reports_the_scale(rolled):
 def test_self_calibration_errors():
     with pytest.raises(CalibrationError, match="no captures"):
         calibrate_self(NOMINAL, [])
+    with pytest.raises(CalibrationError, match="captures must be a list of images"):
+        calibrate_self(NOMINAL, torch.zeros(1, 192, 256))
+    # given correspondences pass the same gate as found ones: right pixels in the left half are not matches
+    wrong = Correspondences(torch.tensor([[60.0, 90.0]] * 60, dtype=F64), torch.tensor([[20.0, 90.0]] * 60, dtype=F64),
+                            torch.zeros(60, dtype=torch.long))
+    with pytest.raises(CalibrationError, match="0 correspondences between the halves"):
+        calibrate_self(NOMINAL, [wrong])
     with pytest.raises(CalibrationError, match="0 correspondences between the halves, need 50"):
         calibrate_self(NOMINAL, [torch.zeros(1, 192, 256)])
     with pytest.raises(CalibrationError, match="image is 10x10 px"):

@@ -25,6 +25,8 @@ def test_parse_target_round_trip_and_errors():
         parse_target("charuco:5x7:30:30:DICT_4X4_50")
     with pytest.raises(CalibrationError, match="COLSxROWS >= 3"):
         Board(kind="checkerboard", cols=2, rows=6, square_mm=10.0)
+    with pytest.raises(CalibrationError, match="COLS != ROWS"):
+        parse_target("checkerboard:6x6:10")
 
 
 def test_board_points_follow_opencv_order():
@@ -84,3 +86,6 @@ def test_detection_errors_and_misses():
     assert to_gray_u8(torch.full((3, 4, 5), 0.5))[0, 0] == 128
     with pytest.raises(CalibrationError, match="image must be"):
         to_gray_u8(torch.zeros(2, 3, 4, 5))
+    assert to_gray_u8(torch.full((1, 4, 5), 200, dtype=torch.uint8))[0, 0] == 200
+    with pytest.raises(CalibrationError, match=r"\(H, W\) or \(H, W, 3\)"):
+        to_gray_u8(np.zeros((3, 4, 5), np.uint8))
