@@ -26,7 +26,7 @@ import torch
 from prismstereo.conventions import HALVES as _HALVES
 from prismstereo.conventions import Half
 from prismstereo.errors import RigError, check_floating, check_option, check_shape
-from prismstereo.geometry.distortion import distort, undistort
+from prismstereo.geometry.distortion import distort, distortion_jacobian, undistort
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 
 __all__ = [
@@ -146,7 +146,7 @@ def pixel_directions(rig: BiPrismRig | RigParameters, uv: torch.Tensor) -> torch
     check_shape(uv, ["*", 2], "uv")
     check_floating(uv, "uv")
     p = as_parameters(rig, uv)
-    return _pixel_directions(p, uv)
+    return _pixel_directions(p, uv)[0]
 
 
 def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -159,16 +159,31 @@ def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     )
 
 
-def _pixel_directions(p: RigParameters, uv: torch.Tensor) -> torch.Tensor:
+def _pixel_directions(p: RigParameters, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Unit camera-ray directions (*, 3) and, for a distorting lens, (*,) whether the undistortion converged to a
+    true preimage (beyond the fold of a strong lens model the pixel has none: the ray is then invalid)."""
+    ok = None
     if p.distortion is None:
         x = (uv[..., 0] - p.cx) * p.pixel_size
         y = (uv[..., 1] - p.cy) * p.pixel_size
     else:  # the lens' distortion undone on normalised coordinates (Newton, fixed steps)
         fpx = p.f / p.pixel_size
-        xy = undistort(torch.stack([(uv[..., 0] - p.cx) / fpx, (uv[..., 1] - p.cy) / fpx], dim=-1), p.distortion)
+        xy_d = torch.stack([(uv[..., 0] - p.cx) / fpx, (uv[..., 1] - p.cy) / fpx], dim=-1)
+        xy = undistort(xy_d, p.distortion)
+        with torch.no_grad():
+            j = distortion_jacobian(xy.detach(), p.distortion.detach())
+            miss = (distort(xy.detach(), p.distortion.detach()) - xy_d.detach()).norm(dim=-1) * fpx.detach()
+            ok = (j.xx * j.yy - j.xy * j.yx > 0) & (miss < (1e-6 if uv.dtype == torch.float64 else 1e-2))
         x, y = xy[..., 0] * p.f, xy[..., 1] * p.f
     d = torch.stack([x, y, p.f.expand_as(x)], dim=-1)
-    return d / d.norm(dim=-1, keepdim=True)
+    return d / d.norm(dim=-1, keepdim=True), ok
+
+
+def _trace_pixels(p: RigParameters, uv: torch.Tensor, half: str) -> RayBundle:
+    """_trace of the pixels' camera rays, invalid where the lens model has no preimage."""
+    directions, ok = _pixel_directions(p, uv)
+    rays = _trace(p, directions, half)
+    return rays if ok is None else rays._replace(valid=rays.valid & ok)
 
 
 class _Planes(NamedTuple):
@@ -312,7 +327,7 @@ def trace_pixels(
     check_floating(uv, "uv")
     check_option(half, _TRACE_HALVES, "half")
     p = as_parameters(rig, uv)
-    return _trace(p, _pixel_directions(p, uv), half)
+    return _trace_pixels(p, uv, half)
 
 
 def half_of_pixels(rig: BiPrismRig | RigParameters, uv: torch.Tensor) -> torch.Tensor:
@@ -383,7 +398,7 @@ def points_at_depth(rays: RayBundle, depth: torch.Tensor | float) -> torch.Tenso
 # ----------------------------------------------------------------------------------- projection
 def _residual(p: RigParameters, points: torch.Tensor, uv: torch.Tensor, half: str) -> tuple[torch.Tensor, RayBundle]:
     """Slope mismatch (2,) between the traced ray of ``uv`` and the line from its exit point to the point."""
-    rays = _trace(p, _pixel_directions(p, uv), half)
+    rays = _trace_pixels(p, uv, half)
     rel = points - rays.origins
     dz = rel[..., 2:3]
     dz = torch.where(dz.abs() > 1e-9, dz, torch.full_like(dz, 1e-9))
@@ -536,7 +551,7 @@ def check_rig_images(rig: BiPrismRig, samples: int = 33) -> None:
     u = torch.linspace(-0.5, rig.image_width - 0.5, samples, dtype=torch.float64)
     v = torch.linspace(-0.5, rig.image_height - 0.5, samples, dtype=torch.float64)
     uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1).reshape(-1, 2)
-    rays = _trace(rig.parameters(uv), _pixel_directions(rig.parameters(uv), uv), "auto")
+    rays = _trace_pixels(rig.parameters(uv), uv, "auto")
     for name, mask in (("left", rays.left), ("right", ~rays.left)):
         if not bool((rays.valid & mask).any()):
             raise RigError(

@@ -459,7 +459,7 @@ def split_column(cx: float, cy: float, focal_px: float, d: float, T_o: float, ti
     The apex line A + t a, A = (d, 0, T_o), a = R (0, 1, 0) with R the prism's tilt, projected through the
     pinhole and the lens distortion (if any). Untilted about x and z and distortion-free it is the vertical
     line u = cx + f_px d / T_o (returned exactly); otherwise the line is sampled densely (4097 points over
-    twice the sensor's height, enough for < 1e-3 px on the thesis rigs).
+    twice the sensor's height) and, distortion-free, its exact ends on the edge rows are added.
 
     Example:
         >>> split_column(511.5, 383.5, 5376.3, 0.0, 170.0, [0.0, 0.0, 0.0], None, 768)
@@ -482,7 +482,15 @@ def split_column(cx: float, cy: float, focal_px: float, d: float, T_o: float, ti
         xy = distort(xy, torch.tensor(list(distortion), dtype=torch.float64))
     u, v = cx + focal_px * xy[:, 0], cy + focal_px * xy[:, 1]
     on = (v >= -0.5) & (v <= height - 0.5)
-    return float(u[on].max()) if bool(on.any()) else cx + focal_px * d / T_o
+    ends = []
+    if distortion is None:  # the line is straight in the image: its exact ends on the edge rows
+        for edge in (-0.5, height - 0.5):
+            den = focal_px * ay - (edge - cy) * az
+            if abs(den) > 1e-12:
+                te = (edge - cy) * T_o / den
+                ends.append(cx + focal_px * (d + te * ax) / (T_o + te * az))
+    best = float(u[on].max()) if bool(on.any()) else cx + focal_px * d / T_o
+    return max([best, *ends])
 
 
 def _check_distortion(rig: BiPrismRig) -> None:

@@ -149,3 +149,12 @@ def test_rolled_prism_split_holds_every_left_pixel():
         cols = u[rays.left & rays.valid]
         assert cols.max() == w - 1  # every left-half pixel is in the crop, and the crop is no wider
     assert thesis_setup1().replace(prism_tilt_deg=(0.0, 0.0, 0.3)).reference_width == 514
+
+
+def test_pixels_beyond_the_lens_fold_trace_invalid():
+    """Projection solves over [-W, 2W]: where a strong lens model folds over, a pixel has no preimage and its ray
+    comes back invalid instead of tracing a wrong preimage."""
+    rig = thesis_setup2().replace(distortion=(-0.4, 0.0, 0.0, 0.0, 0.0))
+    far = torch.tensor([[-1024.0, -768.0], [2048.0, 1536.0]], dtype=F64)
+    assert not trace_pixels(rig, far).valid.any()
+    assert trace_pixels(rig, torch.tensor([[100.0, 300.0], [900.0, 300.0]], dtype=F64)).valid.all()
