@@ -27,7 +27,8 @@ import torch
 
 from prismstereo.errors import check_floating, check_shape
 
-__all__ = ["DISTORTION_NAMES", "DistortionJacobian", "distort", "distortion_jacobian", "max_round_trip_px", "undistort"]
+__all__ = ["DISTORTION_NAMES", "DistortionJacobian", "distort", "distortion_jacobian", "max_round_trip_px",
+           "round_trip_px", "undistort"]
 
 DISTORTION_NAMES: tuple[str, ...] = ("k1", "k2", "p1", "p2", "k3")
 _UNDISTORT_STEPS = 6
@@ -149,6 +150,26 @@ def undistort(xy_distorted: torch.Tensor, coefficients: torch.Tensor, steps: int
     return _newton(xy, target, coefficients)
 
 
+def round_trip_px(xy: torch.Tensor, xy_distorted: torch.Tensor, coefficients: torch.Tensor,
+                  focal_px: torch.Tensor | float) -> torch.Tensor:
+    """How far an undistorted point ``xy`` (*, 2) is from being the preimage of ``xy_distorted`` (*, 2):
+    |distort(xy) - xy_distorted| in pixels, inf where the lens model folds over there (Jacobian determinant
+    <= 0). Beyond a strong lens model's fold a pixel has no preimage and Newton's iterate misses; no autograd.
+
+    Example:
+        >>> k = torch.tensor([-0.1, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+        >>> xy_d = torch.tensor([[0.3, 0.2]], dtype=torch.float64)
+        >>> bool(round_trip_px(undistort(xy_d, k), xy_d, k, 1000.0)[0] < 1e-9)
+        True
+    """
+    with torch.no_grad():
+        xy, target, k = xy.detach(), xy_distorted.detach(), coefficients.detach()
+        j = _jacobian(xy, k)
+        miss = (_distort(xy, k) - target).norm(dim=-1) * (focal_px.detach() if isinstance(focal_px, torch.Tensor)
+                                                          else focal_px)
+        return torch.where(j.xx * j.yy - j.xy * j.yx > 0, miss, torch.full_like(miss, float("inf")))
+
+
 def max_round_trip_px(coefficients: torch.Tensor, corners: torch.Tensor, focal_px: float) -> float:
     """Largest |distort(undistort(c)) - c| in pixels over normalised sensor points ``corners`` (*, 2), and inf where
     the distortion folds over (Jacobian determinant <= 0): the rig's check that the lens model is invertible on its
@@ -160,9 +181,4 @@ def max_round_trip_px(coefficients: torch.Tensor, corners: torch.Tensor, focal_p
         True
     """
     with torch.no_grad():
-        xy = undistort(corners, coefficients)
-        j = _jacobian(xy, coefficients)
-        if not bool((j.xx * j.yy - j.xy * j.yx > 0).all()):
-            return float("inf")
-        err = (_distort(xy, coefficients) - corners).norm(dim=-1).max()
-        return float(err) * focal_px
+        return float(round_trip_px(undistort(corners, coefficients), corners, coefficients, focal_px).max())

@@ -26,7 +26,7 @@ import torch
 from prismstereo.conventions import HALVES as _HALVES
 from prismstereo.conventions import Half
 from prismstereo.errors import RigError, check_floating, check_option, check_shape
-from prismstereo.geometry.distortion import distort, distortion_jacobian, undistort
+from prismstereo.geometry.distortion import distort, round_trip_px, undistort
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 
 __all__ = [
@@ -170,10 +170,7 @@ def _pixel_directions(p: RigParameters, uv: torch.Tensor) -> tuple[torch.Tensor,
         fpx = p.f / p.pixel_size
         xy_d = torch.stack([(uv[..., 0] - p.cx) / fpx, (uv[..., 1] - p.cy) / fpx], dim=-1)
         xy = undistort(xy_d, p.distortion)
-        with torch.no_grad():
-            j = distortion_jacobian(xy.detach(), p.distortion.detach())
-            miss = (distort(xy.detach(), p.distortion.detach()) - xy_d.detach()).norm(dim=-1) * fpx.detach()
-            ok = (j.xx * j.yy - j.xy * j.yx > 0) & (miss < (1e-6 if uv.dtype == torch.float64 else 1e-2))
+        ok = round_trip_px(xy, xy_d, p.distortion, fpx) < (1e-6 if uv.dtype == torch.float64 else 1e-2)
         x, y = xy[..., 0] * p.f, xy[..., 1] * p.f
     d = torch.stack([x, y, p.f.expand_as(x)], dim=-1)
     return d / d.norm(dim=-1, keepdim=True), ok
