@@ -8,10 +8,6 @@ from prismstereo.synthetic.scenes import (
     Scene,
     Sphere,
     Surface,
-    calibration_views,
-    charuco_target,
-    checkerboard_target,
-    circle_grid_target,
     fronto_parallel_plane,
     height_field_scene,
     middlebury_scene,
@@ -19,6 +15,7 @@ from prismstereo.synthetic.scenes import (
     sphere_scene,
     step_scene,
 )
+from prismstereo.synthetic.targets import calibration_views, charuco_target, checkerboard_target, circle_grid_target
 from prismstereo.synthetic.textures import (
     CheckerTexture,
     CircleGridTexture,
