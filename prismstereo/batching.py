@@ -15,8 +15,8 @@ runs with ``downsample=1``: batch 8 gave 1.04-1.28x the images/s of batch 1 (~18
 the pyramid 1.07x in one run. Sub-batches of 2 or 4 images per worker gave 104 / 116 against 108 ms per image
 (pyramid, batch 8). The ceiling is the machine: two images at once on one thread each cost 281 ms of CPU per
 image against 217 ms for one image alone (the pyramid; the two cores slow each other down), while a second
-intra-op thread already makes one image 1.38x faster; session 8 measured 1.16x / 1.24x for batch 8, session 9
-(faster single images, ~93-103 ms) 1.13x / 1.20x. Session 12 (the pyramid, 1024 x 768): one image takes 95 ms on
+intra-op thread already makes one image 1.38x faster; earlier, slower graphs gave 1.16x / 1.24x for batch 8, and
+with faster single images (~93-103 ms) 1.13x / 1.20x. With the pyramid at 1024 x 768 one image takes 95 ms on
 one thread and 57 ms on two (1.67x), so two images at once could give at most 1.2x batch 1's images/s; they took
 108-115 ms each, as two threads and as two processes alike (the two cores share the L3 cache and memory
 bandwidth: a streaming kernel gets 147 GB/s per core from L2-sized arrays, 106 + 91 GB/s with 16 MB ones and

@@ -6,9 +6,9 @@ are this package's renders (``thesis_setup1`` / ``thesis_setup2`` at 1024 x 768 
 read noise 1/255, 2 x 2 supersampling); "coverage" is the share of co-visible reference pixels that are valid,
 "false matches" the share of valid pixels that are not co-visible. Scripts: ``benchmarks/depth_targets.py``
 (accuracy; 205-1511 mm unless ``--z-range`` says otherwise) and ``benchmarks/onnx_speed.py`` (speed, setup 1;
-ratios are medians of same-round ratios to OpenCV StereoSGBM's time). Numbers from before session 12 were
-measured with the shift volume's invalid entries at the worst cost (see *The shift volume's fill*) and slower
-graphs; each is dated where it matters.
+ratios are medians of same-round ratios to OpenCV StereoSGBM's time). Numbers marked "worst-cost fill" or
+"slower graphs" were measured with the shift volume's invalid entries at the worst cost (see *The shift volume's
+fill*) or on earlier, slower graphs.
 
 Why coarse-to-fine
     Over the thesis' working range the correspondence moves ~365 px across the other half (``thesis_setup1``);
@@ -43,7 +43,7 @@ Why the rectified coarse level (``sampling``)
 
 ``directions``
     Over 600-1450 mm (``depth_targets.py --z-range 600 1450 --slanted 900 --step 700 1000 --directions 2``,
-    session 10) 2 directions saved ~9 % of the default pyramid's onnxruntime time but covered down to 94.1 % on
+    worst-cost fill) 2 directions saved ~9 % of the default pyramid's onnxruntime time but covered down to 94.1 % on
     setup 2 (1374 mm; 4 directions: 95.7 %).
 
 ``p1``, ``p2``
@@ -56,13 +56,13 @@ Why the rectified coarse level (``sampling``)
     frame at 0.048 % mean error, against 506 ms (0.053 %) with f = 2 and ~9x the time with a single level
     (measured before the onnxruntime tuning that brought f = 4 to 156-220 ms). The pyramid's binned model of that
     range (52 / 94 hypotheses with setup 1 / 2) got f = 2 by the rule of >= 24 hypotheses; f = 4 there
-    (``coarse_factor=4``, session 10) took 0.84x the onnxruntime time (1.00x OpenCV SGBM's) with errors as low or
+    (``coarse_factor=4``, worst-cost fill) took 0.84x the onnxruntime time (1.00x OpenCV SGBM's) with errors as low or
     lower, but covered 93.7 % of setup 2's step scene (700 / 1000 mm; f = 2: 95.6 %) (neither ``coarse_reach=2``
     nor a binned band of +-4 recovered it: 93.6 / 93.5 %). The pixels lost were not at the step but the ~35
     columns before the edge of the common field of view on the near plane, where the coarse estimate was off by
     a median 7.4 full-resolution steps (f = 2: 2.3): the shifts whose windows reach past the other half's edge
     lost to shorter ones, the invalid entries costing the worst value (see *The shift volume's fill* below).
-    With 3/4 of it (session 12) f = 4 covers that scene at 95.1 %, and the binned model of a pyramid takes the
+    With 3/4 of it f = 4 covers that scene at 95.1 %, and the binned model of a pyramid takes the
     largest f leaving >= 12 hypotheses (:func:`pyramid_coarse_factor`): 600-1450 mm (``depth_targets.py
     --z-range 600 1450 --slanted 900 --step 700 1000``), mean errors 0.036-0.087 % (setup 1) and 0.030-0.064 %
     (setup 2; f = 2 before: 0.038-0.091 / 0.031-0.072 %), coverage 98.9-99.4 % / 95.5-97.2 % (98.8-99.4 /
@@ -73,7 +73,7 @@ Why the rectified coarse level (``sampling``)
 The shift volume's fill (``_SHIFT_FILL`` of :mod:`prismstereo.matching.levels`, not an option)
     The rectified search's entries that are not real samples (past the other half's edge or outside the pixel's
     own range) cost 3/4 of the worst cost (ZNCC: 1.5, between uncorrelated and anti-correlated) instead of the
-    worst (session 12, ``depth_targets.py``, 205-1511 mm unless said otherwise). The default pyramid: mean errors
+    worst (``depth_targets.py``, 205-1511 mm unless said otherwise). The default pyramid: mean errors
     0.019-0.087 % / 0.011-0.063 % (setups 1 / 2; worst fill 0.015-0.088 / 0.012-0.064 %), coverage 96.9-99.3 % /
     96.0-98.6 % (97.2-99.5 / 95.9-98.7 %), setup 2's slanted plane 97.0 % (95.8 %), false matches at 228 mm 2.84 /
     1.41 % (2.82 / 1.57 %). ``downsample=1``: coverage 98.9-99.5 % / 96.7-99.1 % (97.2-99.6 / 96.4-98.5 %; setup
@@ -110,8 +110,8 @@ The shift volume's fill (``_SHIFT_FILL`` of :mod:`prismstereo.matching.levels`, 
     (228 mm: 3.2 / 2.3 % against 8.5 / 4.6 %), coverage within -0.6 / +0.2 points on the planes and 0.2-1.1
     points lower on the slanted and step scenes, in ~0.55x the time (see ``full_band``); on smaller sensors the
     binned image is too small for its own f = 4 coarse level. Block values (k = 2, ``full_band=0``):
-    onnxruntime 0.38-0.44x OpenCV SGBM's time against 2.09-2.11x with ``downsample=1`` (228-1374 mm, two runs in
-    session 9), slanted plane 0.040 % mean error on 98.3 % (``downsample=1``: 0.027 % on 98.8 %); on the thesis
+    onnxruntime 0.38-0.44x OpenCV SGBM's time against 2.09-2.11x with ``downsample=1`` (228-1374 mm, two runs on
+    slower graphs), slanted plane 0.040 % mean error on 98.3 % (``downsample=1``: 0.027 % on 98.8 %); on the thesis
     planes (``depth_targets.py --downsample 2 --full-band 0``) the mean error stays <= 0.123 % (setup 1) / 0.132
     % (setup 2), coverage 94.0-99.2 % / 93.4-97.0 % (``downsample=1``: 97.2-99.6 / 96.4-98.5 %; both with
     ``coarse_reach=1``, without it 90.2-98.6 / 92.6-95.9 %): below the 95 % target at the nearest plane (setup
@@ -140,7 +140,7 @@ The shift volume's fill (``_SHIFT_FILL`` of :mod:`prismstereo.matching.levels`, 
     Against ``downsample=1``: mean errors 0.015-0.088 % vs 0.016-0.083 % (setup 1) and 0.012-0.064 % vs
     0.012-0.087 % (setup 2), coverage 97.2-99.5 % vs 97.2-99.6 % and 95.9-98.7 % vs 96.4-98.5 %, fewer false
     matches (228 mm: 2.8 vs 8.5 % / 1.6 vs 4.6 %), slanted plane 0.028 / 0.019 % (0.026 / 0.023 %), step 0.042 /
-    0.029 % (0.049 / 0.033 %), at ~0.45x the time (228-1374 mm, two runs in session 9: onnxruntime 0.93-0.95x
+    0.029 % (0.049 / 0.033 %), at ~0.45x the time (228-1374 mm, two runs on slower graphs: onnxruntime 0.93-0.95x
     OpenCV SGBM's time against 2.09-2.11x, torch 1.11-1.24x against 2.44-2.56x). The extension radius of the
     binned estimate (binned pixels; setup 2 at 1374 / 936 mm, setup 1 at 228 mm): 4 gave 93.5 / 94.8 / 96.2 %
     coverage, 8 (the default's) 95.8 / 96.6 / 97.2 %, 12 and 16 no more (96.0 / 96.6 / 97.0 and 95.9 / 96.4 /
@@ -154,12 +154,12 @@ The shift volume's fill (``_SHIFT_FILL`` of :mod:`prismstereo.matching.levels`, 
     --downsample 2 --full-band 1 --band-edges clamp`` gave mean errors 0.014-0.096 % (setup 1) and 0.012-0.079 %
     (setup 2), coverage 96.9-99.6 % and 96.3-98.7 %, slanted plane 0.030 / 0.025 %, step 0.046 / 0.034 % (the
     default pyramid: 0.015-0.088 %, 0.012-0.065 %, 97.2-99.5 %, 95.8-98.7 %, 0.029 / 0.020 %, 0.043 / 0.029 %),
-    false matches at setup 2's 1374 mm 2.0 % (1.2 %), in 0.86-0.92x the default's onnxruntime time (session 8).
-    Session 9, with the binned band +-3: 0.014-0.096 % / 0.012-0.081 %, 96.9-99.6 % / 96.3-98.7 %, slanted 0.030
+    false matches at setup 2's 1374 mm 2.0 % (1.2 %), in 0.86-0.92x the default's onnxruntime time (slower graphs).
+    With the binned band +-3 (slower graphs): 0.014-0.096 % / 0.012-0.081 %, 96.9-99.6 % / 96.3-98.7 %, slanted 0.030
     / 0.027 %, step 0.046 / 0.035 %, false 1.6 % at setup 2's 1374 mm; onnxruntime 0.64-0.75x OpenCV SGBM's time
     (228-1374 mm, two runs; the default pyramid 0.93-0.95x); without 'clamp' R = 1 covered 91.3-96.9 % on setup
     2. With R = 2, 'clamp' covered 0.1-1.2 points more on setup 2 (worst 96.3 %) at up to +0.008 points of mean
-    error and ~1.8x the false matches at 1374 mm. Session 10, over 600-1450 mm (``--z-range 600 1450 --slanted
+    error and ~1.8x the false matches at 1374 mm. With the worst-cost fill, over 600-1450 mm (``--z-range 600 1450 --slanted
     900 --step 700 1000``): the fast setting 0.95-0.97x OpenCV SGBM's time (96 disparities; the default pyramid
     1.14-1.24x), errors 0.039-0.100 % / 0.041-0.098 % (default 0.038-0.091 % / 0.031-0.072 %), coverage
     98.3-99.5 % / 96.3-98.2 % (98.2-99.4 % / 95.6-97.3 %), but on setup 2 up to 3.9 % false matches (default

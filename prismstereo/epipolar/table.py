@@ -16,7 +16,7 @@ Chebyshev polynomial of degree N - 1 (~1e-10 px); evaluating it costs N terms pe
   sample, the full-resolution band of 3 alone 0.75x its time. :func:`series_band` evaluates a band of offsets
   around each pixel's s0 from the series' Taylor coefficients at s0 (multiply-adds on planes and one matrix
   product instead of Horner's rule over the band's volume): the narrow-range pyramid (600-1450 mm, 1024 x 768)
-  0.96-0.97x its onnxruntime time (session 12, paired A/B).
+  0.96-0.97x its onnxruntime time (paired A/B).
 * :func:`tabulate_sweep`: m tabulated at K uniform coordinates; the 4 entries around s give a local cubic
   (:func:`local_cubic`; Lagrange through u = -1, 0, 1, 2 in table units). K is the smallest of 17, 33, 65
   keeping the cubics within ``tolerance_px`` of the polynomial: measured over 205-1511 mm at full

@@ -92,7 +92,7 @@ def _scan(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
     which cannot win there since P1 >= 0): 7 graph nodes per scan step (ReduceMax, Sub, MaxPool, Sub, Max,
     Clip, Add; ONNX has a MaxPool, no MinPool). The slices are taken along axis 0 with one Split and the steps
     concatenated back along it (no Reshape, Squeeze or Unsqueeze per step). Measured no faster in onnxruntime
-    (session 10, the narrow range's coarse volume (1, 28, 192, 128), paired): the recursion without the
+    (the narrow range's coarse volume (1, 28, 192, 128), paired): the recursion without the
     per-step normalisation (the maxima subtracted once at the end; one full pass per step less, but its P2 term
     a Max with a broadcast (1, N, 1, X) operand) 1.02x, that with 5-D slices and one three-input Max (6 nodes
     per step) 1.01x, the hypotheses on the last axis 1.17x. Differentiable torch eager keeps the Slice /
@@ -187,7 +187,7 @@ def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
     161 scan steps instead of 322), torch eager 11-18 -> 7-8 ms. Stacking all four directions into one scan
     of max(H, W) steps (zero-padding the vertical volume to square) was no faster in onnxruntime: 1.5x the
     elements per step outweighed the fewer nodes (~2 us each); on the narrow range's coarse volume
-    (1, 28, 192, 128): 192 steps instead of 320, 1.17x the time (session 10).
+    (1, 28, 192, 128): 192 steps instead of 320, 1.17x the time.
     """
     fast = not torch.onnx.is_in_onnx_export() and not (torch.is_grad_enabled() and negated.requires_grad)
     scan = _scan_eager if fast else _scan

@@ -135,7 +135,7 @@ def _gather_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> t
     copies elements in a typed loop, its Gather one memcpy per row (a (H W, 4) table of pixel quads gathered
     by rows: 5.1 ms for 1.2 M samples against 3.9 ms for the four element gathers, micro-benchmark). The taps are
     gathered from the top-left pixel and three difference images of the bilinear form, and a one-channel image
-    from ``_GATHER_ROWS`` copies, so that onnxruntime spreads each gather over its threads. Session 12, the
+    from ``_GATHER_ROWS`` copies, so that onnxruntime spreads each gather over its threads. The
     narrow-range pyramid at 1024 x 768 in onnxruntime (paired A/B): the difference form 0.99x, the rows 0.94x."""
     b, c, h, w = image.shape
     d, hs, ws = x.shape[1:]
