@@ -160,8 +160,8 @@ The shift volume's fill (``_SHIFT_FILL`` of :mod:`prismstereo.matching.levels`, 
     (228-1374 mm, two runs; the default pyramid 0.93-0.95x); without 'clamp' R = 1 covered 91.3-96.9 % on setup
     2. With R = 2, 'clamp' covered 0.1-1.2 points more on setup 2 (worst 96.3 %) at up to +0.008 points of mean
     error and ~1.8x the false matches at 1374 mm. With the worst-cost fill, over 600-1450 mm (``--z-range 600 1450
-    --slanted 900 --step 700 1000``): the fast setting 0.95-0.97x OpenCV SGBM's time (96 disparities; the default pyramid
-    1.14-1.24x), errors 0.039-0.100 % / 0.041-0.098 % (default 0.038-0.091 % / 0.031-0.072 %), coverage
+    --slanted 900 --step 700 1000``): the fast setting 0.95-0.97x OpenCV SGBM's time (96 disparities; the default
+    pyramid 1.14-1.24x), errors 0.039-0.100 % / 0.041-0.098 % (default 0.038-0.091 % / 0.031-0.072 %), coverage
     98.3-99.5 % / 96.3-98.2 % (98.2-99.4 % / 95.6-97.3 %), but on setup 2 up to 3.9 % false matches (default
     2.2 %) and 0.67 % of pixels off by > 2 % (0.20 %).
 """
