@@ -2,20 +2,24 @@
 
 Prints bad>1px (percentage of pixels with ground truth whose disparity is off by more than 1 px; missing
 output counts as bad: for prismstereo the pixels neither valid nor filled, for OpenCV its invalid value),
-the ratio to StereoSGBM (target <= 0.8) and the time per pair, for prismstereo (default MatchOptions) and
+the ratio to StereoSGBM (target <= 0.5) and the time per pair, for prismstereo (default MatchOptions:
+truncated colour + gradient cost, guided-filter aggregation, left-right check, fill, weighted median) and
 OpenCV StereoSGBM / StereoBM with the settings of shared/data/middlebury/README.md, side by side.
 
-Measured (2 threads, shared machine; times vary by ~20 %):
+Measured (2 threads on an otherwise idle 2-core machine; other jobs on it can make the times several times
+longer):
 
-    scene    method                   bad>1px %   x SGBM       ms
-    Tsukuba  prismstereo (census+SGM)      5.35     0.75      450
-    Tsukuba  OpenCV StereoSGBM             7.13     1.00       10
-    Tsukuba  OpenCV StereoBM              14.71     2.06        4
-    Venus    prismstereo (census+SGM)      2.05     0.21      880
-    Venus    OpenCV StereoSGBM             9.75     1.00       14
-    Venus    OpenCV StereoBM              21.14     2.17        5
+    scene    method                       bad>1px %   x SGBM       ms
+    Tsukuba  prismstereo (guided filter)       2.90     0.41      300
+    Tsukuba  OpenCV StereoSGBM                 7.13     1.00        7
+    Tsukuba  OpenCV StereoBM                  14.71     2.06        2
+    Venus    prismstereo (guided filter)       0.63     0.06      605
+    Venus    OpenCV StereoSGBM                 9.75     1.00        9
+    Venus    OpenCV StereoBM                  21.14     2.17        4
 
-(before: census 5x5, box 7, constant P2, no fill: 11.20 % / 8.26 % in ~1000 / ~2000 ms.)
+(the previous defaults, census 7x7 + 8-direction SGM + medians + background fill, MatchOptions(cost='census',
+aggregation='sgm', subpixel_cost='local', subpixel_window=3, weighted_median=0): 5.35 % / 2.05 % in 170 / 370
+ms on the same machine; before those, census 5x5, box 7, constant P2, no fill: 11.20 % / 8.26 %.)
 
 Run: .venv/bin/python benchmarks/middlebury.py
 """
@@ -46,7 +50,7 @@ def bad_percent(disparity: np.ndarray, valid: np.ndarray, gt: np.ndarray) -> flo
 def main() -> None:
     torch.set_num_threads(2)
     cv2.setNumThreads(2)
-    print(f"{'scene':8s} {'method':24s} {'bad>1px %':>10s} {'x SGBM':>8s} {'ms':>8s}")
+    print(f"{'scene':8s} {'method':27s} {'bad>1px %':>10s} {'x SGBM':>8s} {'ms':>8s}")
     for scene, (gt_name, scale, num_disp) in SCENES.items():
         folder = DATA / scene
         gt = cv2.imread(str(folder / gt_name), cv2.IMREAD_UNCHANGED).astype(np.float32) / scale
@@ -56,7 +60,7 @@ def main() -> None:
         res = match_rectified(left[None], right[None], num_disp)
         ms = (time.perf_counter() - t0) * 1e3
         ours = bad_percent(res.disparity[0, 0].numpy(), (res.valid | res.filled)[0, 0].numpy(), gt)
-        rows = [("prismstereo (census+SGM)", ours, ms)]
+        rows = [("prismstereo (guided filter)", ours, ms)]
         grey_l = cv2.imread(str(folder / "img_left.png"), cv2.IMREAD_GRAYSCALE)
         grey_r = cv2.imread(str(folder / "img_right.png"), cv2.IMREAD_GRAYSCALE)
         for name, matcher in (
@@ -70,7 +74,7 @@ def main() -> None:
             rows.append((name, bad_percent(disp, disp >= 0, gt), ms))
         sgbm = rows[1][1]
         for name, bad, ms in rows:
-            print(f"{scene:8s} {name:24s} {bad:10.2f} {bad / sgbm:8.2f} {ms:8.0f}")
+            print(f"{scene:8s} {name:27s} {bad:10.2f} {bad / sgbm:8.2f} {ms:8.0f}")
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
+import numpy as np
 import torch
 
 from prismstereo.errors import PrismStereoError
@@ -103,7 +104,7 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig):
     else:
         z_range, how = check_z_range(rig, args.z_range), "--z-range"
     model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses, downsample=args.downsample,
-                        full_band=args.full_band, band_edges=args.band_edges).eval()
+                        full_band=args.full_band, band_edges=args.band_edges, dense=args.dense).eval()
     return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
 
 
@@ -161,24 +162,32 @@ def _cmd_depth(args: argparse.Namespace) -> int:
             res = _run_backend(args.backend, model, grey)
             if args.ply:
                 with torch.inference_mode():
-                    points = depth_to_points(rig, res.depth.to(torch.float64), res.valid)
+                    has = (res.confidence > 0) if args.dense else res.valid
+                    points = depth_to_points(rig, res.depth.to(torch.float64), has)
             for k, i in enumerate(chunk):
                 depth, valid = res.depth[k, 0], res.valid[k, 0]
+                if args.dense:  # every pixel with a depth, its confidence beside it
+                    valid = res.confidence[k, 0] > 0
                 note = _write_depth(targets[i], depth, valid, args.png_scale)
+                if args.dense:
+                    confidence_path = targets[i].depth.with_name(targets[i].depth.stem + "_confidence.npy")
+                    np.save(confidence_path, res.confidence[k, 0].numpy().astype(np.float32))
+                    note += f", confidence {confidence_path.name}"
                 if args.ply:
                     count = write_ply(targets[i].ply, points[k], colors=captures[k][:, :, :w_ref])
                     note += f", {targets[i].ply.name} ({count} points)"
                 ok = valid & torch.isfinite(depth)
                 median = f"median {float(depth[ok].median()):.1f} mm" if bool(ok.any()) else "no valid depth"
-                tqdm.write(f"wrote {targets[i].depth}: {ok.float().mean():.1%} of reference pixels valid, "
+                kind = "with a depth (dense)" if args.dense else "valid"
+                tqdm.write(f"wrote {targets[i].depth}: {ok.float().mean():.1%} of reference pixels {kind}, "
                            f"{median}{note}", file=sys.stdout)
                 bar.update(1)
     return 0
 
 
 def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--downsample``, ``--full-band`` and ``--band-edges``, shared by ``depth`` and ``export`` (the model's
-    defaults when absent)."""
+    """``--downsample``, ``--full-band``, ``--band-edges`` and ``--dense``, shared by ``depth`` and ``export`` (the
+    model's defaults when absent)."""
     parser.add_argument("--downsample", type=int, default=None, metavar="K",
                         help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser "
                              "unless --full-band); default: 2 with --full-band 2 on sensors whose reference "
@@ -191,6 +200,9 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a pixel whose best hypothesis is on the edge of its final band: invalid (reject, "
                              "default) or refined from the edge's inner neighbour (clamp; with --full-band 1 the "
                              "fast full-resolution setting)")
+    parser.add_argument("--dense", action="store_true",
+                        help="a depth for every pixel of the common field of view with its calibrated confidence "
+                             "(the probability of a depth within 1 %%), not only for the valid ones")
 
 
 def add_depth_parser(sub: argparse._SubParsersAction) -> None:

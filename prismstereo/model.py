@@ -24,8 +24,10 @@ The layers, in order:
    :mod:`prismstereo.epipolar.table`, within ~2e-4 px of the polynomials); cost, box, winner and
    sub-pixel refinement (equiangular, parabola or a differentiable local soft-argmin).
    With f = 1 the full range is searched at full resolution in one level (the reference mode).
-5. Depth from the sweep coordinate (exact: s is linear in 1/Z), validity (inside the common field of view,
-   winner inside the band, confidence) and a z-buffer occlusion test in the other half.
+5. Depth from the sweep coordinate (exact: s is linear in 1/Z), a confidence (the calibrated probability of a
+   depth within 1 %, :mod:`prismstereo.matching.confidence`), validity (inside the common field of view, winner
+   inside the band, confidence) and a z-buffer occlusion test in the other half; with ``dense`` every pixel of
+   the common field of view keeps its depth and confidence.
 
 With ``downsample`` k and ``full_band`` R the coarse level of step 3 is a whole model of the k x k-binned capture
 (:attr:`PrismStereo.binned`, steps 1-5 on the binned rig), and step 4 a band of 2 R + 1 full-resolution
@@ -64,15 +66,20 @@ from prismstereo.errors import OptionError, ShapeError, check_option, check_shap
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.build import build_search
+from prismstereo.matching.confidence import ConfidenceModel, confidence_features
 from prismstereo.matching.cost import COSTS, Cost
 from prismstereo.matching.levels import FineBand, SearchOptions, extend_estimate
 from prismstereo.matching.split import SplitImage
 
-__all__ = ["DepthResult", "PrismStereo", "Refinement", "Sampling", "sweep_hypotheses"]
+__all__ = [
+    "ConfidenceInputs", "DepthResult", "PrismStereo", "Refinement", "Sampling", "Validity", "sweep_hypotheses",
+]
 
 Refinement = Literal["equiangular", "parabola", "soft_argmin"]
 Sampling = Literal["sweep", "rectified"]
 BandEdges = Literal["reject", "clamp"]
+Validity = Literal["calibrated", "thresholds"]
+VALIDITIES: tuple[str, ...] = ("calibrated", "thresholds")
 BAND_EDGES: tuple[str, ...] = ("reject", "clamp")
 SAMPLINGS: tuple[str, ...] = ("sweep", "rectified")
 REFINEMENTS: tuple[str, ...] = ("equiangular", "parabola", "soft_argmin")
@@ -95,6 +102,28 @@ class DepthResult(NamedTuple):
     confidence: torch.Tensor
     index: torch.Tensor
     match: torch.Tensor
+
+
+class ConfidenceInputs(NamedTuple):
+    """:meth:`PrismStereo.confidence_inputs`' result.
+
+    Attributes:
+        features: (B, 6, H, W_ref) :func:`~prismstereo.matching.confidence.confidence_features`.
+        depth: (B, 1, H, W_ref) the depth (mm) they describe.
+        sampled: (B, 1, H, W_ref) bool, pixels with an estimate (the confidence applies there).
+    """
+
+    features: torch.Tensor
+    depth: torch.Tensor
+    sampled: torch.Tensor
+
+
+class _Estimate(NamedTuple):
+    s: torch.Tensor
+    ok: torch.Tensor
+    confidence: torch.Tensor
+    match: torch.Tensor | None
+    features: torch.Tensor | None
 
 
 class PrismStereo(nn.Module):
@@ -128,10 +157,11 @@ class PrismStereo(nn.Module):
             level's cost (equiangular for L1-type census/SAD, parabola for ZNCC); 'equiangular',
             'parabola', or 'soft_argmin' (a local soft-argmin, differentiable w.r.t. the cost: gradients reach
             the image with 'sad' or 'zncc').
-        min_confidence: pixels with lower confidence (the final level's NCC) are invalid.
-        min_uniqueness: pixels whose coarse (or single) level winner is not unique enough, 1 - best / second
-            best aggregated cost outside winner +- 1 below this, are invalid (false matches of pixels that the
-            other half does not see have a runner-up close to the winner).
+        min_confidence: pixels with a lower ``confidence`` are invalid (with ``validity`` 'calibrated' the
+            probability of a depth within 1 %; with 'thresholds' the final level's NCC).
+        min_uniqueness: with ``validity`` 'thresholds': pixels whose coarse (or single) level winner is not unique
+            enough, 1 - best / second best aggregated cost outside winner +- 1 below this, are invalid (false
+            matches of pixels that the other half does not see have a runner-up close to the winner).
         occlusion_tolerance: relative depth margin of the z-buffer occlusion test, None to skip it.
         occluder_confidence: only valid pixels with at least this confidence occlude others in that test (None:
             every valid pixel): a false match would otherwise push the true match of the other-half pixel it
@@ -152,8 +182,8 @@ class PrismStereo(nn.Module):
             neighbours' mean s (:func:`~prismstereo.matching.levels.extend_estimate`) before it is upsampled
             for the fine band (the coarse level loses a margin of about its window at the edges of the common
             field of view); 0 leaves the coarse estimate as it is.
-        reach_confidence: the fine band's confidence (NCC) a pixel needs when only its coarse neighbours were
-            valid (the others need ``min_confidence``).
+        reach_confidence: with ``validity`` 'thresholds': the fine band's NCC a pixel needs when only its coarse
+            neighbours were valid (the others need ``min_confidence``).
         full_band: with ``downsample`` k > 1, R > 0 makes a pyramid: the model of the binned capture (every
             option above applies to it; :attr:`binned`) estimates s, which is extended by 2 ``coarse_reach``
             times its coarse factor binned pixels and upsampled bilinearly to place a band of 2 R + 1 hypotheses
@@ -167,6 +197,24 @@ class PrismStereo(nn.Module):
             and refines there, so s moves at most half a step beyond it, with that hypothesis' confidence (still
             subject to ``min_confidence`` / ``reach_confidence``). With ``full_band=1`` (a band of 3) it is the
             fast full-resolution setting (faster; more false matches on ``thesis_setup2``).
+        validity: how ``confidence`` and ``valid`` are decided. 'calibrated' (the default of coarse-to-fine
+            models): every pixel gets a final band (around the coarse estimate extended to its neighbours, or
+            beyond their reach the coarse level's own rejected estimate), and the confidence is the probability
+            that the pixel's depth is within 1 % of the truth, from its final NCC, the coarse level's NCC (0 where
+            its thresholds rejected it), the estimate's roughness, the band's offset from the coarse placement,
+            the window's texture and whether the coarse level rejected it
+            (:mod:`prismstereo.matching.confidence`, fitted on renders by ``benchmarks/fit_confidence.py``;
+            the reliability on held-out scenes: ``benchmarks/dense_depth.py``). 'thresholds' (single levels):
+            the NCC, ``min_uniqueness`` and ``reach_confidence`` rules.
+        dense: a depth for every reference pixel the final band can sample (the common field of view): pixels
+            beyond the coarse estimate's reach get a band around the coarse level's own (rejected) estimate, a
+            match beyond the band keeps the band's nearest estimate (``band_edges`` 'clamp' for the final band),
+            and ``confidence`` is > 0 exactly where there is a depth (0 elsewhere); ``valid`` stays the mask of
+            the confident pixels (``min_confidence``, occlusion test).
+        wide_box: where the reference has little texture, every fine band's box-averaged cost is blended with
+            the cost averaged over this wider box (0: off; :class:`~prismstereo.matching.levels.FineBand`): weak
+            texture and defocus leave a small window's minimum to noise.
+        weak_texture: the grey standard deviation over the cost window below which that blend starts (full at 0).
 
     The measurements behind each default and the alternatives: :mod:`prismstereo.defaults`.
 
@@ -207,15 +255,26 @@ class PrismStereo(nn.Module):
         reach_confidence: float = 0.9,
         full_band: int | None = None,
         band_edges: BandEdges = "reject",
+        validity: Validity | None = None,
+        dense: bool = False,
+        wide_box: int = 21,
+        weak_texture: float = 8.0 / 255,
     ) -> None:
         super().__init__()
+        if validity is not None:
+            check_option(validity, VALIDITIES, "validity")
+        if not isinstance(dense, bool):
+            raise OptionError(f"dense must be a bool, got {dense!r}")
         level_options = dict(  # everything but the resolution: the binned model of a pyramid gets the same
             cost=cost, fine_cost=fine_cost, sampling=sampling, window=window, census_threshold=census_threshold,
             box=box, fine_box=fine_box, aggregation=aggregation, directions=directions, p1=p1, p2=p2,
             coarse_factor=coarse_factor, band=band, refinement=refinement, min_confidence=min_confidence,
             min_uniqueness=min_uniqueness, occlusion_tolerance=occlusion_tolerance,
             occluder_confidence=occluder_confidence, lr_threshold=lr_threshold, coarse_reach=coarse_reach,
-            reach_confidence=reach_confidence, band_edges=band_edges)
+            reach_confidence=reach_confidence, band_edges=band_edges, wide_box=wide_box, weak_texture=weak_texture)
+        # the binned model of a pyramid places the final band: its thresholds decide which estimates are
+        # extended to their neighbours; its NCC is a feature of the calibrated confidence
+        placement = dict(level_options, validity="thresholds", dense=False)
         check_option(cost, COSTS, "cost")
         check_option(band_edges, BAND_EDGES, "band_edges")
         check_option(fine_cost, COSTS, "fine_cost")
@@ -227,6 +286,10 @@ class PrismStereo(nn.Module):
         for name, value in (("box", box), ("fine_box", fine_box), ("window", window)):
             if not isinstance(value, int) or value < 1 or value % 2 == 0:
                 raise OptionError(f"{name} must be a positive odd int, got {value!r}")
+        if not isinstance(wide_box, int) or wide_box < 0 or (wide_box and wide_box % 2 == 0):
+            raise OptionError(f"wide_box must be 0 (off) or a positive odd int, got {wide_box!r}")
+        if not (isinstance(weak_texture, (int, float)) and weak_texture > 0):
+            raise OptionError(f"weak_texture must be a number > 0, got {weak_texture!r}")
         if downsample is None:  # the default: the pyramid on large sensors
             downsample = self.default_downsample(rig)
             full_band = (2 if downsample > 1 else 0) if full_band is None else full_band
@@ -240,11 +303,11 @@ class PrismStereo(nn.Module):
         self.binned: PrismStereo | None = None
         if full_band:  # a pyramid: the binned model places a full-resolution band of 2 full_band + 1 hypotheses
             binned = rig.binned(downsample)
-            self.binned = PrismStereo(binned, z_range_mm, num_hypotheses, downsample=1, full_band=0, **level_options)
+            self.binned = PrismStereo(binned, z_range_mm, num_hypotheses, downsample=1, full_band=0, **placement)
             factor = pyramid_coarse_factor(self.binned.num_hypotheses, binned.image_height, binned.reference_width)
             if coarse_factor is None and factor != self.binned.factor:  # its estimate only places the final band
                 self.binned = PrismStereo(binned, z_range_mm, self.binned.num_hypotheses, downsample=1, full_band=0,
-                                          **{**level_options, "coarse_factor": factor})
+                                          **{**placement, "coarse_factor": factor})
             if band is None and self.binned.factor > 1:  # its band only places the final one: see ``band``
                 self.binned._set_band(pyramid_band(self.binned.factor))
             num_hypotheses, coarse_factor, band = None, downsample, full_band
@@ -295,6 +358,14 @@ class PrismStereo(nn.Module):
         self.coarse_reach, self.reach_confidence = coarse_reach, float(reach_confidence)
         self.band_edges = band_edges
         self.num_hypotheses = num_hypotheses
+        if validity is None:
+            validity = "calibrated" if coarse_factor > 1 else "thresholds"
+        if validity == "calibrated" and coarse_factor == 1:
+            raise OptionError("validity 'calibrated' needs a coarse-to-fine model (coarse_factor > 1 or a pyramid); "
+                              "a single level has 'thresholds'")
+        self.validity, self.dense = validity, dense
+        self.wide_box, self.weak_texture = wide_box, float(weak_texture)
+        self.calibration = ConfidenceModel() if validity == "calibrated" else None
 
         w_o = rig.image_width - w_ref
         rays = trace_pixels(rig, uv.view(-1, 2))
@@ -325,7 +396,9 @@ class PrismStereo(nn.Module):
                 self.rectification_residual_px = built.rectification_residual_px
         self.coarse_hypotheses = (self.search if self.binned is None else self.binned).num_hypotheses
         if coarse_factor > 1:
-            fine_options = dataclasses.replace(options, cost=fine_cost, box=fine_box, band_edges=band_edges)
+            fine_options = dataclasses.replace(options, cost=fine_cost, box=fine_box,
+                                               band_edges="clamp" if dense else band_edges, wide_box=wide_box,
+                                               weak_texture=float(weak_texture))
             self.fine = FineBand(fine_options, self.band, 2.0 / (num_hypotheses - 1), self.split.split)
 
     def _set_band(self, band: int) -> None:
@@ -342,8 +415,10 @@ class PrismStereo(nn.Module):
             >>> PrismStereo(model.rig, **model.config()).num_hypotheses == model.num_hypotheses
             True
         """
-        if self.binned is not None:  # the options went to the binned model
-            return {**self.binned.config(), "downsample": self.downsample, "full_band": self.band}
+        if self.binned is not None:  # the options went to the binned model (its own thresholds: this model's)
+            return {**self.binned.config(), "downsample": self.downsample, "full_band": self.band,
+                    "min_confidence": self.min_confidence, "min_uniqueness": self.min_uniqueness,
+                    "validity": self.validity, "dense": self.dense}
         return {
             "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses, "cost": self.cost,
             "fine_cost": self.fine_cost, "sampling": self.sampling, "window": self.window,
@@ -355,6 +430,8 @@ class PrismStereo(nn.Module):
             "occluder_confidence": self.occluder_confidence, "lr_threshold": self.lr_threshold,
             "downsample": self.downsample, "coarse_reach": self.coarse_reach,
             "reach_confidence": self.reach_confidence, "full_band": 0, "band_edges": self.band_edges,
+            "validity": self.validity, "dense": self.dense, "wide_box": self.wide_box,
+            "weak_texture": self.weak_texture,
         }
 
     def summary(self) -> str:
@@ -439,10 +516,33 @@ class PrismStereo(nn.Module):
         valid = up(res.valid.to(res.depth.dtype)) > 0.5
         return DepthResult(up(res.depth), valid, up(res.confidence), up(res.index), up(match))
 
-    def _depth(self, image: torch.Tensor) -> DepthResult:
+    def confidence_inputs(self, image: torch.Tensor) -> ConfidenceInputs:
+        """What the calibrated confidence sees: the features (:data:`~prismstereo.matching.confidence.FEATURES`)
+        of every pixel of ``image`` (B, C, H, W) with the depth they describe, for fitting a confidence to a
+        rig or a kind of scene (:func:`~prismstereo.matching.confidence.fit_confidence`,
+        ``benchmarks/fit_confidence.py``). Needs ``validity='calibrated'``.
+
+        Example:
+            >>> model = PrismStereo(thesis_setup1().downscaled(4), (400.0, 700.0), coarse_factor=2)
+            >>> model.confidence_inputs(torch.rand(1, 1, 192, 256)).features.shape
+            torch.Size([1, 6, 192, 128])
+        """
+        if self.calibration is None:
+            raise OptionError("confidence_inputs needs validity='calibrated'")
+        check_shape(image, ["B", "C", "H", "W"], "image")
+        if self.downsample > 1 and self.binned is None:
+            raise OptionError("confidence_inputs needs the full-resolution model (downsample 1 or a pyramid)")
+        est = self._estimate(image)
+        z_range = torch.tensor(self.z_range, dtype=est.s.dtype, device=est.s.device)
+        return ConfidenceInputs(est.features, sweep_to_depth(est.s.clamp(-1.0, 1.0), z_range),
+                                est.ok & self.reference_valid)
+
+    def _estimate(self, image: torch.Tensor) -> _Estimate:
+        """The final level's s, validity, raw confidence (NCC) or calibrated confidence, match and features."""
         ref, other = self.split(image)
         h, w_ref = ref.shape[-2:]
         step = 2.0 / (self.num_hypotheses - 1)
+        features = None
         if self.factor == 1:
             s, ok, confidence, match = self.search(ref, other, final=True)
         else:
@@ -451,11 +551,15 @@ class PrismStereo(nn.Module):
                 if self.binned is None:
                     coarse = self.search(self._downsample(ref), self._downsample(other), final=False)
                     s_c, valid_c, radius = coarse.s, coarse.valid, self.coarse_reach
+                    similar_c = coarse.confidence * valid_c.to(coarse.confidence.dtype)
                 else:  # the binned model's final estimate, extended twice as far as its own coarse level reached
                     low = self.binned._depth(F.avg_pool2d(image, f))
                     s_c, valid_c = low.index * (2.0 / (self.binned.num_hypotheses - 1)) - 1.0, low.valid
                     radius = 2 * self.coarse_reach * self.binned.factor
+                    similar_c = low.confidence  # its NCC, 0 where invalid (validity 'thresholds')
                 s_c, reach = extend_estimate(s_c, valid_c, radius)
+                if self.validity == "calibrated" or self.dense:  # beyond the reach: the coarse level's own estimate
+                    reach = torch.ones_like(reach)
 
             def up(t: torch.Tensor, mode: str = "nearest") -> torch.Tensor:
                 # level pixel i covers full pixels f i ... f i + f - 1; a binned level may end short of the
@@ -466,23 +570,33 @@ class PrismStereo(nn.Module):
                     t = F.pad(t, (0, max(0, w_ref - t.shape[-1]), 0, max(0, h - t.shape[-2])), mode="replicate")
                 return t[..., :h, :w_ref]
 
-            s0 = up(s_c, "bilinear")
-            s, ok, confidence, match = self.fine(ref, other, s0.detach().clamp(-1.0, 1.0), up(reach) > 0.5,
-                                                 self.series, self.interval)
-            if self.coarse_reach:  # pixels the coarse level only reached from a neighbour: a stricter match
-                ok = ok & ((up(valid_c) > 0.5) | (confidence >= self.reach_confidence))
+            s0 = up(s_c, "bilinear").detach().clamp(-1.0, 1.0)
+            s, ok, confidence, match = self.fine(ref, other, s0, up(reach) > 0.5, self.series, self.interval)
+            rejected = up(valid_c) < 0.5
+            if self.validity == "calibrated":  # the probability of a depth within 1 % (matching.confidence)
+                features = confidence_features(confidence, up(similar_c, "bilinear"), s.detach(), s0, ref, step,
+                                               rejected)
+                confidence = self.calibration(features)
+            elif self.coarse_reach:  # pixels the coarse level only reached from a neighbour: a stricter match
+                ok = ok & (~rejected | (confidence >= self.reach_confidence))
+        return _Estimate(s, ok, confidence, match, features)
+
+    def _depth(self, image: torch.Tensor) -> DepthResult:
+        s, ok, confidence, match, _ = self._estimate(image)
+        step = 2.0 / (self.num_hypotheses - 1)
         s = s.clamp(-1.0, 1.0)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
         if match is None:  # the fine band interpolates its samples; otherwise the series at s
             match = torch.cat(series_at(self.series, s), 1)
         valid = ok & self.reference_valid & (confidence >= self.min_confidence)
+        covered = ok & self.reference_valid  # dense: a depth wherever the band had a real sample
         if self.occlusion_tolerance is not None:
             occluders = None if self.occluder_confidence is None else valid & (confidence >= self.occluder_confidence)
             valid = valid & self.visible(match, depth, valid, occluders)
-        # confidence in [0, 1] times the mask: 0 where invalid (onnxruntime runs a Where on one thread, ~0.26 ms on a
-        # 768 x 512 plane; the product ~0.05 ms)
-        confidence = confidence * valid.to(confidence.dtype)
+        # confidence in [0, 1] times the mask: 0 where invalid, or in a dense model where there is no depth
+        # (onnxruntime runs a Where on one thread, ~0.26 ms on a 768 x 512 plane; the product ~0.05 ms)
+        confidence = confidence * (covered if self.dense else valid).to(confidence.dtype)
         index = (s + 1.0) / step
         return DepthResult(depth, valid, confidence, index, match)
 

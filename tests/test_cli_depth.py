@@ -109,6 +109,24 @@ def test_band_edges_clamp_reaches_the_model(scene, tmp_path, capsys):
         _run(scene, scene / "far.png", *args, "--band-edges", "widen")
 
 
+def test_dense_writes_every_covered_pixel_and_its_confidence(scene, tmp_path, capsys):
+    """--dense: a depth for every pixel of the common field of view, the confidence beside it (0 exactly where
+    there is no depth); more pixels than the valid ones, the same depths where both have one."""
+    plain, dense = tmp_path / "plain.npy", tmp_path / "dense.npy"
+    args = ("--z-range", 400, 700, "--downsample", "2", "--full-band", "1")
+    assert _run(scene, scene / "far.png", "--out", plain, *args) == 0
+    assert _run(scene, scene / "far.png", "--out", dense, *args, "--dense") == 0
+    text = capsys.readouterr().out
+    assert "with a depth (dense)" in text and "confidence dense_confidence.npy" in text
+    d0, d1 = np.load(plain), np.load(dense)
+    confidence = np.load(tmp_path / "dense_confidence.npy")
+    assert confidence.shape == d1.shape and confidence.dtype == np.float32
+    assert np.array_equal(np.isfinite(d1), confidence > 0) and confidence.max() <= 1.0
+    assert np.isfinite(d1).sum() > np.isfinite(d0).sum()
+    both = np.isfinite(d0) & np.isfinite(d1)
+    assert both.mean() > 0.3 and np.median(np.abs(d0[both] / d1[both] - 1)) < 1e-4
+
+
 def test_png_clipping_warns(scene, tmp_path, capsys):
     assert _run(scene, scene / "far.png", "--out", tmp_path / "far.png") == 0
     assert "clipped to 65535 (see --png-scale)" in capsys.readouterr().out

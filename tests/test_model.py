@@ -150,8 +150,9 @@ def test_misaligned_prism(offset):
 
 def test_rolled_prism_and_distorting_lens_end_to_end():
     """A prism rolled, tilted and shifted in front of a distorting lens (setup 2, quarter resolution): the slanted
-    split, the sweep and the depth follow the rig (measured: coverage 94.4 %, mean 0.25 %); the same capture
-    through a model that ignores the distortion is 4x worse (1.09 %)."""
+    split, the sweep and the depth follow the rig (measured: coverage 92.0 %, mean 0.20 %; the NCC thresholds of
+    ``validity='thresholds'`` keep 2.4 points more, 65 % of them off by > 1 %); the same capture through a model
+    that ignores the distortion is several times worse."""
     misaligned = scaled_rig(thesis_setup2(), 4).replace(prism_tilt_deg=(0.3, 0.5, 0.3), prism_offset_x_mm=0.5)
     rig = misaligned.replace(distortion=(-0.1, 0.02, 1e-3, -1e-3, 0.0))
     cap = render(rig, fronto_parallel_plane(rig, 600.0, seed=3), FORM)
@@ -163,7 +164,7 @@ def test_rolled_prism_and_distorting_lens_end_to_end():
             res = model(cap.image)
         rel, coverage = _errors(rig, res, cap)
         errors.append(float(rel.mean()))
-        assert coverage > 0.93
+        assert coverage > 0.91
     assert errors[0] < 0.004 and errors[1] > 3 * errors[0]
 
 
@@ -440,15 +441,16 @@ def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
     windows leave the other half there). Extending its estimate by one coarse pixel (1) keeps the bilinear
     upsampling of valid estimates from blending in the invalid pixels' values and (2) lets the fine band match
     the reached pixels, accepted at the stricter reach_confidence. Since the shift volume's invalid entries cost
-    3/4 of the worst cost (session 12) the coarse level loses less of the edge itself: coverage 96.6 % without
+    3/4 of the worst cost the coarse level loses less of the edge itself: coverage 96.6 % without
     the reach (91.8 % before), 97.2 % with (1), 97.7 % with both (95.2 / 95.7 % before), mean errors 0.038 / 0.052 %
     (the reached pixels are the harder ones)."""
     rig = scaled_rig(thesis_setup1(), 2)
     cap = render(rig, fronto_parallel_plane(rig, 240.0, seed=2), FORM)
     with torch.no_grad():
-        plain = PrismStereo(rig, (220.0, 900.0), coarse_reach=0)(cap.image)
-        reach = PrismStereo(rig, (220.0, 900.0))(cap.image)
-        unreached = PrismStereo(rig, (220.0, 900.0), reach_confidence=1.0)(cap.image)  # (1) only
+        rules = dict(validity="thresholds", wide_box=0)  # the reach_confidence rule of the NCC thresholds
+        plain = PrismStereo(rig, (220.0, 900.0), coarse_reach=0, **rules)(cap.image)
+        reach = PrismStereo(rig, (220.0, 900.0), **rules)(cap.image)
+        unreached = PrismStereo(rig, (220.0, 900.0), reach_confidence=1.0, **rules)(cap.image)  # (1) only
     rel0, coverage0 = _errors(rig, plain, cap)
     rel1, coverage1 = _errors(rig, reach, cap)
     coverage_unreached = _errors(rig, unreached, cap)[1]

@@ -1,6 +1,12 @@
 """Matching layers: split the capture, build cost volumes, select hypotheses, post-process disparities."""
 
 from prismstereo.matching.aggregate import box_filter, sgm_aggregate, sgm_aggregate_guided
+from prismstereo.matching.confidence import (
+    FEATURES,
+    ConfidenceModel,
+    confidence_features,
+    fit_confidence,
+)
 from prismstereo.matching.cost import (
     COSTS,
     Cost,
@@ -11,7 +17,8 @@ from prismstereo.matching.cost import (
     cost_volume,
     shifted,
 )
-from prismstereo.matching.postprocess import fill_background, median_filter
+from prismstereo.matching.postprocess import fill_background, median_filter, weighted_median
+from prismstereo.matching.rectified import ad_gradient_volume, guided_filter
 from prismstereo.matching.select import (
     Subpixel,
     left_right_check,
@@ -24,6 +31,10 @@ from prismstereo.matching.select import (
 from prismstereo.matching.split import Halves, SplitImage
 
 __all__ = [
+    "FEATURES",
+    "ConfidenceModel",
+    "confidence_features",
+    "fit_confidence",
     "COSTS",
     "Cost",
     "CostVolume",
@@ -37,6 +48,9 @@ __all__ = [
     "shifted",
     "fill_background",
     "median_filter",
+    "weighted_median",
+    "ad_gradient_volume",
+    "guided_filter",
     "Subpixel",
     "left_right_check",
     "soft_argmin_local",

@@ -77,6 +77,8 @@ class SearchOptions:
     refinement: str | None = None
     min_uniqueness: float = 0.3
     band_edges: str = "reject"
+    wide_box: int = 0
+    weak_texture: float = 8.0 / 255
 
 
 class LevelResult(NamedTuple):
@@ -268,6 +270,12 @@ class FineBand(nn.Module):
     """Full-resolution band of 2 R + 1 hypotheses (``step`` apart in s) around each pixel's estimate s0, on the
     exact sweep: cost, box, winner, sub-pixel refinement (no SGM: the coarse level already regularised).
 
+    Where the reference window has little texture (grey standard deviation sigma over the cost window below
+    ``options.weak_texture``) the box-averaged cost is blended with the cost averaged over ``options.wide_box``
+    (when larger than the box): C = C_box + w (C_wide - C_box), w = max(0, 1 - sigma / weak_texture). A small
+    window's minimum in weak texture or under defocus is mostly noise; a wider one keeps the sub-pixel fit
+    stable there, and richly textured windows keep their small, sharp support.
+
     The band is centred on each pixel's own estimate, not rounded to the hypothesis grid: rounding made the
     parabola fits pixel-lock (quarter-res plane at 600 mm: 0.19 % -> 0.49 % mean error). A pixel whose best
     hypothesis is on the band's edge (its match lies beyond the band) is invalid with ``options.band_edges``
@@ -317,7 +325,7 @@ class FineBand(nn.Module):
         (2, H, W) each pixel's valid s (:func:`~prismstereo.epipolar.table.valid_interval`)."""
         exporting = torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()
         h = reference.shape[-2]
-        halo = self.options.window // 2 + self.options.box // 2
+        halo = self.options.window // 2 + max(self.options.box, self.options.wide_box) // 2
         # per image when exporting: the graph's batch axis is dynamic, and a traced batch size in this
         # arithmetic made the strips' slices depend on it (a batch of 4 failed in onnxruntime)
         voxels = (2 * self.band + 1) * int(reference.shape[-1]) * (1 if exporting else int(reference.shape[0]))
@@ -349,6 +357,9 @@ class FineBand(nn.Module):
         warped = Warped(sample_points(other, x, y), (t >= lo - s0) & (t <= hi - s0))
         volume = sweep_cost(reference, warped, o.cost, o.window, o.census_threshold)
         local = box_filter(volume, o.box)
+        if o.wide_box > o.box:  # weak texture: the cost averaged over a wider box (see FineBand)
+            weight = (1.0 - _window_std(_grey(reference), o.window) / o.weak_texture).clamp(0.0, 1.0)
+            local = local + weight * (box_filter(volume, o.wide_box) - local)
         if o.band_edges == "clamp" and self.band == 1:  # the winner is always the centre: static slices
             j: torch.Tensor | int = 1
         else:
@@ -367,6 +378,12 @@ class FineBand(nn.Module):
         # than gathering the band's samples around s and interpolating between them, which was within 2e-4 px)
         match = torch.cat(series_at(series, s, top), 1)
         return LevelResult(s, ok, similarity(_pick(local, j), o.cost, channels, o.window), match)
+
+
+def _window_std(x: torch.Tensor, window: int) -> torch.Tensor:
+    """Standard deviation of (B, 1, H, W) ``x`` over a ``window`` box (borders: the pixels inside)."""
+    mean, square = box_filter(torch.cat([x, x * x], 1), window).split(1, 1)
+    return (square - mean * mean).clamp_min(0.0).sqrt()
 
 
 def _pick(t: torch.Tensor, j: torch.Tensor | int) -> torch.Tensor:

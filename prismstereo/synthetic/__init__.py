@@ -1,5 +1,12 @@
 """Synthetic bi-prism captures with exact ground truth: textures, scenes and the renderer."""
 
+from prismstereo.synthetic.lens import (
+    apparent_depth,
+    blur_circle_px,
+    defocus_blur,
+    fresnel_transmittance,
+    prism_transmittance,
+)
 from prismstereo.synthetic.render import Capture, ImageFormation, render, render_radiance
 from prismstereo.synthetic.scenes import (
     HeightField,
@@ -32,6 +39,11 @@ __all__ = [
     "ImageFormation",
     "render",
     "render_radiance",
+    "apparent_depth",
+    "blur_circle_px",
+    "defocus_blur",
+    "fresnel_transmittance",
+    "prism_transmittance",
     "HeightField",
     "Hit",
     "Plane",

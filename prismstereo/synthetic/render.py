@@ -1,8 +1,9 @@
 """Render what the camera behind the bi-prism records, with per-pixel ground truth.
 
 Every pixel sample is traced exactly through the prism (:func:`prismstereo.geometry.optics.trace_pixels`)
-and intersected with the scene; samples are averaged (supersampling), then the image is formed
-(vignetting, defocus blur, Poisson and Gaussian noise, quantisation). Geometry runs in float64; images
+and intersected with the scene, optionally attenuated by the prism's Fresnel transmission; samples are averaged
+(supersampling), then the image is formed (vignetting, thin-lens defocus, Gaussian blur, Poisson and Gaussian
+noise, quantisation; the optics are in :mod:`prismstereo.synthetic.lens`). Geometry runs in float64; images
 are float32 in [0, 1].
 
 Ground truth comes from each pixel's centre ray: depth Z, the 3D point, validity (the ray passes the
@@ -15,6 +16,7 @@ reaches the same point (nothing occludes it, it is on the sensor and in the righ
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from typing import Literal, NamedTuple
 
@@ -24,10 +26,20 @@ from tqdm.auto import tqdm
 
 from prismstereo.geometry.optics import pixel_directions, project_points, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.synthetic.lens import (
+    _check_lens,
+    _fill_nearest,
+    apparent_depth,
+    blur_circle_px,
+    defocus_blur,
+    fresnel_transmittance,
+    prism_transmittance,
+)
 from prismstereo.synthetic.scenes import Scene
 from prismstereo.synthetic.textures import SceneError
 
-__all__ = ["Capture", "ImageFormation", "render", "render_radiance"]
+# blur_circle_px and fresnel_transmittance live in synthetic.lens and are re-exported here.
+__all__ = ["Capture", "ImageFormation", "blur_circle_px", "fresnel_transmittance", "render", "render_radiance"]
 
 F64 = torch.float64
 _CHUNK = 1 << 19
@@ -59,12 +71,24 @@ class Capture(NamedTuple):
 class ImageFormation:
     """How radiance becomes the recorded image (all effects off except 3x3 supersampling and 8 bits).
 
+    Thin-lens defocus (``f_number`` set): the lens (focal length ``rig.focal_length_mm``) focused at
+    ``focus_mm`` blurs each pixel by a disk of diameter c = A f |Z - Z_f| / (Z (Z_f - f)), A = f / N
+    (:func:`~prismstereo.synthetic.lens.blur_circle_px`), Z the apparent depth of the pixel's centre-ray point
+    (reduced path through the glass, :func:`~prismstereo.synthetic.lens.apparent_depth`); pixels without a
+    valid point take the nearest valid pixel's Z. Applied as a layered disk blur
+    (:func:`~prismstereo.synthetic.lens.defocus_blur`) after vignetting, before ``blur_sigma_px`` and noise.
+    Fresnel (``fresnel``): each sample's radiance times the prism's unpolarised transmittance at its entry face
+    and back plane (:func:`~prismstereo.synthetic.lens.prism_transmittance`).
+
     Args:
         supersample: s x s samples per pixel (s >= 1; s = 1 samples the pixel centre only).
         channels: 1 (grey) or 3 (RGB); grey textures are repeated into RGB, RGB textures seen in grey are their
             channel mean.
         vignetting: strength in [0, 1] of cos^4 natural vignetting (0 = none).
-        blur_sigma_px: Gaussian defocus blur (px, 0 = none).
+        blur_sigma_px: global Gaussian blur (px, 0 = none), after the thin-lens defocus.
+        f_number: the lens' f-number N > 0 for thin-lens defocus, or None for a pinhole (no defocus).
+        focus_mm: distance the lens is focused at (mm, > 0; must exceed the rig's focal length when rendering).
+        fresnel: multiply each ray's radiance by the prism's Fresnel transmittance (two interfaces).
         poisson_photons: photons at full scale for shot noise (None = none).
         noise_sigma: additive Gaussian read noise, standard deviation in [0, 1] units (1/255 = one 8-bit level).
         bits: quantise to 8 or 16 bits, or None to keep floats.
@@ -73,6 +97,8 @@ class ImageFormation:
     Example:
         >>> ImageFormation(supersample=1, bits=None).bits is None
         True
+        >>> ImageFormation(f_number=12.5, focus_mm=600.0, fresnel=True).f_number
+        12.5
     """
 
     supersample: int = 3
@@ -83,6 +109,9 @@ class ImageFormation:
     noise_sigma: float = 0.0
     bits: Literal[8, 16] | None = 8
     seed: int = 0
+    f_number: float | None = None
+    focus_mm: float = 600.0
+    fresnel: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.supersample, int) or self.supersample < 1:
@@ -97,6 +126,17 @@ class ImageFormation:
             raise SceneError(f"poisson_photons must be positive or None, got {self.poisson_photons}")
         if self.bits not in (8, 16, None):
             raise SceneError(f"bits must be 8, 16 or None, got {self.bits!r}")
+        if self.f_number is not None and (
+            isinstance(self.f_number, bool) or not isinstance(self.f_number, (int, float))
+            or not math.isfinite(self.f_number) or self.f_number <= 0
+        ):
+            raise SceneError(f"f_number must be a finite number > 0 or None, got {self.f_number!r}")
+        if isinstance(self.focus_mm, bool) or not isinstance(self.focus_mm, (int, float)) or not (
+            math.isfinite(self.focus_mm) and self.focus_mm > 0
+        ):
+            raise SceneError(f"focus_mm must be a finite distance > 0 (mm), got {self.focus_mm!r}")
+        if not isinstance(self.fresnel, bool):
+            raise SceneError(f"fresnel must be a bool, got {self.fresnel!r}")
 
 
 def _pixel_grid(rig: BiPrismRig) -> torch.Tensor:
@@ -105,11 +145,15 @@ def _pixel_grid(rig: BiPrismRig) -> torch.Tensor:
     return torch.stack([u, v], dim=-1).reshape(-1, 2)
 
 
-def render_radiance(rig: BiPrismRig, scene: Scene, supersample: int = 1, channels: int = 1) -> torch.Tensor:
+def render_radiance(
+    rig: BiPrismRig, scene: Scene, supersample: int = 1, channels: int = 1, *, fresnel: bool = False
+) -> torch.Tensor:
     """The noiseless image: mean radiance of ``supersample``^2 samples per pixel, (C, H, W) float32.
 
     Sample offsets are (k + 0.5) / s - 0.5 px in u and v, so s = 1 samples the pixel centre. Samples whose
-    ray misses the prism are black; samples that hit nothing get the scene's background.
+    ray misses the prism are black; samples that hit nothing get the scene's background. With ``fresnel``
+    each sample is multiplied by its ray's Fresnel transmittance through the prism
+    (:func:`~prismstereo.synthetic.lens.prism_transmittance`, entry face and back plane).
 
     Example:
         >>> from prismstereo.synthetic import fronto_parallel_plane
@@ -129,15 +173,20 @@ def render_radiance(rig: BiPrismRig, scene: Scene, supersample: int = 1, channel
         rays = trace_pixels(rig, uv)
         hit, index = scene.intersect(rays.origins, rays.directions)
         values = scene.shade(hit, index, channels)
+        if fresnel:
+            values = values * prism_transmittance(rig, rays).to(values.dtype).unsqueeze(-1)
         values[~rays.valid] = 0.0
         total[start:start + per_chunk] = values.view(-1, s * s, channels).mean(dim=1)
     return total.T.reshape(channels, rig.image_height, rig.image_width)
 
 
-def _ground_truth(rig: BiPrismRig, scene: Scene) -> tuple[torch.Tensor, ...]:
+def _ground_truth(rig: BiPrismRig, scene: Scene, lens: bool = False) -> tuple[torch.Tensor, ...]:
+    """Centre-ray ground truth: points (N, 3), valid, left, covisible (N,), match (N, 2) and, with ``lens``, the
+    apparent depth (N,) the lens sees (NaN where invalid; all NaN without ``lens``)."""
     pixels = _pixel_grid(rig)
     n = pixels.shape[0]
     points = torch.full((n, 3), float("nan"), dtype=F64)
+    apparent = torch.full((n,), float("nan"), dtype=F64)
     valid = torch.zeros(n, dtype=torch.bool)
     left = torch.zeros(n, dtype=torch.bool)
     covisible = torch.zeros(n, dtype=torch.bool)
@@ -148,6 +197,8 @@ def _ground_truth(rig: BiPrismRig, scene: Scene) -> tuple[torch.Tensor, ...]:
         hit, _ = scene.intersect(rays.origins, rays.directions)
         ok = rays.valid & torch.isfinite(hit.t)
         points[sl][ok] = hit.points[ok]
+        if lens:
+            apparent[sl][ok] = apparent_depth(rays, hit.points, rig.refractive_index)[ok]
         valid[sl], left[sl] = ok, rays.left
         ref = ok & rays.left
         if ref.any():
@@ -160,17 +211,22 @@ def _ground_truth(rig: BiPrismRig, scene: Scene) -> tuple[torch.Tensor, ...]:
             idx = torch.nonzero(ref).squeeze(1) + start
             covisible[idx] = seen
             match[idx[seen]] = proj.uv[seen]
-    return points, valid, left, covisible, match
+    return points, valid, left, covisible, match, apparent
 
 
 def _form_image(
-    radiance: torch.Tensor, rig: BiPrismRig, formation: ImageFormation, gen: torch.Generator
+    radiance: torch.Tensor, rig: BiPrismRig, formation: ImageFormation, gen: torch.Generator,
+    lens_depth: torch.Tensor | None = None,
 ) -> torch.Tensor:
+    """(C, H, W) radiance -> recorded image; ``lens_depth`` (H, W) is the apparent depth used for defocus."""
     img = radiance
     if formation.vignetting > 0:
         d = pixel_directions(rig, _pixel_grid(rig))
         cos4 = d[:, 2].pow(4).to(torch.float32).view(1, rig.image_height, rig.image_width)
         img = img * (1.0 - formation.vignetting + formation.vignetting * cos4)
+    if formation.f_number is not None and lens_depth is not None:
+        radius = 0.5 * blur_circle_px(rig, lens_depth, formation.f_number, formation.focus_mm)
+        img = defocus_blur(img[None], radius.to(img.dtype)[None, None])[0]
     if formation.blur_sigma_px > 0:
         sigma = formation.blur_sigma_px
         k = 2 * int(3 * sigma + 0.5) + 1
@@ -205,7 +261,8 @@ def render(
         Capture with batch B = number of scenes.
 
     Raises:
-        SceneError: a surface at or before the prism's back plane, or invalid options.
+        SceneError: a surface at or before the prism's back plane, or invalid options (also a ``focus_mm`` not
+            beyond the rig's focal length when ``formation.f_number`` is set).
 
     Example:
         >>> from prismstereo.synthetic import fronto_parallel_plane
@@ -218,15 +275,20 @@ def render(
     if not scenes or not all(isinstance(s, Scene) for s in scenes):
         raise SceneError("scenes must be a Scene or a non-empty sequence of Scenes")
     formation = formation or ImageFormation()
+    if formation.f_number is not None:
+        _check_lens(rig, formation.f_number, formation.focus_mm)
     for scene in scenes:
         scene.validate(rig)
     gen = torch.Generator().manual_seed(formation.seed)
     h, w = rig.image_height, rig.image_width
     out: list[list[torch.Tensor]] = [[] for _ in Capture._fields]
     for scene in tqdm(scenes, desc="render", disable=not progress):
-        radiance = render_radiance(rig, scene, formation.supersample, formation.channels)
-        image = _form_image(radiance, rig, formation, gen)
-        points, valid, left, covisible, match = _ground_truth(rig, scene)
+        radiance = render_radiance(rig, scene, formation.supersample, formation.channels, fresnel=formation.fresnel)
+        points, valid, left, covisible, match, apparent = _ground_truth(rig, scene, formation.f_number is not None)
+        lens_depth = None
+        if formation.f_number is not None:
+            lens_depth = _fill_nearest(apparent.view(h, w), valid.view(h, w), formation.focus_mm)
+        image = _form_image(radiance, rig, formation, gen, lens_depth)
         fields = (
             image,
             points[:, 2].view(1, h, w),

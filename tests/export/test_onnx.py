@@ -90,8 +90,9 @@ def test_onnxruntime_matches_torch(exported, model, captures, batch):
 
 @pytest.mark.parametrize("options", [dict(sampling="sweep"), dict(lr_threshold=1.0), dict(downsample=2),
                                      dict(downsample=2, full_band=2),
-                                     dict(downsample=2, full_band=1, band_edges="clamp")],
-                         ids=["sweep", "lr-check", "downsample", "pyramid", "fast-pyramid"])
+                                     dict(downsample=2, full_band=1, band_edges="clamp"),
+                                     dict(validity="thresholds"), dict(dense=True)],
+                         ids=["sweep", "lr-check", "downsample", "pyramid", "fast-pyramid", "thresholds", "dense"])
 def test_other_graphs_match_torch(model, captures, options, tmp_path):
     """The coarse level's other forms export too: the exact-sweep sampling (one GridSample of every
     hypothesis), the rectified level's left-right check, matching on the 2 x 2-binned capture, and the pyramid
@@ -104,6 +105,13 @@ def test_other_graphs_match_torch(model, captures, options, tmp_path):
     assert both.float().mean() > 0.3 and (got.valid == want.valid).float().mean() >= 0.999
     rel = ((got.depth - want.depth).abs() / want.depth)[both]
     assert float((rel > 1e-4).double().mean()) <= 2e-3 and float(rel.max()) <= 1e-3
+    torch.testing.assert_close(got.confidence[both], want.confidence[both], atol=2e-3, rtol=0)
+    if options.get("dense"):  # a depth wherever the confidence is > 0, in both runtimes
+        covered = (got.confidence > 0) & (want.confidence > 0)
+        assert ((got.confidence > 0) == (want.confidence > 0)).float().mean() >= 0.999
+        assert covered.float().mean() > both.float().mean()
+        rel = ((got.depth - want.depth).abs() / want.depth)[covered]
+        assert float((rel > 1e-4).double().mean()) <= 5e-3
 
 
 def test_band_of_three_clamped_needs_no_winner_search(model, tmp_path):

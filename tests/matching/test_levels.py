@@ -1,3 +1,5 @@
+import dataclasses
+
 import pytest
 import torch
 
@@ -118,8 +120,9 @@ def test_fine_band_of_three_clamped_is_the_centre_refined(plane, refinement):
     half a step of s0 (the parabola; a soft-argmin stays within the band), the match the exact sweep's position
     at s."""
     rig, cap = plane
-    reject = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, band=1, refinement=refinement)
-    clamp = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, band=1, band_edges="clamp", refinement=refinement)
+    options = dict(coarse_factor=2, band=1, refinement=refinement, wide_box=0)  # the band's own box only
+    reject = PrismStereo(rig, (450.0, 900.0), **options)
+    clamp = PrismStereo(rig, (450.0, 900.0), band_edges="clamp", **options)
     ref, other = reject.split(cap.image)
     truth = float(depth_to_sweep(torch.tensor(600.0), torch.tensor(reject.z_range)))
     s0 = torch.full((1, 1, rig.image_height, rig.reference_width), truth + 0.45 * reject.fine.step)
@@ -172,3 +175,28 @@ def test_extend_estimate_fills_invalid_pixels_in_reach_with_their_valid_neighbou
         extend_estimate(s, valid, -1)
     with pytest.raises(ShapeError, match="valid must be a bool tensor"):
         extend_estimate(s, valid[:, :, :3], 1)
+
+
+def test_fine_band_wide_box_blends_only_in_weak_texture(plane):
+    """The wide box's weight is 1 - sigma / weak_texture: a vanishing threshold leaves the band as without it,
+    a huge one replaces the box by the wide box everywhere (the same numbers as a band with that box)."""
+    rig, cap = plane
+    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2)
+    ref, other = model.split(cap.image)
+    s0 = torch.full((1, 1, rig.image_height, rig.reference_width), float(depth_to_sweep(
+        torch.tensor(600.0), torch.tensor(model.z_range)))) + 0.01
+    ok0 = torch.ones_like(s0, dtype=torch.bool)
+
+    def band(**changes):
+        fine = FineBand(dataclasses.replace(model.fine.options, **changes), model.fine.band, model.fine.step,
+                        model.fine.split)
+        with torch.no_grad():
+            return fine(ref, other, s0, ok0, model.series, model.interval)
+
+    plain = band(wide_box=0)
+    for a, b in zip(band(wide_box=21, weak_texture=1e-12), plain, strict=True):
+        assert torch.equal(a, b)
+    wide, boxed = band(wide_box=21, weak_texture=1e9), band(wide_box=0, box=21)
+    torch.testing.assert_close(wide.s, boxed.s, atol=1e-5, rtol=0)
+    assert torch.equal(wide.valid, boxed.valid)
+    assert model.fine.options.wide_box == 21  # the model's default

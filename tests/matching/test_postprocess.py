@@ -3,6 +3,7 @@ import torch
 
 from prismstereo import OptionError, ShapeError
 from prismstereo.matching import fill_background, median_filter, subpixel_refine, subpixel_refine_guarded
+from prismstereo.matching.postprocess import weighted_median
 
 F64 = torch.float64
 
@@ -72,3 +73,71 @@ def test_subpixel_refine_guarded():
         subpixel_refine_guarded(local, index, aggregated[..., :1])
     with pytest.raises(OptionError, match="Unknown method 'cubic'"):
         subpixel_refine_guarded(local, index, method="cubic")
+
+
+def naive_weighted_median(d, guide, valid, r, sigma_s, sigma_c, step):
+    """One pixel at a time: sort the valid taps, take the first whose cumulative weight reaches half."""
+    _, _, h, w = d.shape
+    out = d.clone()
+    for y in range(h):
+        for x in range(w):
+            if not valid[0, 0, y, x]:
+                continue
+            values, weights = [], []
+            for dy in range(-(r // step) * step, r + 1, step):
+                for dx in range(-(r // step) * step, r + 1, step):
+                    yy, xx = y + dy, x + dx
+                    if 0 <= yy < h and 0 <= xx < w and valid[0, 0, yy, xx]:
+                        colour = float((guide[0, :, yy, xx] - guide[0, :, y, x]).abs().max())
+                        values.append(float(d[0, 0, yy, xx]))
+                        weights.append(torch.exp(torch.tensor(-(dy * dy + dx * dx) / sigma_s**2
+                                                              - (colour / sigma_c) ** 2, dtype=F64)))
+            order = sorted(range(len(values)), key=lambda i: values[i])
+            total, acc = sum(weights), 0.0
+            for i in order:
+                acc += weights[i]
+                if acc >= 0.5 * total:
+                    out[0, 0, y, x] = values[i]
+                    break
+    return out
+
+
+@pytest.mark.parametrize("step", [1, 2])
+def test_weighted_median_matches_the_reference(step):
+    gen = torch.Generator().manual_seed(5)
+    d = torch.rand(1, 1, 7, 9, generator=gen, dtype=F64) * 10
+    guide = torch.rand(1, 3, 7, 9, generator=gen, dtype=F64)
+    valid = torch.rand(1, 1, 7, 9, generator=gen) > 0.3
+    out = weighted_median(d, guide, valid, 3, 2.0, 0.3, step)
+    assert out.dtype == F64 and out.shape == d.shape
+    torch.testing.assert_close(out, naive_weighted_median(d, guide, valid, 3, 2.0, 0.3, step))
+    assert torch.equal(out[~valid], d[~valid])  # invalid pixels do not change
+
+
+def test_weighted_median_follows_colour_edges():
+    # a foreground (disparity 8.25) whose window-based match fattened a column into the background (2): the
+    # colour weights give it the background's disparity back; sub-pixel values are kept as they are
+    guide = torch.zeros(2, 1, 12, 16)
+    guide[..., 8:] = 1.0
+    truth = torch.where(guide > 0, 8.25, 2.0)
+    fat = truth.clone()
+    fat[..., 7] = 8.25
+    out = weighted_median(fat, guide[:1], radius=4, sigma_space=4.0, sigma_colour=0.1)
+    assert torch.equal(out, truth)
+    assert torch.equal(median_filter(fat, 3)[..., 7], fat[..., 7])  # a plain median keeps the fattening
+
+
+def test_weighted_median_errors():
+    d, guide = torch.rand(1, 1, 4, 5), torch.rand(1, 3, 4, 5)
+    with pytest.raises(ShapeError, match="must match the disparity"):
+        weighted_median(d, torch.rand(1, 3, 4, 6))
+    with pytest.raises(ShapeError, match="must match the disparity"):
+        weighted_median(torch.rand(2, 1, 4, 5), torch.rand(3, 3, 4, 5))
+    with pytest.raises(ShapeError, match="valid must be a bool tensor"):
+        weighted_median(d, guide, torch.ones(1, 1, 4, 5))
+    with pytest.raises(OptionError, match="radius must be an int >= 1"):
+        weighted_median(d, guide, radius=0)
+    with pytest.raises(OptionError, match="step must be an int >= 1"):
+        weighted_median(d, guide, step=0)
+    with pytest.raises(OptionError, match="sigma_space and sigma_colour must be > 0"):
+        weighted_median(d, guide, sigma_colour=0.0)

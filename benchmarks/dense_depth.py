@@ -1,0 +1,119 @@
+"""Dense depth on realistic surfaces: weak texture, defocus, Fresnel; the default, the dense output and the
+thresholds of the earlier default, side by side.
+
+Captures (``thesis_setup1``, 1024 x 768, 2 x 2 supersampling, read noise 2/255, Fresnel transmission of both
+prism faces, 8 bits):
+
+* the Middlebury photographs Tsukuba and Venus as height fields 450-900 mm in front of the prism
+  (``middlebury_scene``): weakly textured walls, cloth, a plaster head, slanted and stepped surfaces;
+* a textured plane at 400 mm behind a thin lens focused at 600 mm, at f/12.5 and f/6.25 (blur circles of
+  ~9.5 and ~19 px on the plane, ``ImageFormation(f_number=...)``);
+* a smooth weakly textured height field (the procedural surfaces of ``benchmarks/fit_confidence.py`` with a
+  seed that training does not use).
+
+None of them is used to fit the confidence (``benchmarks/fit_confidence.py``). Per capture and model:
+coverage (co-visible reference pixels with a depth: valid ones, or for the dense output every pixel it gives a
+depth), bad>1 % (share of those off by more than 1 %), mean relative error, time of one forward pass. Then the
+reliability of the confidence over all captures (dense output): for each c, the share of co-visible pixels
+with confidence >= c and how many of them are off by more than 1 %.
+
+Models: ``thresholds`` = ``PrismStereo(validity='thresholds')`` (NCC >= 0.5 and a coarse uniqueness >= 0.3: the
+earlier default), ``default`` = the calibrated confidence >= 0.5, ``dense`` = ``PrismStereo(dense=True)``.
+
+Run: .venv/bin/python benchmarks/dense_depth.py [--z-range ZMIN ZMAX] [--scale K] [--cache DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fit_confidence import procedural_surface  # noqa: E402
+
+from prismstereo import thesis_setup1  # noqa: E402
+from prismstereo.model import PrismStereo  # noqa: E402
+from prismstereo.synthetic import (  # noqa: E402
+    ImageFormation,
+    fronto_parallel_plane,
+    height_field_scene,
+    middlebury_scene,
+    render,
+)
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
+MODELS = {"thresholds": {"validity": "thresholds"}, "default": {}, "dense": {"dense": True}}
+LEVELS = (0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95)
+
+
+def captures(rig, cache: Path) -> dict[str, dict]:
+    """The held-out captures (rendered once, kept in ``cache``)."""
+    base = dict(supersample=2, noise_sigma=2 / 255, fresnel=True, seed=7)
+    picture, bumps = procedural_surface(9001)
+    specs = {
+        "Tsukuba 450-900 mm": (lambda: middlebury_scene(DATA / "Tsukuba", 450.0, 900.0), {}),
+        "Venus 450-900 mm": (lambda: middlebury_scene(DATA / "Venus", 450.0, 900.0), {}),
+        "weak surface 520-680 mm": (
+            lambda: height_field_scene(600.0 + 60.0 * bumps.clamp(-1.3, 1.3), picture, 126.0, name="weak"), {}),
+        "plane 400 mm f/12.5 @600": (lambda: fronto_parallel_plane(rig, 400.0, seed=5), {"f_number": 12.5}),
+        "plane 400 mm f/6.25 @600": (lambda: fronto_parallel_plane(rig, 400.0, seed=5), {"f_number": 6.25}),
+    }
+    out = {}
+    cache.mkdir(parents=True, exist_ok=True)
+    for name, (scene, extra) in specs.items():
+        path = cache / f"{rig.image_width}_{name.replace(' ', '_').replace('/', '')}.pt"
+        if not path.exists():
+            torch.save(render(rig, scene(), ImageFormation(**base, **extra))._asdict(), path)
+        out[name] = torch.load(path)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--z-range", type=float, nargs=2, default=(205.0, 1511.0), metavar=("ZMIN", "ZMAX"))
+    parser.add_argument("--scale", type=int, default=1, help="sensor downscale factor")
+    parser.add_argument("--cache", type=Path, default=Path(".cache/dense_depth"))
+    args = parser.parse_args()
+    torch.set_num_threads(2)
+    rig = thesis_setup1() if args.scale == 1 else thesis_setup1().downscaled(args.scale)
+    caps = captures(rig, args.cache)
+    models = {k: PrismStereo(rig, tuple(args.z_range), **v) for k, v in MODELS.items()}
+    print(f"thesis_setup1 {rig.image_width}x{rig.image_height}, searched {args.z_range[0]:g}-{args.z_range[1]:g} mm; "
+          f"{models['default'].summary()}")
+    print(f"{'capture':26s} {'model':10s} {'cover %':>8s} {'bad>1% %':>9s} {'mean %':>8s} {'ms':>6s}")
+    w = rig.reference_width
+    pooled_p, pooled_ok = [], []
+    for name, cap in caps.items():
+        gt, covisible = cap["depth"][..., :w], cap["covisible"][..., :w]
+        for key, model in models.items():
+            t0 = time.perf_counter()
+            with torch.inference_mode():
+                res = model(cap["image"])
+            ms = 1e3 * (time.perf_counter() - t0)
+            has = (res.confidence > 0) if key == "dense" else res.valid
+            rel = (res.depth.double() - gt).abs() / gt
+            sel = has & covisible
+            cover = 100 * float(sel.sum() / covisible.sum())
+            bad = 100 * float((rel[sel] > 0.01).double().mean()) if sel.any() else float("nan")
+            mean = 100 * float(rel[sel].mean()) if sel.any() else float("nan")
+            print(f"{name:26s} {key:10s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:6.0f}")
+            if key == "dense":
+                pooled_p.append(res.confidence[sel])
+                pooled_ok.append(rel[sel] <= 0.01)
+    p, ok = torch.cat(pooled_p), torch.cat(pooled_ok)
+    print("\nreliability of the dense output's confidence, all captures pooled (co-visible pixels):")
+    print(f"{'confidence >=':>14s} {'share %':>8s} {'bad>1% %':>9s} {'1 - mean conf %':>16s}")
+    for c in LEVELS:
+        sel = p >= c
+        share = 100 * float(sel.double().mean())
+        wrong = 100 * float((~ok[sel]).double().mean()) if sel.any() else float("nan")
+        expected = 100 * float(1 - p[sel].double().mean()) if sel.any() else float("nan")
+        print(f"{c:14.2f} {share:8.1f} {wrong:9.2f} {expected:16.2f}")
+
+
+if __name__ == "__main__":
+    main()

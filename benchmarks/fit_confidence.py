@@ -1,0 +1,146 @@
+"""Fit the calibrated confidence of PrismStereo (``prismstereo.matching.confidence.DEFAULT_WEIGHTS``).
+
+Renders training captures of ``thesis_setup1`` and ``thesis_setup2`` at full resolution with this package's
+renderer: fronto-parallel planes (near ones included, where most of the reference half is not co-visible),
+slanted planes, depth steps, and smooth procedural height fields whose texture is strong in some regions and
+nearly absent in others (contrast 0.01-0.21, with slow shading), with read noise of 1-2 grey levels and some
+blur. None of the held-out scenes of ``benchmarks/dense_depth.py`` (the Middlebury photographs, the defocus
+captures) is used. Every pixel with an estimate is a sample: correct when it is co-visible and its depth is
+within 1 % of the truth, wrong otherwise (pixels the other half does not see included). Prints the fitted
+weights (paste them into ``DEFAULT_WEIGHTS``), the training log-loss and, per capture, the coverage and
+wrong share at p >= 0.5.
+
+Run: .venv/bin/python benchmarks/fit_confidence.py [--cache DIR] [--scenes N] [--z-range ZMIN ZMAX]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from prismstereo import thesis_setup1, thesis_setup2
+from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.matching.confidence import FEATURES, ConfidenceModel, fit_confidence
+from prismstereo.model import PrismStereo
+from prismstereo.synthetic import (
+    ImageFormation,
+    Scene,
+    fronto_parallel_plane,
+    height_field_scene,
+    render,
+    slanted_plane,
+    step_scene,
+)
+
+SETUPS = {"1": thesis_setup1, "2": thesis_setup2}
+SAMPLES_PER_CAPTURE = 200_000
+
+
+def _smooth_noise(gen: torch.Generator, h: int, w: int, cell: int) -> torch.Tensor:
+    g = torch.randn(1, 1, h // cell + 3, w // cell + 3, generator=gen)
+    return F.interpolate(g, size=(h, w), mode="bicubic", align_corners=False)[0, 0]
+
+
+def procedural_surface(seed: int, h: int = 360, w: int = 480) -> tuple[torch.Tensor, torch.Tensor]:
+    """(picture (h, w) in [0, 1], bumps (h, w) of unit scale): texture strong in some regions, nearly absent in
+    others, on smooth shading; the bumps a sum of four random Gaussians."""
+    gen = torch.Generator().manual_seed(seed)
+    fine = sum(0.5**k * _smooth_noise(gen, h, w, 2 * 2**k) for k in range(3))
+    fine = fine / fine.std()
+    contrast = 0.01 + 0.2 * torch.sigmoid(3 * _smooth_noise(gen, h, w, 60))
+    picture = (0.5 + 0.15 * _smooth_noise(gen, h, w, 120) + contrast * fine).clamp(0, 1)
+    yy, xx = torch.meshgrid(torch.linspace(0, 1, h), torch.linspace(0, 1, w), indexing="ij")
+    bumps = torch.zeros(h, w)
+    for _ in range(4):
+        cy, cx = torch.rand(2, generator=gen).tolist()
+        r = 0.1 + 0.25 * float(torch.rand(1, generator=gen))
+        bumps += float(torch.randn(1, generator=gen)) * torch.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * r * r))
+    return picture, bumps
+
+
+def training_scenes(rig: BiPrismRig, seed: int, count: int, z_range: tuple[float, float]) -> list[Scene]:
+    """``count`` scenes cycling through plane, slanted plane, step, height field, near plane."""
+    gen = torch.Generator().manual_seed(seed)
+    lo, hi = z_range
+    scenes = []
+    for i in range(count):
+        u = float(torch.rand(1, generator=gen))
+        z = lo + 20 + (hi - lo - 200) * u
+        texel = (2.0, 4.0, 8.0, 16.0)[int(torch.randint(4, (1,), generator=gen))]
+        kind = i % 5
+        if kind == 0:
+            scenes.append(fronto_parallel_plane(rig, z, seed=seed * 100 + i, texel_px=texel))
+        elif kind == 1:
+            slant = float(40 * torch.rand(1, generator=gen) - 20)
+            scenes.append(slanted_plane(rig, z, slant_deg=slant, seed=seed * 100 + i, texel_px=texel))
+        elif kind == 2:
+            scenes.append(step_scene(rig, z, z + 150, seed=seed * 100 + i, texel_px=texel))
+        elif kind == 3:
+            picture, bumps = procedural_surface(seed * 100 + i)
+            depth = (z + 0.1 * z * bumps).clamp(lo + 10, hi - 10)
+            scenes.append(height_field_scene(depth, picture, width_mm=z * 0.21, name=f"surface_{z:.0f}mm"))
+        else:  # near: most of the reference half sees what the other half does not
+            scenes.append(fronto_parallel_plane(rig, lo + 20 + 100 * u, seed=seed * 100 + i, texel_px=texel))
+    return scenes
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--cache", type=Path, default=Path(".cache/fit_confidence"), help="renders kept here")
+    parser.add_argument("--scenes", type=int, default=10, help="training scenes per setup")
+    parser.add_argument("--z-range", type=float, nargs=2, default=(205.0, 1511.0), metavar=("ZMIN", "ZMAX"))
+    args = parser.parse_args()
+    torch.manual_seed(0)
+    args.cache.mkdir(parents=True, exist_ok=True)
+    xs, ys, per_capture = [], [], []
+    for key, make in SETUPS.items():
+        rig = make()
+        model = PrismStereo(rig, tuple(args.z_range))
+        w = rig.reference_width
+        for i, scene in enumerate(training_scenes(rig, int(key), args.scenes, tuple(args.z_range))):
+            path = args.cache / f"setup{key}_{i}_{scene.name}.pt"
+            if path.exists():
+                capture = torch.load(path)
+            else:
+                formation = ImageFormation(supersample=2, noise_sigma=(1 + i % 2) / 255,
+                                           blur_sigma_px=(0.0, 0.0, 1.0, 2.0)[(i // 2) % 4], seed=i)
+                capture = render(rig, scene, formation)._asdict()
+                torch.save(capture, path)
+            with torch.inference_mode():
+                inputs = model.confidence_inputs(capture["image"])
+            gt, covisible = capture["depth"][..., :w], capture["covisible"][..., :w]
+            correct = covisible & ((inputs.depth.double() - gt).abs() <= 0.01 * gt)
+            sel = inputs.sampled[:, 0]
+            x = inputs.features.permute(0, 2, 3, 1)[sel].double()
+            y = correct[:, 0][sel]
+            keep = torch.randperm(len(y))[:SAMPLES_PER_CAPTURE]
+            xs.append(x[keep])
+            ys.append(y[keep])
+            per_capture.append((f"setup {key} {scene.name}", inputs, covisible, correct))
+            print(f"setup {key} {scene.name}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct",
+                  flush=True)
+    x, y = torch.cat(xs), torch.cat(ys)
+    weights = fit_confidence(x, y)
+    logit = x @ weights[:-1] + weights[-1]
+    loss = float(F.binary_cross_entropy_with_logits(logit, y.double()))
+    print(f"\nfeatures {', '.join(FEATURES)}, bias; {len(y)} samples, log-loss {loss:.4f}")
+    print("DEFAULT_WEIGHTS = (" + ", ".join(f"{v:.3f}" for v in weights.tolist()) + ")")
+    calibration = ConfidenceModel(weights)
+    print(f"\n{'capture':40s} {'cover %':>8s} {'wrong %':>8s}   (p >= 0.5, co-visible pixels)")
+    for name, inputs, covisible, correct in per_capture:
+        with torch.inference_mode():
+            p = calibration(inputs.features.float())
+        accepted = inputs.sampled & (p >= 0.5) & covisible
+        cover = 100 * float(accepted.sum() / covisible.sum().clamp_min(1))
+        wrong = 100 * float((accepted & ~correct).sum() / accepted.sum().clamp_min(1))
+        print(f"{name:40s} {cover:8.1f} {wrong:8.2f}")
+    if not math.isfinite(loss):
+        raise SystemExit("the fit diverged")
+
+
+if __name__ == "__main__":
+    main()

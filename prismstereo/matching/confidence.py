@@ -1,0 +1,176 @@
+"""Calibrated confidence: the probability that a depth of :class:`~prismstereo.model.PrismStereo` is right.
+
+A coarse-to-fine estimate carries more evidence about its own correctness than the final window's NCC alone:
+whether the coarse level agreed, how rough the estimate is around the pixel (wrong matches in weak texture are
+noisy, right ones follow the surface), how far the fine band moved from the coarse placement, how much texture
+the reference window has, and whether the coarse level's thresholds rejected the pixel. A logistic
+model of these features (:data:`FEATURES`) turns them into the probability that the pixel's depth is within
+1 % of the truth:
+
+    p = sigmoid(w . f + b)                                                      (logistic regression)
+
+fitted on renders of this package with :func:`fit_confidence` (``benchmarks/fit_confidence.py`` regenerates
+:data:`DEFAULT_WEIGHTS`; the renders it uses are disjoint from the held-out scenes of
+``benchmarks/dense_depth.py``, which report the reliability curve: how often pixels with p >= c are wrong).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from prismstereo.errors import OptionError, ShapeError, check_shape
+
+__all__ = [
+    "DEFAULT_WEIGHTS",
+    "FEATURES",
+    "ConfidenceModel",
+    "confidence_features",
+    "fit_confidence",
+]
+
+FEATURES: tuple[str, ...] = ("ncc", "coarse", "roughness", "offset", "texture", "rejected")
+"""The feature channels of :func:`confidence_features`, in order."""
+
+# fitted by benchmarks/fit_confidence.py (the last entry is the bias)
+DEFAULT_WEIGHTS: tuple[float, ...] = (3.073, 2.600, -2.262, -1.905, 0.100, -0.018, -0.575)
+
+_ROUGHNESS_WINDOW = 5
+_TEXTURE_WINDOW = 5
+_OFFSET_CAP = 3.0  # hypothesis steps; beyond the default bands
+_TEXTURE_EPS = 1e-3
+
+
+def _box_std(x: torch.Tensor, window: int) -> torch.Tensor:
+    """Standard deviation of (B, 1, H, W) ``x`` over a ``window`` box (borders: pixels inside only)."""
+    r = window // 2
+    stats = F.avg_pool2d(torch.cat([x, x * x], 1), window, 1, r, count_include_pad=False)
+    mean, square = stats.split(1, 1)
+    return (square - mean * mean).clamp_min(0).sqrt()
+
+
+def confidence_features(
+    ncc: torch.Tensor,
+    coarse: torch.Tensor,
+    s: torch.Tensor,
+    s0: torch.Tensor,
+    reference: torch.Tensor,
+    step: float,
+    rejected: torch.Tensor,
+) -> torch.Tensor:
+    """The features of :data:`FEATURES` per pixel.
+
+    * ``ncc``: the final window's similarity (NCC for ZNCC), as given;
+    * ``coarse``: the coarse level's similarity at the pixel (0 where it had no valid estimate), as given;
+    * ``roughness``: log(1 + std of s / step over a 5 x 5 window);
+    * ``offset``: |s - s0| / step, capped at 3 (how far the fine band moved from the coarse placement);
+    * ``texture``: log(std of the reference's grey values over a 5 x 5 window + 1e-3);
+    * ``rejected``: 1 where the coarse level's thresholds rejected the pixel (its band then lies around an
+      estimate extended from valid neighbours, or around the coarse level's own), else 0.
+
+    Args:
+        ncc: (B, 1, H, W) in [0, 1].
+        coarse: (B, 1, H, W) in [0, 1].
+        s: (B, 1, H, W) final sweep coordinate.
+        s0: (B, 1, H, W) the coarse placement of the band.
+        reference: (B, C, H, W) reference half in [0, 1].
+        step: hypothesis spacing in s (> 0).
+        rejected: (B, 1, H, W) bool.
+
+    Returns:
+        (B, 6, H, W) features, dtype of ``s``.
+
+    Example:
+        >>> z = torch.zeros(1, 1, 8, 8)
+        >>> confidence_features(z, z, z, z, torch.rand(1, 1, 8, 8), 0.01, z.bool()).shape
+        torch.Size([1, 6, 8, 8])
+    """
+    check_shape(s, ["B", 1, "H", "W"], "s")
+    for name, t in (("ncc", ncc), ("coarse", coarse), ("s0", s0), ("rejected", rejected)):
+        if t.shape != s.shape:
+            raise ShapeError(f"{name} must have the shape of s {tuple(s.shape)}, got {tuple(t.shape)}")
+    check_shape(reference, ["B", "C", "H", "W"], "reference")
+    if reference.shape[-2:] != s.shape[-2:]:
+        raise ShapeError(f"reference {tuple(reference.shape)} must match s {tuple(s.shape)} in H, W")
+    if not step > 0:
+        raise OptionError(f"step must be > 0, got {step}")
+    grey = reference if reference.shape[1] == 1 else reference.mean(1, keepdim=True)
+    roughness = torch.log1p(_box_std(s / step, _ROUGHNESS_WINDOW))
+    offset = ((s - s0).abs() / step).clamp(max=_OFFSET_CAP)
+    texture = torch.log(_box_std(grey.to(s.dtype), _TEXTURE_WINDOW) + _TEXTURE_EPS)
+    return torch.cat([ncc.to(s.dtype), coarse.to(s.dtype), roughness, offset, texture, rejected.to(s.dtype)], 1)
+
+
+class ConfidenceModel(nn.Module):
+    """p = sigmoid(w . f + b) per pixel: the probability that a pixel's depth is within 1 % of the truth.
+
+    Args:
+        weights: len(FEATURES) + 1 numbers (the feature weights, then the bias); default
+            :data:`DEFAULT_WEIGHTS`.
+
+    Example:
+        >>> model = ConfidenceModel()
+        >>> p = model(torch.zeros(2, len(FEATURES), 4, 4))
+        >>> p.shape, bool(((p > 0) & (p < 1)).all())
+        (torch.Size([2, 1, 4, 4]), True)
+    """
+
+    def __init__(self, weights: Sequence[float] | torch.Tensor | None = None) -> None:
+        super().__init__()
+        w = torch.as_tensor(DEFAULT_WEIGHTS if weights is None else weights, dtype=torch.float32).flatten()
+        if w.numel() != len(FEATURES) + 1 or not bool(torch.isfinite(w).all()):
+            raise OptionError(f"weights must be {len(FEATURES) + 1} finite numbers ({', '.join(FEATURES)}, bias), "
+                              f"got {w.numel()}")
+        self.register_buffer("weight", w[:-1].view(1, -1, 1, 1))
+        self.register_buffer("bias", w[-1:].view(1, 1, 1, 1))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        """(B, 1, H, W) probability from (B, len(FEATURES), H, W) features (:func:`confidence_features`)."""
+        check_shape(features, ["B", len(FEATURES), "H", "W"], "features")
+        logit = (features * self.weight.to(features)).sum(1, keepdim=True) + self.bias.to(features)
+        return torch.sigmoid(logit)
+
+
+def fit_confidence(features: torch.Tensor, correct: torch.Tensor, max_iter: int = 500) -> torch.Tensor:
+    """Logistic regression of ``correct`` on ``features`` (maximum likelihood, L-BFGS, float64).
+
+    Args:
+        features: (N, len(FEATURES)) samples (pixels of :func:`confidence_features`).
+        correct: (N,) bool, the pixel's depth is within 1 % of the truth.
+        max_iter: L-BFGS iterations.
+
+    Returns:
+        (len(FEATURES) + 1,) float64 weights, the bias last (:class:`ConfidenceModel`'s ``weights``).
+
+    Raises:
+        ShapeError: bad shapes. OptionError: ``correct`` has only one class.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> f = torch.randn(2000, len(FEATURES), generator=g)
+        >>> y = torch.rand(2000, generator=g) < torch.sigmoid(2.0 * f[:, 0])
+        >>> round(float(fit_confidence(f, y)[0]), 0)
+        2.0
+    """
+    check_shape(features, ["N", len(FEATURES)], "features")
+    if correct.shape != features.shape[:1]:
+        raise ShapeError(f"correct must be ({features.shape[0]},), got {tuple(correct.shape)}")
+    y = correct.to(torch.float64)
+    if y.min() == y.max():
+        raise OptionError("correct must hold both correct and wrong pixels to fit a confidence")
+    design = torch.cat([features.to(torch.float64), torch.ones_like(y).unsqueeze(1)], 1)
+    w = torch.zeros(design.shape[1], dtype=torch.float64, requires_grad=True)
+    opt = torch.optim.LBFGS([w], max_iter=max_iter, line_search_fn="strong_wolfe")
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        loss = F.binary_cross_entropy_with_logits(design @ w, y)
+        loss.backward()
+        return loss
+
+    with torch.enable_grad():
+        opt.step(closure)
+    return w.detach()

@@ -1,0 +1,98 @@
+import pytest
+import torch
+
+from prismstereo import OptionError, ShapeError
+from prismstereo.matching.confidence import (
+    DEFAULT_WEIGHTS,
+    FEATURES,
+    ConfidenceModel,
+    confidence_features,
+    fit_confidence,
+)
+
+
+def _inputs(h=12, w=16, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    s = torch.rand(1, 1, h, w, generator=g, dtype=torch.float64) * 0.1
+    return dict(ncc=torch.rand(1, 1, h, w, generator=g, dtype=torch.float64),
+                coarse=torch.rand(1, 1, h, w, generator=g, dtype=torch.float64), s=s, s0=s + 0.01,
+                reference=torch.rand(1, 3, h, w, generator=g, dtype=torch.float64), step=0.01,
+                rejected=torch.zeros(1, 1, h, w, dtype=torch.bool))
+
+
+def test_features_shapes_and_reference_values():
+    x = _inputs()
+    f = confidence_features(**x)
+    assert f.shape == (1, len(FEATURES), 12, 16) and f.dtype == torch.float64
+    assert torch.equal(f[:, 0:1], x["ncc"]) and torch.equal(f[:, 1:2], x["coarse"])
+    assert torch.allclose(f[:, 3], torch.ones_like(f[:, 3]))  # |s - s0| / step
+    assert torch.all(f[:, 5] == 0)
+    flat = dict(x, s=torch.full_like(x["s"], 0.3), reference=torch.full_like(x["reference"], 0.5))
+    g = confidence_features(**flat)
+    assert torch.allclose(g[:, 2], torch.zeros_like(g[:, 2]), atol=1e-6)  # a constant estimate is not rough
+    assert torch.allclose(g[:, 4], torch.full_like(g[:, 4], torch.log(torch.tensor(1e-3, dtype=g.dtype))),
+                          atol=1e-3)  # no texture: the floor
+    far = dict(x, s0=x["s"] + 1.0)
+    assert float(confidence_features(**far)[:, 3].max()) == 3.0  # capped
+
+
+def test_features_errors():
+    x = _inputs()
+    with pytest.raises(ShapeError, match="ncc must have the shape"):
+        confidence_features(**dict(x, ncc=x["ncc"][..., :5]))
+    with pytest.raises(ShapeError, match="reference"):
+        confidence_features(**dict(x, reference=x["reference"][..., :5]))
+    with pytest.raises(OptionError, match="step must be > 0"):
+        confidence_features(**dict(x, step=0.0))
+
+
+def test_model_is_monotone_in_the_match_evidence_and_a_probability():
+    model = ConfidenceModel()
+    f = confidence_features(**_inputs()).float()
+    p = model(f)
+    assert p.shape == (1, 1, 12, 16) and bool(((p > 0) & (p < 1)).all())
+    better = f.clone()
+    better[:, 1] += 0.2  # the coarse level agreed more
+    better[:, 2] -= 0.5  # a smoother estimate
+    assert bool((model(better) > p).all())
+    w = DEFAULT_WEIGHTS
+    assert w[FEATURES.index("coarse")] > 0 and w[FEATURES.index("roughness")] < 0
+    assert w[FEATURES.index("offset")] < 0  # a band far from the coarse placement is less trusted
+
+
+def test_model_errors():
+    with pytest.raises(OptionError, match="weights must be 7 finite numbers"):
+        ConfidenceModel([1.0, 2.0])
+    with pytest.raises(ShapeError):
+        ConfidenceModel()(torch.zeros(1, 3, 4, 4))
+
+
+def test_fit_recovers_known_weights():
+    g = torch.Generator().manual_seed(1)
+    x = torch.randn(20000, len(FEATURES), generator=g, dtype=torch.float64)
+    true = torch.tensor([1.5, -2.0, 0.5, 0.0, 1.0, -0.5, 0.3], dtype=torch.float64)
+    y = torch.rand(20000, generator=g, dtype=torch.float64) < torch.sigmoid(x @ true[:-1] + true[-1])
+    w = fit_confidence(x, y)
+    assert torch.allclose(w, true, atol=0.1)
+    p = ConfidenceModel(w)(x.T.reshape(1, len(FEATURES), 1, -1))
+    assert abs(float(p.mean()) - float(y.double().mean())) < 0.01  # calibrated in the mean
+
+
+def test_fit_errors():
+    x = torch.zeros(10, len(FEATURES))
+    with pytest.raises(OptionError, match="both correct and wrong"):
+        fit_confidence(x, torch.ones(10, dtype=torch.bool))
+    with pytest.raises(ShapeError, match="correct must be"):
+        fit_confidence(x, torch.ones(9, dtype=torch.bool))
+
+
+def test_features_and_model_gradcheck():
+    x = {k: (v.requires_grad_(True) if isinstance(v, torch.Tensor) and v.dtype == torch.float64 and k in ("ncc", "s")
+             else v) for k, v in _inputs(6, 7).items()}
+    model = ConfidenceModel().double()
+    s0 = x["s"].detach() + 0.013
+
+    def f(ncc, s):
+        return model(confidence_features(**dict(x, ncc=ncc, s=s, s0=s0)))
+
+    assert torch.autograd.gradcheck(f, (x["ncc"], x["s"]), eps=1e-6, atol=1e-4)

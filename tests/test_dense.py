@@ -1,0 +1,142 @@
+"""The calibrated confidence and the dense output of PrismStereo on small renders."""
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from prismstereo import OptionError, thesis_setup1
+from prismstereo.model import PrismStereo
+from prismstereo.synthetic import ImageFormation, height_field_scene, render
+from tests.conftest import scaled_rig
+
+FORM = ImageFormation(supersample=2, noise_sigma=2 / 255, seed=3)
+Z_RANGE = (350.0, 900.0)
+
+
+def _weak_patch_scene(depth_mm: float = 560.0):
+    """A plane at ``depth_mm`` whose picture is richly textured except a wide central band of very low contrast
+    (plus slow shading): what the fine window alone cannot match."""
+    g = torch.Generator().manual_seed(11)
+    h, w = 240, 320
+    fine = F.interpolate(torch.randn(1, 1, h // 2, w // 2, generator=g), size=(h, w), mode="bicubic")[0, 0]
+    fine = fine / fine.std()
+    contrast = torch.full((h, w), 0.18)
+    contrast[:, 110:210] = 0.012
+    shading = torch.linspace(-0.1, 0.1, w).expand(h, w)
+    picture = (0.5 + shading + contrast * fine).clamp(0, 1)
+    width = depth_mm * 0.2
+    return height_field_scene(torch.full((h, w), depth_mm), picture, width, name="weak_patch"), (110, 210, w, width)
+
+
+@pytest.fixture(scope="module")
+def weak():
+    rig = scaled_rig(thesis_setup1(), 2)
+    scene, band = _weak_patch_scene()
+    cap = render(rig, scene, FORM)
+    models = {k: PrismStereo(rig, Z_RANGE, **v) for k, v in
+              {"calibrated": {}, "thresholds": {"validity": "thresholds", "wide_box": 0}, "dense": {"dense": True},
+               "narrow": {"wide_box": 0}}.items()}
+    with torch.no_grad():
+        results = {k: m(cap.image) for k, m in models.items()}
+    return rig, cap, models, results
+
+
+def _patch_mask(rig, cap):
+    """Co-visible reference pixels that see the low-contrast band of the picture."""
+    w = rig.reference_width
+    x = cap.points[:, 0:1, :, :w]
+    _, (lo, hi, cols, width) = _weak_patch_scene()
+    x_lo, x_hi = (lo / cols - 0.5) * width, (hi / cols - 0.5) * width
+    return cap.covisible[..., :w] & (x > x_lo + 3) & (x < x_hi - 3)
+
+
+def test_defaults_and_option_errors():
+    rig = scaled_rig(thesis_setup1(), 4)
+    assert PrismStereo(rig, Z_RANGE, coarse_factor=2).validity == "calibrated"
+    single = PrismStereo(rig, Z_RANGE, coarse_factor=1)
+    assert single.validity == "thresholds" and single.calibration is None
+    with pytest.raises(OptionError, match="needs a coarse-to-fine model"):
+        PrismStereo(rig, Z_RANGE, coarse_factor=1, validity="calibrated")
+    with pytest.raises(OptionError, match="Choose from: 'calibrated', 'thresholds'"):
+        PrismStereo(rig, Z_RANGE, validity="strict")
+    with pytest.raises(OptionError, match="dense must be a bool"):
+        PrismStereo(rig, Z_RANGE, dense=1)
+    with pytest.raises(OptionError, match="wide_box must be 0"):
+        PrismStereo(rig, Z_RANGE, wide_box=20)
+    with pytest.raises(OptionError, match="weak_texture must be a number > 0"):
+        PrismStereo(rig, Z_RANGE, weak_texture=0.0)
+    with pytest.raises(OptionError, match="needs validity='calibrated'"):
+        single.confidence_inputs(torch.rand(1, 1, rig.image_height, rig.image_width))
+    model = PrismStereo(rig, Z_RANGE, coarse_factor=2, dense=True)
+    assert PrismStereo(rig, **model.config()).config() == model.config()
+
+
+def test_propagation_fills_a_weak_texture_patch_between_textured_regions(weak):
+    """The coarse level's semi-global estimate reaches into the low-contrast band, the wide box keeps the fine
+    band's minimum there stable, and the calibrated confidence keeps the pixels whose estimate is smooth and
+    agrees with the coarse one, where the fine window's NCC alone rejected most of them."""
+    rig, cap, _, results = weak
+    patch = _patch_mask(rig, cap)
+    assert patch.sum() > 2000
+    w = rig.reference_width
+    gt = cap.depth[..., :w]
+
+    def share(res):
+        ok = res.valid & patch
+        rel = (res.depth.double() - gt).abs() / gt
+        return float(ok.sum() / patch.sum()), float((rel[ok] > 0.01).double().mean())
+
+    cover_cal, bad_cal = share(results["calibrated"])  # measured 97 %, 1.1 % off by > 1 %
+    cover_narrow, bad_narrow = share(results["narrow"])  # without the wide box: 80 %, 3.6 %
+    cover_thr, _ = share(results["thresholds"])  # the NCC / uniqueness thresholds: 36 %
+    assert cover_cal > cover_narrow + 0.08 and bad_cal < bad_narrow, (cover_cal, cover_narrow, bad_cal, bad_narrow)
+    assert cover_narrow > cover_thr + 0.2, (cover_narrow, cover_thr)
+    assert bad_cal < 0.03
+    covered = (results["dense"].confidence > 0) & patch
+    assert float(covered.sum() / patch.sum()) > 0.98
+
+
+def test_confidence_is_monotone_with_error(weak):
+    rig, cap, _, results = weak
+    res = results["dense"]
+    w = rig.reference_width
+    cov = cap.covisible[..., :w] & (res.confidence > 0)
+    wrong = ((res.depth.double() - cap.depth[..., :w]).abs() / cap.depth[..., :w] > 0.01)
+    rates = []
+    for lo, hi in ((0.0, 0.3), (0.3, 0.7), (0.7, 0.9), (0.9, 1.01)):
+        sel = cov & (res.confidence >= lo) & (res.confidence < hi)
+        if sel.sum() > 100:
+            rates.append(float(wrong[sel].double().mean()))
+    assert len(rates) >= 3
+    assert all(a >= b for a, b in zip(rates, rates[1:], strict=False)), rates
+    assert rates[-1] < 0.05
+
+
+def test_dense_covers_what_it_claims(weak):
+    """Dense: a finite depth and a confidence > 0 on every pixel of the common field of view it covers, 0 nowhere
+    else; valid (the honest mask) is inside it; the valid pixels' depths are the default model's."""
+    rig, cap, _, results = weak
+    dense, default = results["dense"], results["calibrated"]
+    w = rig.reference_width
+    covered = dense.confidence > 0
+    assert bool(torch.isfinite(dense.depth[covered]).all())
+    assert bool((dense.valid <= covered).all())
+    covisible = cap.covisible[..., :w]
+    assert float((covered & covisible).sum() / covisible.sum()) > 0.98
+    assert float((covered & ~covisible).sum() / covered.sum()) < 0.5  # beyond the common field: few pixels
+    both = dense.valid & default.valid
+    assert float(both.sum() / default.valid.sum()) > 0.95
+    torch.testing.assert_close(dense.depth[both], default.depth[both], rtol=1e-3, atol=0)
+
+
+def test_confidence_inputs_reproduce_the_models_confidence(weak):
+    rig, cap, models, results = weak
+    model = models["calibrated"]
+    with torch.no_grad():
+        inputs = model.confidence_inputs(cap.image)
+        p = model.calibration(inputs.features)
+    res = results["calibrated"]
+    assert inputs.features.shape == (1, 6, rig.image_height, rig.reference_width)
+    torch.testing.assert_close(res.depth[res.valid], inputs.depth[res.valid].to(res.depth.dtype))
+    torch.testing.assert_close(res.confidence[res.valid], p[res.valid])
+    assert bool((res.valid <= inputs.sampled).all())
