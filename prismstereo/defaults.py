@@ -149,6 +149,33 @@ The shift volume's fill (``_SHIFT_FILL`` of :mod:`prismstereo.matching.levels`, 
     With a radius of 2: R = 3 covered 0.1-1.2 points more on setup 2 with more false matches and ~15 % more
     time; R = 1 was ~7 % faster in onnxruntime and covered 1.2 points less on the slanted plane.
 
+``validity``
+    'calibrated' against 'thresholds' (the NCC >= 0.5, coarse uniqueness >= 0.3 and ``reach_confidence`` rules),
+    ``benchmarks/dense_depth.py`` (held-out photographs as height fields, defocus; coverage / share off by > 1 %):
+    Tsukuba 46.5 / 5.4 % against 40.7 / 7.0 %, Venus 54.4 / 1.2 % against 32.6 / 1.6 %, a weak surface 95.4 /
+    0.03 % against 90.1 / 0.02 %, the f/6.25 defocus plane 88.6 % at 0.20 % mean error against 89.1 % at 0.21 %
+    (both with ``wide_box``). On the thesis planes it covers as much: setup 1 at 228 / 1374 mm 97.2 / 99.5 %
+    (thresholds 96.9 / 99.3 %), setup 2 at 228 / 625 / 936 / 1374 mm 96.8 / 97.3 / 96.6 / 96.0 % (97.3 / 97.4 /
+    96.8 / 96.0 %), false matches at 228 mm 3.5 / 1.2 % (2.8 / 1.4 %). Two designs that were measured and
+    dropped: the binned model of a pyramid without thresholds of its own (every estimate placed as it is rather
+    than rejected ones extended from their neighbours) lost 2-3 points on setup 2's far planes (92.9 % at
+    1374 mm); filling the coarse estimate's holes by push-pull normalised convolution instead of the coarse
+    level's own rejected estimate covered 94.2 % of Tsukuba in the dense output instead of 99.7 %. On a
+    quarter-resolution setup 2 with a rolled prism and a distorting lens the calibrated rule keeps 92.0 % at
+    0.20 % mean error where the thresholds keep 94.4 % at 0.25 %: 65 % of the 2.4 points it drops are off by
+    more than 1 %.
+
+``wide_box``, ``weak_texture``
+    The fine bands' cost blended with a wider box where the reference's 5 x 5 grey standard deviation is below
+    ``weak_texture`` (``dense_depth.py`` with the calibrated confidence before refitting it; coverage / off by
+    > 1 %): off: Tsukuba 41.5 / 5.8 %, Venus 46.3 / 1.7 %, f/6.25 76.3 %; 21 px below 4 / 255: 44.6 / 5.5, 52.5 /
+    1.5, 78.8 %; 21 px below 8 / 255 (the default): 47.7 / 5.7, 56.9 / 1.3, 89.1 %; 31 px below 8 / 255: 49.6 /
+    6.2, 58.9 / 1.2, 91.0 %. The thesis planes did not change (228 / 1374 mm: the same coverage to 0.1 point).
+    Measured and dropped: a guided filter instead of box + SGM at the coarse level (radius 4 or 8 coarse
+    pixels: coverage within 1 point, errors as high); SGM over the final band (P1 / P2 0.1 / 0.8 to 1 / 8, NCC
+    threshold off, 400-1000 mm: Venus 83 -> 86-89 % covered at 4.0-5.0 % off by > 1 % against 4.6 %, Tsukuba
+    60 -> 65-70 % at 11-18 % against 9 %, ~1.8x the torch time of the model), buying coverage with errors.
+
 ``band_edges``
     With ``full_band=1`` (a band of 3) 'clamp' is the fast full-resolution setting: ``depth_targets.py
     --downsample 2 --full-band 1 --band-edges clamp`` gave mean errors 0.014-0.096 % (setup 1) and 0.012-0.079 %

@@ -65,6 +65,7 @@ from prismstereo.epipolar.table import (
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.matching.aggregate import box_std
 from prismstereo.matching.build import build_search
 from prismstereo.matching.confidence import ConfidenceModel, confidence_features
 from prismstereo.matching.cost import COSTS, Cost
@@ -211,9 +212,10 @@ class PrismStereo(nn.Module):
             match beyond the band keeps the band's nearest estimate (``band_edges`` 'clamp' for the final band),
             and ``confidence`` is > 0 exactly where there is a depth (0 elsewhere); ``valid`` stays the mask of
             the confident pixels (``min_confidence``, occlusion test).
-        wide_box: where the reference has little texture, every fine band's box-averaged cost is blended with
-            the cost averaged over this wider box (0: off; :class:`~prismstereo.matching.levels.FineBand`): weak
-            texture and defocus leave a small window's minimum to noise.
+        wide_box: where the reference has little texture, the final band's box-averaged cost is blended with
+            the cost averaged over this wider box (0: off; :class:`~prismstereo.matching.levels.FineBand`; not in
+            the binned model of a pyramid, which only places the band): weak texture and defocus leave a small
+            window's minimum to noise.
         weak_texture: the grey standard deviation over the cost window below which that blend starts (full at 0).
 
     The measurements behind each default and the alternatives: :mod:`prismstereo.defaults`.
@@ -274,7 +276,7 @@ class PrismStereo(nn.Module):
             reach_confidence=reach_confidence, band_edges=band_edges, wide_box=wide_box, weak_texture=weak_texture)
         # the binned model of a pyramid places the final band: its thresholds decide which estimates are
         # extended to their neighbours; its NCC is a feature of the calibrated confidence
-        placement = dict(level_options, validity="thresholds", dense=False)
+        placement = dict(level_options, validity="thresholds", dense=False, wide_box=0)
         check_option(cost, COSTS, "cost")
         check_option(band_edges, BAND_EDGES, "band_edges")
         check_option(fine_cost, COSTS, "fine_cost")
@@ -418,7 +420,8 @@ class PrismStereo(nn.Module):
         if self.binned is not None:  # the options went to the binned model (its own thresholds: this model's)
             return {**self.binned.config(), "downsample": self.downsample, "full_band": self.band,
                     "min_confidence": self.min_confidence, "min_uniqueness": self.min_uniqueness,
-                    "validity": self.validity, "dense": self.dense}
+                    "validity": self.validity, "dense": self.dense, "wide_box": self.wide_box,
+                    "weak_texture": self.weak_texture}
         return {
             "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses, "cost": self.cost,
             "fine_cost": self.fine_cost, "sampling": self.sampling, "window": self.window,
@@ -571,10 +574,15 @@ class PrismStereo(nn.Module):
                 return t[..., :h, :w_ref]
 
             s0 = up(s_c, "bilinear").detach().clamp(-1.0, 1.0)
-            s, ok, confidence, match = self.fine(ref, other, s0, up(reach) > 0.5, self.series, self.interval)
+            # the reference's texture (grey std over the cost window): the wide box's weight and a feature
+            texture = None
+            if self.validity == "calibrated" or self.wide_box > self.fine_box:
+                texture = box_std(ref if ref.shape[1] == 1 else ref.mean(1, keepdim=True), self.window)
+            s, ok, confidence, match = self.fine(ref, other, s0, up(reach) > 0.5, self.series, self.interval,
+                                                 texture)
             rejected = up(valid_c) < 0.5
             if self.validity == "calibrated":  # the probability of a depth within 1 % (matching.confidence)
-                features = confidence_features(confidence, up(similar_c, "bilinear"), s.detach(), s0, ref, step,
+                features = confidence_features(confidence, up(similar_c, "bilinear"), s.detach(), s0, texture, step,
                                                rejected)
                 confidence = self.calibration(features)
             elif self.coarse_reach:  # pixels the coarse level only reached from a neighbour: a stricter match

@@ -1,6 +1,6 @@
 """Matching layers: split the capture, build cost volumes, select hypotheses, post-process disparities."""
 
-from prismstereo.matching.aggregate import box_filter, sgm_aggregate, sgm_aggregate_guided
+from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate, sgm_aggregate_guided
 from prismstereo.matching.confidence import (
     FEATURES,
     ConfidenceModel,
@@ -39,6 +39,7 @@ __all__ = [
     "Cost",
     "CostVolume",
     "box_filter",
+    "box_std",
     "sgm_aggregate",
     "sgm_aggregate_guided",
     "census_codes",

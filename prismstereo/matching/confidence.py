@@ -23,6 +23,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.matching.aggregate import box_std
 
 __all__ = [
     "DEFAULT_WEIGHTS",
@@ -36,20 +37,11 @@ FEATURES: tuple[str, ...] = ("ncc", "coarse", "roughness", "offset", "texture", 
 """The feature channels of :func:`confidence_features`, in order."""
 
 # fitted by benchmarks/fit_confidence.py (the last entry is the bias)
-DEFAULT_WEIGHTS: tuple[float, ...] = (3.073, 2.600, -2.262, -1.905, 0.100, -0.018, -0.575)
+DEFAULT_WEIGHTS: tuple[float, ...] = (3.425, 1.879, -2.359, -1.775, 0.076, -0.290, -0.472)
 
 _ROUGHNESS_WINDOW = 5
-_TEXTURE_WINDOW = 5
 _OFFSET_CAP = 3.0  # hypothesis steps; beyond the default bands
 _TEXTURE_EPS = 1e-3
-
-
-def _box_std(x: torch.Tensor, window: int) -> torch.Tensor:
-    """Standard deviation of (B, 1, H, W) ``x`` over a ``window`` box (borders: pixels inside only)."""
-    r = window // 2
-    stats = F.avg_pool2d(torch.cat([x, x * x], 1), window, 1, r, count_include_pad=False)
-    mean, square = stats.split(1, 1)
-    return (square - mean * mean).clamp_min(0).sqrt()
 
 
 def confidence_features(
@@ -57,7 +49,7 @@ def confidence_features(
     coarse: torch.Tensor,
     s: torch.Tensor,
     s0: torch.Tensor,
-    reference: torch.Tensor,
+    texture: torch.Tensor,
     step: float,
     rejected: torch.Tensor,
 ) -> torch.Tensor:
@@ -67,7 +59,7 @@ def confidence_features(
     * ``coarse``: the coarse level's similarity at the pixel (0 where it had no valid estimate), as given;
     * ``roughness``: log(1 + std of s / step over a 5 x 5 window);
     * ``offset``: |s - s0| / step, capped at 3 (how far the fine band moved from the coarse placement);
-    * ``texture``: log(std of the reference's grey values over a 5 x 5 window + 1e-3);
+    * ``texture``: log(``texture`` + 1e-3);
     * ``rejected``: 1 where the coarse level's thresholds rejected the pixel (its band then lies around an
       estimate extended from valid neighbours, or around the coarse level's own), else 0.
 
@@ -76,7 +68,8 @@ def confidence_features(
         coarse: (B, 1, H, W) in [0, 1].
         s: (B, 1, H, W) final sweep coordinate.
         s0: (B, 1, H, W) the coarse placement of the band.
-        reference: (B, C, H, W) reference half in [0, 1].
+        texture: (B, 1, H, W) standard deviation of the reference's grey values over the cost window
+            (:func:`~prismstereo.matching.aggregate.box_std`).
         step: hypothesis spacing in s (> 0).
         rejected: (B, 1, H, W) bool.
 
@@ -85,22 +78,18 @@ def confidence_features(
 
     Example:
         >>> z = torch.zeros(1, 1, 8, 8)
-        >>> confidence_features(z, z, z, z, torch.rand(1, 1, 8, 8), 0.01, z.bool()).shape
+        >>> confidence_features(z, z, z, z, z, 0.01, z.bool()).shape
         torch.Size([1, 6, 8, 8])
     """
     check_shape(s, ["B", 1, "H", "W"], "s")
-    for name, t in (("ncc", ncc), ("coarse", coarse), ("s0", s0), ("rejected", rejected)):
+    for name, t in (("ncc", ncc), ("coarse", coarse), ("s0", s0), ("texture", texture), ("rejected", rejected)):
         if t.shape != s.shape:
             raise ShapeError(f"{name} must have the shape of s {tuple(s.shape)}, got {tuple(t.shape)}")
-    check_shape(reference, ["B", "C", "H", "W"], "reference")
-    if reference.shape[-2:] != s.shape[-2:]:
-        raise ShapeError(f"reference {tuple(reference.shape)} must match s {tuple(s.shape)} in H, W")
     if not step > 0:
         raise OptionError(f"step must be > 0, got {step}")
-    grey = reference if reference.shape[1] == 1 else reference.mean(1, keepdim=True)
-    roughness = torch.log1p(_box_std(s / step, _ROUGHNESS_WINDOW))
+    roughness = torch.log1p(box_std(s / step, _ROUGHNESS_WINDOW))
     offset = ((s - s0).abs() / step).clamp(max=_OFFSET_CAP)
-    texture = torch.log(_box_std(grey.to(s.dtype), _TEXTURE_WINDOW) + _TEXTURE_EPS)
+    texture = torch.log(texture.to(s.dtype) + _TEXTURE_EPS)
     return torch.cat([ncc.to(s.dtype), coarse.to(s.dtype), roughness, offset, texture, rejected.to(s.dtype)], 1)
 
 

@@ -28,7 +28,7 @@ from torch import nn
 from prismstereo.epipolar.row_rectify import RectifiedLevel
 from prismstereo.epipolar.table import column_to_sweep, positions_at, series_at, series_band
 from prismstereo.errors import OptionError, ShapeError, check_shape
-from prismstereo.matching.aggregate import box_filter, sgm_aggregate
+from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
 from prismstereo.matching.select import (
     left_right_check,
     soft_argmin_local,
@@ -319,10 +319,12 @@ class FineBand(nn.Module):
         self.options, self.band, self.step, self.split = options, band, step, split
 
     def forward(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
-                series: torch.Tensor, interval: torch.Tensor) -> LevelResult:
+                series: torch.Tensor, interval: torch.Tensor, texture: torch.Tensor | None = None) -> LevelResult:
         """The band around ``s0`` (B, 1, H, W) (detached, in [-1, 1]) with the estimate's validity ``ok0``;
         ``series`` (2, D + 1, H, W) the exact sweep (:func:`~prismstereo.epipolar.table.sweep_series`), ``interval``
-        (2, H, W) each pixel's valid s (:func:`~prismstereo.epipolar.table.valid_interval`)."""
+        (2, H, W) each pixel's valid s (:func:`~prismstereo.epipolar.table.valid_interval`); ``texture`` optionally
+        (B, 1, H, W) the reference's grey :func:`~prismstereo.matching.aggregate.box_std` over the cost window
+        (the wide box's weight; computed here when None)."""
         exporting = torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()
         h = reference.shape[-2]
         halo = self.options.window // 2 + max(self.options.box, self.options.wide_box) // 2
@@ -331,18 +333,19 @@ class FineBand(nn.Module):
         voxels = (2 * self.band + 1) * int(reference.shape[-1]) * (1 if exporting else int(reference.shape[0]))
         rows = max(16, (_EXPORT_STRIP_VOXELS if exporting else _STRIP_VOXELS) // voxels)
         if rows >= h:  # one piece: no slices (in an exported graph each Slice, and a Concat of one, is a copy)
-            return self._rows(reference, other, s0, ok0, series, 0, interval)
+            return self._rows(reference, other, s0, ok0, series, 0, interval, texture)
         strips = []
         for top in range(0, h, rows):
             lo, hi = max(0, top - halo), min(h, top + rows + halo)
             res = self._rows(reference[..., lo:hi, :], other, s0[..., lo:hi, :], ok0[..., lo:hi, :],
-                             series, lo, interval[:, lo:hi])
+                             series, lo, interval[:, lo:hi], None if texture is None else texture[..., lo:hi, :])
             keep = slice(top - lo, top - lo + min(rows, h - top))
             strips.append([t[..., keep, :] for t in res])
         return LevelResult(*(torch.cat(ts, -2) for ts in zip(*strips, strict=True)))
 
     def _rows(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
-              series: torch.Tensor, top: int, interval: torch.Tensor) -> LevelResult:
+              series: torch.Tensor, top: int, interval: torch.Tensor,
+              texture: torch.Tensor | None = None) -> LevelResult:
         """The band on rows ``top`` ... of the image (``series`` whole, ``interval`` of these rows)."""
         o, step = self.options, self.step
         offsets = torch.arange(-self.band, self.band + 1, device=reference.device).to(reference.dtype) * step
@@ -358,7 +361,9 @@ class FineBand(nn.Module):
         volume = sweep_cost(reference, warped, o.cost, o.window, o.census_threshold)
         local = box_filter(volume, o.box)
         if o.wide_box > o.box:  # weak texture: the cost averaged over a wider box (see FineBand)
-            weight = (1.0 - _window_std(_grey(reference), o.window) / o.weak_texture).clamp(0.0, 1.0)
+            if texture is None:
+                texture = box_std(_grey(reference), o.window)
+            weight = (1.0 - texture / o.weak_texture).clamp(0.0, 1.0)
             local = local + weight * (box_filter(volume, o.wide_box) - local)
         if o.band_edges == "clamp" and self.band == 1:  # the winner is always the centre: static slices
             j: torch.Tensor | int = 1
@@ -378,12 +383,6 @@ class FineBand(nn.Module):
         # than gathering the band's samples around s and interpolating between them, which was within 2e-4 px)
         match = torch.cat(series_at(series, s, top), 1)
         return LevelResult(s, ok, similarity(_pick(local, j), o.cost, channels, o.window), match)
-
-
-def _window_std(x: torch.Tensor, window: int) -> torch.Tensor:
-    """Standard deviation of (B, 1, H, W) ``x`` over a ``window`` box (borders: the pixels inside)."""
-    mean, square = box_filter(torch.cat([x, x * x], 1), window).split(1, 1)
-    return (square - mean * mean).clamp_min(0.0).sqrt()
 
 
 def _pick(t: torch.Tensor, j: torch.Tensor | int) -> torch.Tensor:

@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
-from prismstereo.matching import box_filter, sgm_aggregate, sgm_aggregate_guided
+from prismstereo.matching import box_filter, box_std, sgm_aggregate, sgm_aggregate_guided
 from prismstereo.matching.rectified import MatchOptions, match_rectified, right_view_volume
 from tests.matching.test_cost_select import shifted_pair
 
@@ -255,3 +255,16 @@ def test_match_rectified_dtype_and_colour():
         res = match_rectified(left.float(), right.float(), 8, opts)
         assert res.disparity.dtype == torch.float32
         assert (res.disparity[..., 6:-6, 10:-6] - 4.0).abs().median() < 0.1
+
+
+def test_box_std_is_the_window_standard_deviation():
+    g = torch.Generator().manual_seed(4)
+    image = torch.rand(1, 1, 9, 11, generator=g, dtype=torch.float64)
+    std = box_std(image, 5)
+    assert std.shape == image.shape
+    torch.testing.assert_close(std[0, 0, 4, 5], image[0, 0, 2:7, 3:8].std(unbiased=False))
+    torch.testing.assert_close(std[0, 0, 0, 0], image[0, 0, :3, :3].std(unbiased=False))  # cut at the border
+    assert float(box_std(torch.full((1, 1, 6, 6), 0.3, dtype=torch.float64), 3).max()) < 1e-7
+    assert float(box_std(torch.full((1, 1, 6, 6), 0.3), 3).max()) < 2e-4  # float32: E[x^2] - E[x]^2 cancels
+    with pytest.raises(ShapeError):
+        box_std(torch.rand(1, 2, 6, 6), 3)

@@ -16,7 +16,7 @@ def _inputs(h=12, w=16, seed=0):
     s = torch.rand(1, 1, h, w, generator=g, dtype=torch.float64) * 0.1
     return dict(ncc=torch.rand(1, 1, h, w, generator=g, dtype=torch.float64),
                 coarse=torch.rand(1, 1, h, w, generator=g, dtype=torch.float64), s=s, s0=s + 0.01,
-                reference=torch.rand(1, 3, h, w, generator=g, dtype=torch.float64), step=0.01,
+                texture=torch.rand(1, 1, h, w, generator=g, dtype=torch.float64) * 0.1, step=0.01,
                 rejected=torch.zeros(1, 1, h, w, dtype=torch.bool))
 
 
@@ -27,7 +27,7 @@ def test_features_shapes_and_reference_values():
     assert torch.equal(f[:, 0:1], x["ncc"]) and torch.equal(f[:, 1:2], x["coarse"])
     assert torch.allclose(f[:, 3], torch.ones_like(f[:, 3]))  # |s - s0| / step
     assert torch.all(f[:, 5] == 0)
-    flat = dict(x, s=torch.full_like(x["s"], 0.3), reference=torch.full_like(x["reference"], 0.5))
+    flat = dict(x, s=torch.full_like(x["s"], 0.3), texture=torch.zeros_like(x["texture"]))
     g = confidence_features(**flat)
     assert torch.allclose(g[:, 2], torch.zeros_like(g[:, 2]), atol=1e-6)  # a constant estimate is not rough
     assert torch.allclose(g[:, 4], torch.full_like(g[:, 4], torch.log(torch.tensor(1e-3, dtype=g.dtype))),
@@ -40,8 +40,8 @@ def test_features_errors():
     x = _inputs()
     with pytest.raises(ShapeError, match="ncc must have the shape"):
         confidence_features(**dict(x, ncc=x["ncc"][..., :5]))
-    with pytest.raises(ShapeError, match="reference"):
-        confidence_features(**dict(x, reference=x["reference"][..., :5]))
+    with pytest.raises(ShapeError, match="texture must have the shape"):
+        confidence_features(**dict(x, texture=x["texture"][..., :5]))
     with pytest.raises(OptionError, match="step must be > 0"):
         confidence_features(**dict(x, step=0.0))
 
