@@ -152,11 +152,12 @@ The shift volume's fill (``_SHIFT_FILL`` of :mod:`prismstereo.matching.levels`, 
 ``validity``
     'calibrated' against 'thresholds' (the NCC >= 0.5, coarse uniqueness >= 0.3 and ``reach_confidence`` rules),
     ``benchmarks/dense_depth.py`` (held-out photographs as height fields, defocus; coverage / share off by > 1 %):
-    Tsukuba 46.5 / 5.4 % against 40.7 / 7.0 %, Venus 54.4 / 1.2 % against 32.6 / 1.6 %, a weak surface 95.4 /
-    0.03 % against 90.1 / 0.02 %, the f/6.25 defocus plane 88.6 % at 0.20 % mean error against 89.1 % at 0.21 %
-    (both with ``wide_box``). On the thesis planes it covers as much: setup 1 at 228 / 1374 mm 97.2 / 99.5 %
-    (thresholds 96.9 / 99.3 %), setup 2 at 228 / 625 / 936 / 1374 mm 96.8 / 97.3 / 96.6 / 96.0 % (97.3 / 97.4 /
-    96.8 / 96.0 %), false matches at 228 mm 3.5 / 1.2 % (2.8 / 1.4 %). Two designs that were measured and
+    Tsukuba 45.8 / 5.3 % against 40.9 / 6.9 %, Venus 53.8 / 1.3 % against 32.8 / 1.5 %, a weak surface 95.6 /
+    0.06 % against 90.1 / 0.02 %, the f/6.25 defocus plane 88.3 % at 0.20 % mean error against 89.4 % at 0.21 %
+    (both with ``wide_box``). On the thesis planes (``depth_targets.py``) it covers as much: setup 1 97.2-99.5 %
+    (thresholds 97.2-99.5 %), setup 2 96.1-98.6 % (95.9-98.7 %), mean errors 0.018-0.087 % / 0.010-0.062 %
+    (0.015-0.088 / 0.012-0.064 %), false matches at 228 mm 4.1 / 1.3 % (2.8 / 1.4 %). It costs ~6 ms of the
+    onnxruntime frame at 1024 x 768 (paired A/B: 73 against 67 ms). Two designs that were measured and
     dropped: the binned model of a pyramid without thresholds of its own (every estimate placed as it is rather
     than rejected ones extended from their neighbours) lost 2-3 points on setup 2's far planes (92.9 % at
     1374 mm); filling the coarse estimate's holes by push-pull normalised convolution instead of the coarse
