@@ -176,6 +176,11 @@ The shift volume's fill (``_SHIFT_FILL`` of :mod:`prismstereo.matching.levels`, 
     pixels: coverage within 1 point, errors as high); SGM over the final band (P1 / P2 0.1 / 0.8 to 1 / 8, NCC
     threshold off, 400-1000 mm: Venus 83 -> 86-89 % covered at 4.0-5.0 % off by > 1 % against 4.6 %, Tsukuba
     60 -> 65-70 % at 11-18 % against 9 %, ~1.8x the torch time of the model), buying coverage with errors.
+    Measured, not yet adopted (the confidence would need refitting, the thesis planes and the speed measuring):
+    the binned model's coarse level at factor 2 and / or with census (``coarse_factor=2``, ``cost='census'``)
+    on the photographs (valid / dense output, coverage and share off by > 1 %): Tsukuba 45.8 / 5.3 % -> 50.1 /
+    4.6 % (factor 2), 48.7 / 5.1 % (census), 51.4 / 5.2 % (both), dense 37.0 -> 27.4 / 30.1 / 24.9 % off;
+    Venus 53.8 / 1.3 % -> 56.0 / 1.5, 55.5 / 1.3, 57.6 / 1.4 %, dense 17.3 -> 14.6 / 14.5 / 13.8 % off.
 
 ``band_edges``
     With ``full_band=1`` (a band of 3) 'clamp' is the fast full-resolution setting: ``depth_targets.py
