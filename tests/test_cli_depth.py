@@ -1,5 +1,6 @@
 """``prismstereo depth`` on a 128 x 96 version of setup 1 (rendered fronto-parallel planes)."""
 
+import json
 import subprocess
 import sys
 
@@ -206,6 +207,10 @@ def test_export_writes_a_loadable_model(scene, tmp_path, capsys):
     assert f"wrote {out}" in text and "input (B, 1, 96, 128), 24 hypotheses over 400.0-700.0 mm" in text
     runner = OnnxDepth(out)
     assert runner.metadata["prismstereo.opset"] == "17" and runner.input_shape == (1, 96, 128)
+    dense = tmp_path / "dense.onnx"
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(dense), "--z-range", "400", "700",
+                 "--dense"]) == 0
+    assert json.loads(OnnxDepth(dense).metadata["prismstereo.config"])["dense"] is True
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(tmp_path / "m.txt")]) == 2
     assert "--out must end in .onnx" in capsys.readouterr().err
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(out), "--opset", "12"]) == 2
