@@ -33,6 +33,9 @@ binned model's in a pyramid).
 
 ``--directions 2`` limits the coarse level's semi-global aggregation to the horizontal scans.
 
+``--validity thresholds`` decides validity by the NCC and uniqueness thresholds instead of the calibrated
+confidence; ``--dense`` evaluates the dense output (coverage, errors and "false" over every pixel with a depth).
+
 ``--z-range ZMIN ZMAX`` searches another range (the planes: the thesis depths inside it, each with its seed of the
 full list), ``--slanted Z`` and ``--step NEAR FAR`` move the slanted plane and the step scene (defaults 500 mm and
 450 / 650 mm, inside the default range). The narrow range of ``benchmarks/onnx_speed.py``:
@@ -40,7 +43,7 @@ full list), ``--slanted Z`` and ``--step NEAR FAR`` move the slanted plane and t
 
 Run: .venv/bin/python benchmarks/depth_targets.py [--setups 1 2] [--scale 1] [--sampling] [--compare]
 [--downsample K [--full-band R]] [--band-edges clamp] [--coarse-factor F] [--band R] [--directions N]
-[--z-range ZMIN ZMAX] [--slanted Z] [--step NEAR FAR]
+[--z-range ZMIN ZMAX] [--slanted Z] [--step NEAR FAR] [--validity thresholds] [--dense]
 """
 
 from __future__ import annotations
@@ -67,14 +70,15 @@ def evaluate(model: PrismStereo, capture) -> dict[str, float]:
     ms = (time.perf_counter() - t0) * 1e3
     w = model.rig.reference_width
     gt, cov = capture.depth[..., :w], capture.covisible[..., :w]
-    ok = res.valid & cov
+    has = (res.confidence > 0) if model.dense else res.valid  # a dense model: every pixel with a depth
+    ok = has & cov
     rel = ((res.depth.double() - gt).abs() / gt)[ok]
     return {
         "mean": 100 * float(rel.mean()) if rel.numel() else float("nan"),
         "median": 100 * float(rel.median()) if rel.numel() else float("nan"),
         "bad2": 100 * float((rel > 0.02).double().mean()) if rel.numel() else float("nan"),
         "coverage": 100 * float(ok.sum() / cov.sum().clamp_min(1)),
-        "false": 100 * float((res.valid & ~cov).sum() / res.valid.sum().clamp_min(1)),
+        "false": 100 * float((has & ~cov).sum() / has.sum().clamp_min(1)),
         "ms": ms,
     }
 
@@ -107,6 +111,10 @@ def main() -> None:
                         help="PrismStereo(band=R): the coarse level's fine band (the binned model's in a pyramid)")
     parser.add_argument("--directions", type=int, default=4, choices=(2, 4, 8),
                         help="PrismStereo(directions=...): SGM scan directions of the coarse level")
+    parser.add_argument("--validity", choices=("calibrated", "thresholds"), default=None,
+                        help="PrismStereo(validity=...): the calibrated confidence (default) or the NCC thresholds")
+    parser.add_argument("--dense", action="store_true",
+                        help="PrismStereo(dense=True): coverage and errors of every pixel with a depth")
     parser.add_argument("--z-range", type=float, nargs=2, default=Z_RANGE, metavar=("ZMIN", "ZMAX"),
                         help="searched depth range, mm (default: the thesis range with 10 %% margins)")
     parser.add_argument("--slanted", type=float, default=500.0, metavar="Z",
@@ -127,7 +135,8 @@ def main() -> None:
             model = models[sampling] = PrismStereo(rig, z_range, sampling=sampling, downsample=args.downsample,
                                                    full_band=args.full_band, band_edges=args.band_edges,
                                                    coarse_factor=args.coarse_factor, band=args.band,
-                                                   directions=args.directions)
+                                                   directions=args.directions, validity=args.validity,
+                                                   dense=args.dense)
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.summary()}; model built in "
                   f"{time.perf_counter() - t0:.1f} s")
         print(HEADER)
