@@ -5,6 +5,7 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo import OptionError, thesis_setup1
+from prismstereo.epipolar.table import series_at
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, height_field_scene, render
 from tests.conftest import scaled_rig
@@ -35,7 +36,7 @@ def weak():
     cap = render(rig, scene, FORM)
     models = {k: PrismStereo(rig, Z_RANGE, **v) for k, v in
               {"calibrated": {}, "thresholds": {"validity": "thresholds", "wide_box": 0}, "dense": {"dense": True},
-               "narrow": {"wide_box": 0}}.items()}
+               "narrow": {"wide_box": 0}, "unfilled": {"dense": True, "dense_fill": 0}}.items()}
     with torch.no_grad():
         results = {k: m(cap.image) for k, m in models.items()}
     return rig, cap, models, results
@@ -63,6 +64,8 @@ def test_defaults_and_option_errors():
         PrismStereo(rig, Z_RANGE, dense=1)
     with pytest.raises(OptionError, match="wide_box must be 0"):
         PrismStereo(rig, Z_RANGE, wide_box=20)
+    with pytest.raises(OptionError, match="dense_fill must be an int >= 0"):
+        PrismStereo(rig, Z_RANGE, dense_fill=-1)
     with pytest.raises(OptionError, match="weak_texture must be a number > 0"):
         PrismStereo(rig, Z_RANGE, weak_texture=0.0)
     with pytest.raises(OptionError, match="needs validity='calibrated'"):
@@ -97,8 +100,10 @@ def test_propagation_fills_a_weak_texture_patch_between_textured_regions(weak):
 
 
 def test_confidence_is_monotone_with_error(weak):
+    """On every pixel with an own estimate (the dense output without the fill, whose depths the confidence
+    describes), the share off by > 1 % falls as the confidence rises."""
     rig, cap, _, results = weak
-    res = results["dense"]
+    res = results["unfilled"]
     w = rig.reference_width
     cov = cap.covisible[..., :w] & (res.confidence > 0)
     wrong = ((res.depth.double() - cap.depth[..., :w]).abs() / cap.depth[..., :w] > 0.01)
@@ -162,3 +167,21 @@ def test_halves_differing_in_gain_and_offset_give_the_same_depth():
     both = a.valid & b.valid
     rel = ((b.depth - a.depth).abs() / a.depth)[both]
     assert float((rel > 2e-4).float().mean()) < 0.03 and float(rel.max()) < 0.005
+
+
+def test_dense_fill_gives_the_unconfident_pixels_their_valid_neighbours_depth(weak):
+    """dense_fill: the pixels with a depth that are not valid take the mean of the valid ones around them; the
+    valid pixels, the coverage and the confidence do not change, the filled pixels are closer to the truth."""
+    rig, cap, _, results = weak
+    filled, own = results["dense"], results["unfilled"]
+    assert torch.equal(filled.valid, own.valid) and torch.equal(filled.confidence, own.confidence)
+    assert torch.equal(filled.depth[filled.valid], own.depth[own.valid])
+    w = rig.reference_width
+    gt = cap.depth[..., :w]
+    changed = (filled.confidence > 0) & ~filled.valid & cap.covisible[..., :w]
+    assert changed.sum() > 100
+    wrong = [float((((r.depth.double() - gt).abs() / gt)[changed] > 0.01).double().mean()) for r in (filled, own)]
+    assert wrong[0] < 0.7 * wrong[1], wrong
+    model = weak[2]["dense"]
+    match = torch.cat(series_at(model.series, filled.index * (2.0 / (model.num_hypotheses - 1)) - 1.0), 1)
+    torch.testing.assert_close(filled.match, match, atol=1e-3, rtol=0)  # the match follows the filled depth
