@@ -28,14 +28,17 @@ BACKENDS = ("torch", "onnx")
 
 
 class _DepthTarget(NamedTuple):
-    """Where one image's results go: the depth file, its preview (png format) and its point cloud (--ply)."""
+    """Where one image's results go: the depth file, its preview (png format), its point cloud (--ply) and its
+    confidence (--dense)."""
 
     depth: Path
     preview: Path | None
     ply: Path | None
+    confidence: Path | None = None
 
 
-def _depth_targets(images: list[Path], out: Path, fmt: str | None, ply: bool) -> list[_DepthTarget]:
+def _depth_targets(images: list[Path], out: Path, fmt: str | None, ply: bool,
+                   dense: bool = False) -> list[_DepthTarget]:
     """Output paths of ``prismstereo depth`` (OUT a .npy/.png file for one image, else a directory), checked
     so that no two outputs collide and no output overwrites an input image."""
     suffix = out.suffix.lower()
@@ -54,7 +57,7 @@ def _depth_targets(images: list[Path], out: Path, fmt: str | None, ply: bool) ->
         stems = [(out, image.stem, out / f"{image.stem}.{fmt}") for image in images]
     targets = [
         _DepthTarget(path, folder / f"{stem}_preview.png" if fmt == "png" else None,
-                     folder / f"{stem}.ply" if ply else None)
+                     folder / f"{stem}.ply" if ply else None, folder / f"{stem}_confidence.npy" if dense else None)
         for folder, stem, path in stems
     ]
     inputs = {image.resolve(): image for image in images}
@@ -144,7 +147,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
 
     rig = load_rig(args.rig)
     images = [Path(p) for p in args.images]
-    targets = _depth_targets(images, Path(args.out), args.format, args.ply)
+    targets = _depth_targets(images, Path(args.out), args.format, args.ply, args.dense)
     if args.batch_size < 1:
         raise PrismStereoError(f"--batch-size must be >= 1, got {args.batch_size}")
     if not (math.isfinite(args.png_scale) and args.png_scale > 0):
@@ -169,10 +172,9 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                 if args.dense:  # every pixel with a depth, its confidence beside it
                     valid = res.confidence[k, 0] > 0
                 note = _write_depth(targets[i], depth, valid, args.png_scale)
-                if args.dense:
-                    confidence_path = targets[i].depth.with_name(targets[i].depth.stem + "_confidence.npy")
-                    np.save(confidence_path, res.confidence[k, 0].numpy().astype(np.float32))
-                    note += f", confidence {confidence_path.name}"
+                if targets[i].confidence is not None:
+                    np.save(targets[i].confidence, res.confidence[k, 0].numpy().astype(np.float32))
+                    note += f", confidence {targets[i].confidence.name}"
                 if args.ply:
                     count = write_ply(targets[i].ply, points[k], colors=captures[k][:, :, :w_ref])
                     note += f", {targets[i].ply.name} ({count} points)"

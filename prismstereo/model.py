@@ -67,7 +67,7 @@ from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_filter, box_std
 from prismstereo.matching.build import build_search
-from prismstereo.matching.confidence import ConfidenceModel, confidence_features
+from prismstereo.matching.confidence import FITTED_PLACEMENT, ConfidenceModel, confidence_features
 from prismstereo.matching.cost import COSTS, Cost
 from prismstereo.matching.levels import FineBand, SearchOptions, extend_estimate
 from prismstereo.matching.split import SplitImage
@@ -127,6 +127,7 @@ class _Estimate(NamedTuple):
     confidence: torch.Tensor
     match: torch.Tensor | None
     features: torch.Tensor | None
+    sampled: torch.Tensor
 
 
 class PrismStereo(nn.Module):
@@ -162,9 +163,11 @@ class PrismStereo(nn.Module):
             the image with 'sad' or 'zncc').
         min_confidence: pixels with a lower ``confidence`` are invalid (with ``validity`` 'calibrated' the
             probability of a depth within 1 %; with 'thresholds' the final level's NCC).
-        min_uniqueness: with ``validity`` 'thresholds': pixels whose coarse (or single) level winner is not unique
-            enough, 1 - best / second best aggregated cost outside winner +- 1 below this, are invalid (false
-            matches of pixels that the other half does not see have a runner-up close to the winner).
+        min_uniqueness: with ``validity`` 'thresholds' (a calibrated model's coarse level keeps the thresholds the
+            confidence was fitted with, :data:`~prismstereo.matching.confidence.FITTED_PLACEMENT`): pixels whose
+            coarse (or single) level winner is not unique enough, 1 - best / second best aggregated cost outside
+            winner +- 1 below this, are invalid (false matches of pixels that the other half does not see have a
+            runner-up close to the winner).
         occlusion_tolerance: relative depth margin of the z-buffer occlusion test, None to skip it.
         occluder_confidence: only valid pixels with at least this confidence occlude others in that test (None:
             every valid pixel): a false match would otherwise push the true match of the other-half pixel it
@@ -283,6 +286,8 @@ class PrismStereo(nn.Module):
         # the binned model of a pyramid places the final band: its thresholds decide which estimates are
         # extended to their neighbours; its NCC is a feature of the calibrated confidence
         placement = dict(level_options, validity="thresholds", dense=False, wide_box=0)
+        if validity in (None, "calibrated"):  # the coarse validity the confidence was fitted with
+            placement.update(FITTED_PLACEMENT)
         check_option(cost, COSTS, "cost")
         check_option(band_edges, BAND_EDGES, "band_edges")
         check_option(fine_cost, COSTS, "fine_cost")
@@ -294,11 +299,13 @@ class PrismStereo(nn.Module):
         for name, value in (("box", box), ("fine_box", fine_box), ("window", window)):
             if not isinstance(value, int) or value < 1 or value % 2 == 0:
                 raise OptionError(f"{name} must be a positive odd int, got {value!r}")
-        if not isinstance(wide_box, int) or wide_box < 0 or (wide_box and wide_box % 2 == 0):
+        if isinstance(wide_box, bool) or not isinstance(wide_box, int) or wide_box < 0 or (
+                wide_box and wide_box % 2 == 0):
             raise OptionError(f"wide_box must be 0 (off) or a positive odd int, got {wide_box!r}")
-        if not (isinstance(weak_texture, (int, float)) and weak_texture > 0):
-            raise OptionError(f"weak_texture must be a number > 0, got {weak_texture!r}")
-        if not isinstance(dense_fill, int) or dense_fill < 0:
+        if isinstance(weak_texture, bool) or not (isinstance(weak_texture, (int, float))
+                                                  and 0 < weak_texture < math.inf):
+            raise OptionError(f"weak_texture must be a finite number > 0, got {weak_texture!r}")
+        if isinstance(dense_fill, bool) or not isinstance(dense_fill, int) or dense_fill < 0:
             raise OptionError(f"dense_fill must be an int >= 0, got {dense_fill!r}")
         if downsample is None:  # the default: the pyramid on large sensors
             downsample = self.default_downsample(rig)
@@ -373,6 +380,9 @@ class PrismStereo(nn.Module):
         if validity == "calibrated" and coarse_factor == 1:
             raise OptionError("validity 'calibrated' needs a coarse-to-fine model (coarse_factor > 1 or a pyramid); "
                               "a single level has 'thresholds'")
+        if dense and coarse_factor == 1:
+            raise OptionError("dense needs a coarse-to-fine model (coarse_factor > 1 or a pyramid): a single level "
+                              "has no band to place everywhere")
         self.validity, self.dense = validity, dense
         self.wide_box, self.weak_texture, self.dense_fill = wide_box, float(weak_texture), dense_fill
         self.calibration = ConfidenceModel() if validity == "calibrated" else None
@@ -395,7 +405,8 @@ class PrismStereo(nn.Module):
         self.register_buffer("interval", valid_interval(tabulate_sweep(fine).float(), other_valid, self.split.split))
         options = SearchOptions(cost=cost, window=window, census_threshold=self.census_threshold, box=box,
                                 aggregation=aggregation, directions=directions, p1=p1, p2=p2, refinement=refinement,
-                                min_uniqueness=min_uniqueness)
+                                min_uniqueness=FITTED_PLACEMENT["min_uniqueness"] if validity == "calibrated"
+                                else min_uniqueness)
         # the coarse level: a pyramid's is the binned model
         self.search = None
         if self.binned is None:
@@ -556,6 +567,7 @@ class PrismStereo(nn.Module):
         features = None
         if self.factor == 1:
             s, ok, confidence, match = self.search(ref, other, final=True)
+            sampled = ok
         else:
             f = self.factor
             with torch.no_grad():  # the coarse level only places the fine band (its s0 is detached)
@@ -585,20 +597,21 @@ class PrismStereo(nn.Module):
             # the reference's texture (grey std over the cost window): the wide box's weight and a feature
             texture = None
             if self.validity == "calibrated" or self.wide_box > self.fine_box:
-                texture = box_std(ref if ref.shape[1] == 1 else ref.mean(1, keepdim=True), self.window)
+                texture = box_std(ref if ref.shape[1] == 1 else ref.mean(1, keepdim=True), self.window).detach()
             s, ok, confidence, match = self.fine(ref, other, s0, up(reach) > 0.5, self.series, self.interval,
                                                  texture)
             rejected = up(valid_c) < 0.5
+            sampled = ok  # the band had a real sample (a dense model's depths), before the validity rules
             if self.validity == "calibrated":  # the probability of a depth within 1 % (matching.confidence)
                 features = confidence_features(confidence, up(similar_c, "bilinear"), s.detach(), s0, texture, step,
                                                rejected)
                 confidence = self.calibration(features)
             elif self.coarse_reach:  # pixels the coarse level only reached from a neighbour: a stricter match
                 ok = ok & (~rejected | (confidence >= self.reach_confidence))
-        return _Estimate(s, ok, confidence, match, features)
+        return _Estimate(s, ok, confidence, match, features, sampled)
 
     def _depth(self, image: torch.Tensor) -> DepthResult:
-        s, ok, confidence, match, _ = self._estimate(image)
+        s, ok, confidence, match, _, sampled = self._estimate(image)
         step = 2.0 / (self.num_hypotheses - 1)
         s = s.clamp(-1.0, 1.0)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
@@ -606,7 +619,7 @@ class PrismStereo(nn.Module):
         if match is None:  # the fine band interpolates its samples; otherwise the series at s
             match = torch.cat(series_at(self.series, s), 1)
         valid = ok & self.reference_valid & (confidence >= self.min_confidence)
-        covered = ok & self.reference_valid  # dense: a depth wherever the band had a real sample
+        covered = sampled & self.reference_valid  # dense: a depth wherever the band had a real sample
         if self.occlusion_tolerance is not None:
             occluders = None if self.occluder_confidence is None else valid & (confidence >= self.occluder_confidence)
             valid = valid & self.visible(match, depth, valid, occluders)
@@ -615,7 +628,10 @@ class PrismStereo(nn.Module):
             depth, match = sweep_to_depth(s, z_range), torch.cat(series_at(self.series, s), 1)
         # confidence in [0, 1] times the mask: 0 where invalid, or in a dense model where there is no depth
         # (onnxruntime runs a Where on one thread, ~0.26 ms on a 768 x 512 plane; the product ~0.05 ms)
-        confidence = confidence * (covered if self.dense else valid).to(confidence.dtype)
+        if self.dense:  # > 0 exactly where there is a depth (an NCC of 0 too)
+            confidence = confidence.clamp_min(torch.finfo(confidence.dtype).tiny) * covered.to(confidence.dtype)
+        else:
+            confidence = confidence * valid.to(confidence.dtype)
         index = (s + 1.0) / step
         return DepthResult(depth, valid, confidence, index, match)
 
@@ -624,7 +640,8 @@ class PrismStereo(nn.Module):
         ``dense_fill`` px (normalised box convolution), where there are any."""
         weight = valid.to(s.dtype)
         window = 2 * self.dense_fill + 1
-        total, share = box_filter(torch.cat([s * weight, weight], 1), window).split(1, 1)
+        total, share = box_filter(torch.cat([torch.where(valid, s, torch.zeros_like(s)), weight], 1),
+                                  window).split(1, 1)
         filled = covered & ~valid & (share > 0)
         return torch.where(filled, total / share.clamp_min(torch.finfo(s.dtype).tiny), s)
 

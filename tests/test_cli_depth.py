@@ -128,6 +128,18 @@ def test_dense_writes_every_covered_pixel_and_its_confidence(scene, tmp_path, ca
     assert both.mean() > 0.3 and np.median(np.abs(d0[both] / d1[both] - 1)) < 1e-4
 
 
+def test_dense_confidence_file_cannot_collide_with_another_output(scene, tmp_path, capsys):
+    import shutil
+
+    a, b = tmp_path / "scan.png", tmp_path / "scan_confidence.png"
+    shutil.copy(scene / "far.png", a)
+    shutil.copy(scene / "far.png", b)
+    args = ("--out", tmp_path / "out", "--downsample", "2", "--full-band", "1")
+    assert _run(scene, a, b, *args, "--dense") == 2
+    assert "would both write" in capsys.readouterr().err
+    assert _run(scene, a, b, *args) == 0  # without --dense no confidence file, no collision
+
+
 def test_png_clipping_warns(scene, tmp_path, capsys):
     assert _run(scene, scene / "far.png", "--out", tmp_path / "far.png") == 0
     assert "clipped to 65535 (see --png-scale)" in capsys.readouterr().out

@@ -66,8 +66,13 @@ def test_defaults_and_option_errors():
         PrismStereo(rig, Z_RANGE, wide_box=20)
     with pytest.raises(OptionError, match="dense_fill must be an int >= 0"):
         PrismStereo(rig, Z_RANGE, dense_fill=-1)
-    with pytest.raises(OptionError, match="weak_texture must be a number > 0"):
-        PrismStereo(rig, Z_RANGE, weak_texture=0.0)
+    for bad in (0.0, float("inf"), True):
+        with pytest.raises(OptionError, match="weak_texture must be a finite number > 0"):
+            PrismStereo(rig, Z_RANGE, weak_texture=bad)
+    with pytest.raises(OptionError, match="wide_box must be 0"):
+        PrismStereo(rig, Z_RANGE, wide_box=True)
+    with pytest.raises(OptionError, match="dense needs a coarse-to-fine model"):
+        PrismStereo(rig, Z_RANGE, coarse_factor=1, dense=True)
     with pytest.raises(OptionError, match="needs validity='calibrated'"):
         single.confidence_inputs(torch.rand(1, 1, rig.image_height, rig.image_width))
     model = PrismStereo(rig, Z_RANGE, coarse_factor=2, dense=True)
@@ -185,3 +190,35 @@ def test_dense_fill_gives_the_unconfident_pixels_their_valid_neighbours_depth(we
     model = weak[2]["dense"]
     match = torch.cat(series_at(model.series, filled.index * (2.0 / (model.num_hypotheses - 1)) - 1.0), 1)
     torch.testing.assert_close(filled.match, match, atol=1e-3, rtol=0)  # the match follows the filled depth
+
+
+def test_default_model_passes_finite_gradients_through_flat_regions():
+    """A flat patch has a texture (window std) of 0, whose square root has no finite derivative: the texture is
+    a weight and a feature, detached, so the image gradient of the depth and the confidence stays finite."""
+    rig = scaled_rig(thesis_setup1(), 4)
+    from prismstereo.synthetic import fronto_parallel_plane
+
+    cap = render(rig, fronto_parallel_plane(rig, 520.0, seed=2), ImageFormation(supersample=1, bits=None))
+    image = cap.image.clone()
+    image[..., 40:80, 20:60] = 0.5
+    image.requires_grad_(True)
+    model = PrismStereo(rig, Z_RANGE, coarse_factor=2, refinement="soft_argmin")
+    res = model(image)
+    (res.depth * res.valid).sum().backward(retain_graph=True)
+    assert bool(torch.isfinite(image.grad).all()) and float(image.grad.abs().sum()) > 0
+    image.grad = None
+    res.confidence.sum().backward()
+    assert bool(torch.isfinite(image.grad).all())
+
+
+def test_thresholds_dense_model_gives_every_sampled_pixel_a_depth(weak):
+    """With validity 'thresholds' a dense model covers what a calibrated one does: the NCC / reach rules decide
+    validity, not which pixels get a depth (an NCC of 0 is still a depth, confidence > 0)."""
+    rig, cap, _, results = weak
+    model = PrismStereo(rig, Z_RANGE, validity="thresholds", dense=True)
+    with torch.no_grad():
+        res = model(cap.image)
+    w = rig.reference_width
+    covisible = cap.covisible[..., :w]
+    assert float(((res.confidence > 0) & covisible).sum() / covisible.sum()) > 0.98
+    assert torch.equal((res.confidence > 0), (results["dense"].confidence > 0))

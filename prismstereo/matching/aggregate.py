@@ -77,7 +77,8 @@ def box_std(image: torch.Tensor, window: int) -> torch.Tensor:
     """
     check_shape(image, ["B", 1, "H", "W"], "image")
     mean, square = box_filter(torch.cat([image, image * image], 1), window).split(1, 1)
-    return (square - mean * mean).clamp_min(0.0).sqrt()
+    # floored at 1e-12 before the root: a flat window's std is 1e-6 and its gradient 0, not infinite
+    return (square - mean * mean).clamp_min(1e-12).sqrt()
 
 
 def _counts(n: int, r: int, like: torch.Tensor) -> torch.Tensor:

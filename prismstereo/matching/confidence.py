@@ -28,6 +28,7 @@ from prismstereo.matching.aggregate import box_std
 __all__ = [
     "DEFAULT_WEIGHTS",
     "FEATURES",
+    "FITTED_PLACEMENT",
     "ConfidenceModel",
     "confidence_features",
     "fit_confidence",
@@ -38,6 +39,12 @@ FEATURES: tuple[str, ...] = ("ncc", "coarse", "roughness", "offset", "texture", 
 
 # fitted by benchmarks/fit_confidence.py (the last entry is the bias)
 DEFAULT_WEIGHTS: tuple[float, ...] = (3.425, 1.879, -2.359, -1.775, 0.076, -0.290, -0.472)
+
+# the thresholds of the coarse level (the binned model of a pyramid) whose validity the features "coarse" and
+# "rejected" describe: those of the renders DEFAULT_WEIGHTS were fitted on (the model's defaults), whatever the
+# user's thresholds of a calibrated model
+FITTED_PLACEMENT: dict[str, float] = {"min_confidence": 0.5, "min_uniqueness": 0.3, "reach_confidence": 0.9,
+                                      "occlusion_tolerance": 0.01, "occluder_confidence": 0.8}
 
 _ROUGHNESS_WINDOW = 5
 _OFFSET_CAP = 3.0  # hypothesis steps; beyond the default bands

@@ -281,9 +281,9 @@ class FineBand(nn.Module):
     hypothesis is on the band's edge (its match lies beyond the band) is invalid with ``options.band_edges``
     'reject'; with 'clamp' its winner becomes the inner neighbour of that edge hypothesis, refined there (at
     most half a step further out) and judged by that hypothesis' confidence (with R = 1 that is always the
-    centre: taken by static slices, without a winner search or gathers). The band runs over
-    horizontal strips whose cost and box filters see ``window // 2 + fine_box // 2`` rows beyond the strip, so
-    the strips give the whole image's numbers (bitwise, measured). In torch eager strips of ~64 rows at
+    centre: taken by static slices, without a winner search or gathers). The band runs over horizontal
+    strips whose cost and box filters see ``window // 2 + max(fine_box, wide_box) // 2`` rows beyond the strip,
+    so the strips give the whole image's numbers (bitwise, measured). In torch eager strips of ~64 rows at
     1024 x 768 keep the band's (11, rows, W) volumes (~1.6 MB) in cache instead of 17 MB ones in DRAM. An
     exported graph takes bands of up to 2 M voxels in one piece (the pyramid's at 1024 x 768: a band of 5 on
     768 x 512 pixels) and larger ones in strips (unrolled into the graph, the batch axis stays dynamic): with
@@ -363,7 +363,7 @@ class FineBand(nn.Module):
         if o.wide_box > o.box:  # weak texture: the cost averaged over a wider box (see FineBand)
             if texture is None:
                 texture = box_std(_grey(reference), o.window)
-            weight = (1.0 - texture / o.weak_texture).clamp(0.0, 1.0)
+            weight = (1.0 - texture.detach() / o.weak_texture).clamp(0.0, 1.0)  # a weight, not a path of gradients
             local = local + weight * (box_filter(volume, o.wide_box) - local)
         if o.band_edges == "clamp" and self.band == 1:  # the winner is always the centre: static slices
             j: torch.Tensor | int = 1

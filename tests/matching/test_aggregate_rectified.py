@@ -264,7 +264,10 @@ def test_box_std_is_the_window_standard_deviation():
     assert std.shape == image.shape
     torch.testing.assert_close(std[0, 0, 4, 5], image[0, 0, 2:7, 3:8].std(unbiased=False))
     torch.testing.assert_close(std[0, 0, 0, 0], image[0, 0, :3, :3].std(unbiased=False))  # cut at the border
-    assert float(box_std(torch.full((1, 1, 6, 6), 0.3, dtype=torch.float64), 3).max()) < 1e-7
+    assert float(box_std(torch.full((1, 1, 6, 6), 0.3, dtype=torch.float64), 3).max()) <= 1e-6  # the floor
+    flat = torch.full((1, 1, 6, 6), 0.3, dtype=torch.float64, requires_grad=True)
+    box_std(flat, 3).sum().backward()
+    assert bool(torch.isfinite(flat.grad).all())  # no infinite gradient of the root at 0
     assert float(box_std(torch.full((1, 1, 6, 6), 0.3), 3).max()) < 2e-4  # float32: E[x^2] - E[x]^2 cancels
     with pytest.raises(ShapeError):
         box_std(torch.rand(1, 2, 6, 6), 3)
