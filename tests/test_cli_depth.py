@@ -221,7 +221,10 @@ def test_export_writes_a_loadable_model(scene, tmp_path, capsys):
     assert runner.metadata["prismstereo.opset"] == "17" and runner.input_shape == (1, 96, 128)
     dense = tmp_path / "dense.onnx"
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(dense), "--z-range", "400", "700",
-                 "--dense"]) == 0
+                 "--dense"]) == 2  # the small rig's default is a single level: no band to place everywhere
+    assert "dense needs a coarse-to-fine model" in capsys.readouterr().err
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(dense), "--z-range", "400", "700",
+                 "--dense", "--downsample", "2", "--full-band", "1"]) == 0
     assert json.loads(OnnxDepth(dense).metadata["prismstereo.config"])["dense"] is True
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(tmp_path / "m.txt")]) == 2
     assert "--out must end in .onnx" in capsys.readouterr().err

@@ -328,8 +328,9 @@ def test_uniqueness_threshold_removes_false_matches_of_pixels_the_other_half_doe
     w = rig.reference_width
     cov = cap.covisible[..., :w]
     with torch.no_grad():
-        loose = PrismStereo(rig, (205.0, 1511.0), min_uniqueness=0.0)(cap.image)
-        strict = PrismStereo(rig, (205.0, 1511.0))(cap.image)
+        rules = dict(validity="thresholds")  # the coarse uniqueness rule (a calibrated model keeps its own)
+        loose = PrismStereo(rig, (205.0, 1511.0), min_uniqueness=0.0, **rules)(cap.image)
+        strict = PrismStereo(rig, (205.0, 1511.0), **rules)(cap.image)
     false = lambda r: (r.valid & ~cov).float().sum() / r.valid.float().sum()  # noqa: E731
     assert false(strict) < 0.8 * false(loose)
     assert (strict.valid & cov).float().sum() > 0.8 * (loose.valid & cov).float().sum()
