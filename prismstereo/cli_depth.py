@@ -163,14 +163,12 @@ def _cmd_depth(args: argparse.Namespace) -> int:
             captures = [_read_capture(images[i], rig) for i in chunk]
             grey = torch.stack([c if c.shape[0] == 1 else kornia.color.rgb_to_grayscale(c) for c in captures])
             res = _run_backend(args.backend, model, grey)
+            written = (res.confidence > 0) if args.dense else res.valid  # dense: every pixel with a depth
             if args.ply:
                 with torch.inference_mode():
-                    has = (res.confidence > 0) if args.dense else res.valid
-                    points = depth_to_points(rig, res.depth.to(torch.float64), has)
+                    points = depth_to_points(rig, res.depth.to(torch.float64), written)
             for k, i in enumerate(chunk):
-                depth, valid = res.depth[k, 0], res.valid[k, 0]
-                if args.dense:  # every pixel with a depth, its confidence beside it
-                    valid = res.confidence[k, 0] > 0
+                depth, valid = res.depth[k, 0], written[k, 0]
                 note = _write_depth(targets[i], depth, valid, args.png_scale)
                 if targets[i].confidence is not None:
                     np.save(targets[i].confidence, res.confidence[k, 0].numpy().astype(np.float32))

@@ -65,7 +65,7 @@ from prismstereo.epipolar.table import (
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.matching.aggregate import box_filter, box_std
+from prismstereo.matching.aggregate import box_std
 from prismstereo.matching.build import build_search
 from prismstereo.matching.confidence import FITTED_PLACEMENT, ConfidenceModel, confidence_features
 from prismstereo.matching.cost import COSTS, Cost
@@ -224,7 +224,8 @@ class PrismStereo(nn.Module):
         weak_texture: the grey standard deviation over the cost window below which that blend starts (full at 0).
         dense_fill: with ``dense``, the pixels with a depth that are not valid take the mean sweep coordinate of
             the valid pixels within this many pixels (a normalised box convolution; 0: their own estimates),
-            where there are any; their confidence stays their own match's.
+            where there are any (:func:`~prismstereo.matching.levels.extend_estimate`); their confidence stays
+            their own match's.
 
     The measurements behind each default and the alternatives: :mod:`prismstereo.defaults`.
 
@@ -581,8 +582,6 @@ class PrismStereo(nn.Module):
                     radius = 2 * self.coarse_reach * self.binned.factor
                     similar_c = low.confidence  # its NCC, 0 where invalid (validity 'thresholds')
                 s_c, reach = extend_estimate(s_c, valid_c, radius)
-                if self.validity == "calibrated" or self.dense:  # beyond the reach: the coarse level's own estimate
-                    reach = torch.ones_like(reach)
 
             def up(t: torch.Tensor, mode: str = "nearest") -> torch.Tensor:
                 # level pixel i covers full pixels f i ... f i + f - 1; a binned level may end short of the
@@ -598,8 +597,11 @@ class PrismStereo(nn.Module):
             texture = None
             if self.validity == "calibrated" or self.wide_box > self.fine_box:
                 texture = box_std(ref if ref.shape[1] == 1 else ref.mean(1, keepdim=True), self.window).detach()
-            s, ok, confidence, match = self.fine(ref, other, s0, up(reach) > 0.5, self.series, self.interval,
-                                                 texture)
+            if self.validity == "calibrated" or self.dense:  # beyond the reach: the coarse level's own estimate
+                ok0 = torch.ones_like(s0, dtype=torch.bool)
+            else:
+                ok0 = up(reach) > 0.5
+            s, ok, confidence, match = self.fine(ref, other, s0, ok0, self.series, self.interval, texture)
             rejected = up(valid_c) < 0.5
             sampled = ok  # the band had a real sample (a dense model's depths), before the validity rules
             if self.validity == "calibrated":  # the probability of a depth within 1 % (matching.confidence)
@@ -624,7 +626,7 @@ class PrismStereo(nn.Module):
             occluders = None if self.occluder_confidence is None else valid & (confidence >= self.occluder_confidence)
             valid = valid & self.visible(match, depth, valid, occluders)
         if self.dense and self.dense_fill:  # the depths that are not valid: the mean of the valid ones around
-            s = self._fill(s, valid, covered)
+            s = torch.where(covered, extend_estimate(s, valid, self.dense_fill).s, s)
             depth, match = sweep_to_depth(s, z_range), torch.cat(series_at(self.series, s), 1)
         # confidence in [0, 1] times the mask: 0 where invalid, or in a dense model where there is no depth
         # (onnxruntime runs a Where on one thread, ~0.26 ms on a 768 x 512 plane; the product ~0.05 ms)
@@ -634,16 +636,6 @@ class PrismStereo(nn.Module):
             confidence = confidence * valid.to(confidence.dtype)
         index = (s + 1.0) / step
         return DepthResult(depth, valid, confidence, index, match)
-
-    def _fill(self, s: torch.Tensor, valid: torch.Tensor, covered: torch.Tensor) -> torch.Tensor:
-        """s of the covered pixels that are not valid replaced by the mean s of the valid pixels within
-        ``dense_fill`` px (normalised box convolution), where there are any."""
-        weight = valid.to(s.dtype)
-        window = 2 * self.dense_fill + 1
-        total, share = box_filter(torch.cat([torch.where(valid, s, torch.zeros_like(s)), weight], 1),
-                                  window).split(1, 1)
-        filled = covered & ~valid & (share > 0)
-        return torch.where(filled, total / share.clamp_min(torch.finfo(s.dtype).tiny), s)
 
     def visible(
         self, match: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, occluders: torch.Tensor | None = None

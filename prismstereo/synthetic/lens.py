@@ -35,11 +35,15 @@ _FINE_STEP_PX = 0.5  # radius spacing of the blur levels up to 4 px; above, leve
 _LEVEL_RATIO = 1.0 / 8.0
 
 
+def _positive_number(value: object) -> bool:
+    """A finite int or float > 0 (not a bool): an f-number or a distance."""
+    return (not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+            and value > 0)
+
+
 def _check_lens(rig: BiPrismRig, f_number: float, focus_mm: float) -> None:
     """Raise :class:`SceneError` unless f_number > 0 and the focus distance lies beyond the focal length."""
-    if isinstance(f_number, bool) or not isinstance(f_number, (int, float)) or not (
-        math.isfinite(f_number) and f_number > 0
-    ):
+    if not _positive_number(f_number):
         raise SceneError(f"f_number must be a finite number > 0, got {f_number!r}")
     if isinstance(focus_mm, bool) or not isinstance(focus_mm, (int, float)) or not math.isfinite(focus_mm):
         raise SceneError(f"focus_mm must be a finite number, got {focus_mm!r}")

@@ -16,7 +16,6 @@ reaches the same point (nothing occludes it, it is on the sensor and in the righ
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Sequence
 from typing import Literal, NamedTuple
 
@@ -29,6 +28,7 @@ from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.synthetic.lens import (
     _check_lens,
     _fill_nearest,
+    _positive_number,
     apparent_depth,
     blur_circle_px,
     defocus_blur,
@@ -126,14 +126,9 @@ class ImageFormation:
             raise SceneError(f"poisson_photons must be positive or None, got {self.poisson_photons}")
         if self.bits not in (8, 16, None):
             raise SceneError(f"bits must be 8, 16 or None, got {self.bits!r}")
-        if self.f_number is not None and (
-            isinstance(self.f_number, bool) or not isinstance(self.f_number, (int, float))
-            or not math.isfinite(self.f_number) or self.f_number <= 0
-        ):
+        if self.f_number is not None and not _positive_number(self.f_number):
             raise SceneError(f"f_number must be a finite number > 0 or None, got {self.f_number!r}")
-        if isinstance(self.focus_mm, bool) or not isinstance(self.focus_mm, (int, float)) or not (
-            math.isfinite(self.focus_mm) and self.focus_mm > 0
-        ):
+        if not _positive_number(self.focus_mm):
             raise SceneError(f"focus_mm must be a finite distance > 0 (mm), got {self.focus_mm!r}")
         if not isinstance(self.fresnel, bool):
             raise SceneError(f"fresnel must be a bool, got {self.fresnel!r}")
