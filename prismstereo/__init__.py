@@ -22,7 +22,8 @@ from prismstereo.geometry.optics import (
     trace_directions,
     trace_pixels,
 )
-from prismstereo.geometry.rig import BiPrismRig, RigParameters, thesis_setup1, thesis_setup2
+from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
+from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import (
     VirtualCamera,
     VirtualCameraPair,

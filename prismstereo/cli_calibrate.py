@@ -26,7 +26,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from prismstereo.calibration import calibrate_board, calibrate_self, parse_target
     from prismstereo.calibration.parameters import check_names
     from prismstereo.calibration.report import format_report, plot_residuals
-    from prismstereo.geometry.rig import load_rig
+    from prismstereo.geometry.presets import load_rig
     from prismstereo.io import read_image
 
     out = Path(args.out)

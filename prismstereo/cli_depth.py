@@ -19,7 +19,8 @@ import numpy as np
 import torch
 
 from prismstereo.errors import PrismStereoError
-from prismstereo.geometry.rig import BiPrismRig, load_rig
+from prismstereo.geometry.presets import load_rig
+from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["add_depth_parser", "add_export_parser"]
 

@@ -27,8 +27,7 @@ import torch
 
 from prismstereo.errors import RigError
 
-__all__ = ["BiPrismRig", "RigParameters", "as_parameters", "thesis_setup1", "thesis_setup2", "PRESETS", "load_rig",
-           "split_column"]
+__all__ = ["BiPrismRig", "RigParameters", "as_parameters", "split_column"]
 
 _REQUIRED = (
     "alpha_deg",
@@ -516,67 +515,3 @@ def _float_tuple(value: Any, length: int, name: str) -> tuple[float, ...]:
     if len(items) != length or not all(math.isfinite(v) for v in items):
         raise RigError(f"{name} must be a list of {length} finite numbers, got {value!r}")
     return items
-
-
-def thesis_setup1() -> BiPrismRig:
-    """The thesis' main setup (Table 3.1): alpha 6.4 deg, n 1.48, f 25 mm, T 5.6 mm, T_o 170 mm.
-
-    Sensor 1024 x 768 px of 4.65 um (4.7616 mm wide, the sensor width of thesis fig. 5.4). The back plane
-    is 2 T / tan(alpha) = 99.85 mm wide, matching the thesis' 100 mm prism (b in eq. 5.16).
-
-    Example:
-        >>> round(thesis_setup1().prism_width_mm, 2)
-        99.85
-    """
-    return BiPrismRig(
-        alpha_deg=6.4,
-        refractive_index=1.48,
-        focal_length_mm=25.0,
-        prism_thickness_mm=5.6,
-        apex_distance_mm=170.0,
-        pixel_size_mm=0.00465,
-        image_width=1024,
-        image_height=768,
-    )
-
-
-def thesis_setup2() -> BiPrismRig:
-    """The thesis' second setup (Table 4.2): alpha 21.8 deg, f 8 mm, with a consistent thickness.
-
-    The thesis lists T = 5.6 mm for this prism too, but a 21.8 deg prism whose back plane is 100 mm wide
-    (b = 100 mm, thesis sec. 5.2) is T = 50 tan(21.8 deg) = 20.0 mm thick; with T = 5.6 mm it would be only
-    2 * 5.6 / tan(21.8 deg) = 28.0 mm wide. We use T = 50 tan(alpha) so the prism is the thesis' 100 mm part.
-
-    Example:
-        >>> round(thesis_setup2().prism_thickness_mm, 2)
-        20.0
-    """
-    alpha = 21.8
-    return BiPrismRig(
-        alpha_deg=alpha,
-        refractive_index=1.48,
-        focal_length_mm=8.0,
-        prism_thickness_mm=50.0 * math.tan(math.radians(alpha)),
-        apex_distance_mm=170.0,
-        pixel_size_mm=0.00465,
-        image_width=1024,
-        image_height=768,
-    )
-
-
-PRESETS = {"thesis_setup1": thesis_setup1, "thesis_setup2": thesis_setup2}
-
-
-def load_rig(source: str | Path) -> BiPrismRig:
-    """A rig from a JSON file path or a preset name (``thesis_setup1``, ``thesis_setup2``).
-
-    Raises:
-        RigError: missing file, invalid JSON or an invalid rig.
-
-    Example:
-        >>> load_rig("thesis_setup2").focal_length_mm
-        8.0
-    """
-    if str(source) in PRESETS:
-        return PRESETS[str(source)]()
-    return BiPrismRig.from_json(source)

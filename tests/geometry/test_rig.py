@@ -203,7 +203,7 @@ def test_apex_column_moves_with_offset():
 
 
 def test_load_rig_from_preset_name_or_json_path(tmp_path):
-    from prismstereo.geometry.rig import PRESETS, load_rig
+    from prismstereo.geometry.presets import PRESETS, load_rig
 
     assert set(PRESETS) == {"thesis_setup1", "thesis_setup2"}
     assert load_rig("thesis_setup2") == thesis_setup2()
