@@ -97,6 +97,8 @@ def main() -> None:
                         help="board depth range (mm), default 550-850 (setup 1) / 300-500 (setup 2)")
     parser.add_argument("--tolerance-scale", type=float, default=1.0,
                         help="multiply every default prior tolerance (TOLERANCES) by this factor")
+    parser.add_argument("--corners", choices=("auto", "symmetric", "opencv"), default="auto",
+                        help="detect_board's sub-pixel corners (opencv: the detectors' own positions)")
     parser.add_argument("--board", choices=("charuco", "checkerboard", "none"), default="charuco",
                         help="charuco (default): a 16 x 12-square board of 8 mm, larger than either half's view; "
                              "checkerboard: 5 x 8 squares of 6 mm, seen whole by both halves; none: self-calibration "
@@ -119,7 +121,8 @@ def main() -> None:
     g = torch.Generator().manual_seed(args.seed)
     tolerances = {n: float(v) * args.tolerance_scale for n, v in
                   zip(NAMES, to_display(tolerance_vector(nominal)), strict=True)} if args.tolerance_scale != 1 else None
-    what = f"{args.views} views of {board.describe()}" if board is not None else "self-calibration from 3 scenes"
+    what = (f"{args.views} views of {board.describe()}, {args.corners} corners" if board is not None
+            else "self-calibration from 3 scenes")
     print(f"setup {args.setup}, {nominal.image_width} x {nominal.image_height} px, {what} per run")
     print(f"{'run':>3} {'RMS px':>7} {'max z':>6} {'worst':>18} {'depth % true':>13} {'nominal':>8} {'calibrated':>10} "
           f"{'ratio':>6} {'predicted %':>11} {'s':>5}")
@@ -132,7 +135,7 @@ def main() -> None:
         if board is not None:
             views = calibration_views(args.views, 1000 * args.seed + run, depths, max_tilt_deg=args.max_tilt, **layout)
             caps = render(true, views, ImageFormation(supersample=3, noise_sigma=2 / 255, seed=run))
-            result = calibrate_board(nominal, list(caps.image), board, tolerances=tolerances)
+            result = calibrate_board(nominal, list(caps.image), board, tolerances=tolerances, corners=args.corners)
         else:
             mid = sum(depths) / 2
             scenes = [slanted_plane(true, mid, 20.0, seed=run), step_scene(true, depths[0], depths[1], seed=run + 50),

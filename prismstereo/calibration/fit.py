@@ -28,7 +28,7 @@ from prismstereo.calibration.parameters import (
 )
 from prismstereo.calibration.problem import RigProblem
 from prismstereo.calibration.solver import levenberg_marquardt
-from prismstereo.calibration.targets import Board, ViewDetection, detect_board
+from prismstereo.calibration.targets import Board, CornerMethod, ViewDetection, detect_board
 from prismstereo.calibration.uncertainty import DepthUncertainty, depth_uncertainty
 from prismstereo.errors import CalibrationError, RigError
 from prismstereo.geometry.rig import BiPrismRig
@@ -156,6 +156,7 @@ def calibrate_board(
     max_iterations: int = 100,
     max_rms_px: float = 2.0,
     tolerances: dict[str, float] | None = None,
+    corners: CornerMethod = "auto",
     progress: bool = False,
 ) -> CalibrationResult:
     """Calibrate ``rig`` from captures of ``board`` through the prism (target-based, bundle adjustment).
@@ -172,6 +173,8 @@ def calibrate_board(
         max_rms_px: a final RMS above this is a diverged fit (error).
         tolerances: 1-sigma priors overriding :data:`~prismstereo.calibration.parameters.TOLERANCES` (reported
             units, absolute; ``inf`` for none): how well the nominal rig is known.
+        corners: sub-pixel corner method of :func:`~prismstereo.calibration.targets.detect_board` for images
+            ('auto', 'symmetric' or 'opencv').
         progress: progress bars for detection and the fit.
 
     Returns:
@@ -195,7 +198,7 @@ def calibrate_board(
     fixed = set(check_names(fix)) | (set(DEFAULT_FIXED) - set(check_names(free)))
     if len(captures) < min_views:
         raise CalibrationError(f"too few views: {len(captures)} captures, need at least {min_views}")
-    detections = [c if isinstance(c, ViewDetection) else detect_board(c, rig, board)
+    detections = [c if isinstance(c, ViewDetection) else detect_board(c, rig, board, corners=corners)
                   for c in tqdm(captures, desc="detect", disable=not progress, leave=False)]
     obs = gather_observations(detections, board)
     if len(obs.views) < min_views:
