@@ -102,10 +102,10 @@ def refine_corners(
 
     Example:
         >>> yy, xx = torch.meshgrid(torch.arange(40.0), torch.arange(40.0), indexing="ij")
-        >>> board = (((xx - 20.3) > 0) ^ ((yy - 17.6) > 0)).double()
-        >>> out = refine_corners(board, torch.tensor([[20.0, 18.0]]), radius_px=4.0)
-        >>> out.uv.sub(torch.tensor([[19.8, 17.1]])).abs().max() < 0.05, bool(out.converged)
-        (tensor(True), True)
+        >>> board = ((xx > 20.5) ^ (yy > 17.5)).double()  # the corner between pixels 20 | 21 and 17 | 18
+        >>> out = refine_corners(board, torch.tensor([[20.1, 18.2]]), radius_px=4.0)
+        >>> out.uv.round(decimals=3), bool(out.converged)
+        (tensor([[20.5000, 17.5000]]), True)
     """
     if image.ndim == 3 and image.shape[0] == 1:
         image = image[0]
