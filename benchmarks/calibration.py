@@ -97,7 +97,7 @@ def main() -> None:
                         help="board depth range (mm), default 550-850 (setup 1) / 300-500 (setup 2)")
     parser.add_argument("--tolerance-scale", type=float, default=1.0,
                         help="multiply every default prior tolerance (TOLERANCES) by this factor")
-    parser.add_argument("--corners", choices=("auto", "symmetric", "opencv"), default="auto",
+    parser.add_argument("--corners", choices=("symmetric", "opencv"), default="symmetric",
                         help="detect_board's sub-pixel corners (opencv: the detectors' own positions)")
     parser.add_argument("--board", choices=("charuco", "checkerboard", "none"), default="charuco",
                         help="charuco (default): a 16 x 12-square board of 8 mm, larger than either half's view; "

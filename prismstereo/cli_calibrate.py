@@ -80,10 +80,9 @@ def add_calibrate_parser(sub: argparse._SubParsersAction) -> None:
                           f"names: {', '.join(NAMES)}")
     cal.add_argument("--free", nargs="+", metavar="NAME", default=None,
                      help=f"estimate these default-fixed parameters too ({', '.join(DEFAULT_FIXED)})")
-    cal.add_argument("--corners", choices=("auto", "symmetric", "opencv"), default="auto",
-                     help="sub-pixel corners: refined to their centre of point symmetry (symmetric: ~10x closer on "
-                          "rendered boards), OpenCV's detector positions as they are (opencv), or auto (default): "
-                          "symmetric for ChArUco boards, opencv for checkerboards")
+    cal.add_argument("--corners", choices=("symmetric", "opencv"), default="symmetric",
+                     help="sub-pixel corners: refined to their centre of point symmetry (default; 4-10x closer on "
+                          "rendered boards) or OpenCV's detector positions as they are")
     cal.add_argument("--plot", default=None, metavar="PNG", help="save a plot of the residuals per view")
     cal.add_argument("--quiet", action="store_true", help="no progress bars")
     cal.set_defaults(func=_cmd_calibrate)

@@ -27,7 +27,7 @@ from prismstereo.calibration.parameters import (
     vector_to_rig,
 )
 from prismstereo.calibration.problem import RigProblem
-from prismstereo.calibration.solver import levenberg_marquardt
+from prismstereo.calibration.solver import levenberg_marquardt, normal_inverse
 from prismstereo.calibration.targets import Board, CornerMethod, ViewDetection, detect_board
 from prismstereo.calibration.uncertainty import DepthUncertainty, depth_uncertainty
 from prismstereo.errors import CalibrationError, RigError
@@ -156,7 +156,7 @@ def calibrate_board(
     max_iterations: int = 100,
     max_rms_px: float = 2.0,
     tolerances: dict[str, float] | None = None,
-    corners: CornerMethod = "auto",
+    corners: CornerMethod = "symmetric",
     progress: bool = False,
 ) -> CalibrationResult:
     """Calibrate ``rig`` from captures of ``board`` through the prism (target-based, bundle adjustment).
@@ -174,7 +174,7 @@ def calibrate_board(
         tolerances: 1-sigma priors overriding :data:`~prismstereo.calibration.parameters.TOLERANCES` (reported
             units, absolute; ``inf`` for none): how well the nominal rig is known.
         corners: sub-pixel corner method of :func:`~prismstereo.calibration.targets.detect_board` for images
-            ('auto', 'symmetric' or 'opencv').
+            ('symmetric' or 'opencv').
         progress: progress bars for detection and the fit.
 
     Returns:
@@ -298,7 +298,7 @@ def solve_rig_problem(problem: RigProblem, *, max_iterations: int = 100, max_rms
     except RigError as exc:
         raise CalibrationError(f"the fit diverged to an invalid rig: {exc}") from exc
     j = problem.jacobian(x)
-    cov_free = torch.linalg.pinv(j.T @ j, hermitian=True)[: problem.num_rig, : problem.num_rig]
+    cov_free = normal_inverse(j)[: problem.num_rig, : problem.num_rig]  # residuals are already / sigma
     var = cov_free.diagonal().clamp_min(0)
     prior_var = problem.tolerance.pow(2).nan_to_num(posinf=0.0)  # no prior (inf): no variance assumed
     cov = torch.diag(prior_var)

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import torch
 from tqdm.auto import tqdm
 
-__all__ = ["LMResult", "levenberg_marquardt", "covariance", "unobservable"]
+__all__ = ["LMResult", "levenberg_marquardt", "normal_inverse", "covariance", "unobservable"]
 
 
 class LMResult(NamedTuple):
@@ -125,9 +125,34 @@ def levenberg_marquardt(
     return LMResult(x, cost, initial, it, converged, message)
 
 
+def normal_inverse(jacobian: torch.Tensor) -> torch.Tensor:
+    """(J^T J)^+ computed on the column-normalised Jacobian: D (J_n^T J_n)^+ D with J_n = J D, D = diag(1 / |J_i|).
+
+    The columns of a calibration's Jacobian mix units (mm, px, rad, dimensionless distortion, board poses), so
+    J^T J's condition number reaches 1e13 and a plain pseudo-inverse silently truncates weakly determined
+    directions (a principal point traded against tangential distortion) to zero variance: a standard error 100x
+    too small. Normalising the columns first brings the condition number to the geometry's own (~1e8).
+
+    Args:
+        jacobian: (m, n).
+
+    Returns:
+        (n, n).
+
+    Example:
+        >>> j = torch.tensor([[1e6, 0.0], [0.0, 1e-6], [1e6, 1e-6]], dtype=torch.float64)
+        >>> normal_inverse(j).diagonal()
+        tensor([6.6667e-13, 6.6667e+11], dtype=torch.float64)
+    """
+    scale = jacobian.norm(dim=0).clamp_min(torch.finfo(jacobian.dtype).tiny)
+    normalised = jacobian / scale
+    return torch.linalg.pinv(normalised.T @ normalised, hermitian=True) / scale[:, None] / scale[None, :]
+
+
 def covariance(jacobian: torch.Tensor, cost: float) -> torch.Tensor:
-    """Parameter covariance sigma^2 (J^T J)^+ with sigma^2 = cost / (m - n) (a pseudo-inverse, so exactly
-    unobservable directions get no variance instead of an error; :func:`unobservable` reports them).
+    """Parameter covariance sigma^2 (J^T J)^+ with sigma^2 = cost / (m - n) (:func:`normal_inverse`: a
+    pseudo-inverse, so exactly unobservable directions get no variance instead of an error; :func:`unobservable`
+    reports them).
 
     Args:
         jacobian: (m, n) at the solution.
@@ -142,7 +167,7 @@ def covariance(jacobian: torch.Tensor, cost: float) -> torch.Tensor:
     """
     m, n = jacobian.shape
     sigma2 = cost / max(1, m - n)
-    return sigma2 * torch.linalg.pinv(jacobian.T @ jacobian, hermitian=True)
+    return sigma2 * normal_inverse(jacobian)
 
 
 def unobservable(jacobian: torch.Tensor, candidates: Sequence[int], threshold: float = 1e8) -> list[int]:

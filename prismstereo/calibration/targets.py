@@ -29,8 +29,8 @@ __all__ = [
 ]
 
 BoardKind = Literal["checkerboard", "charuco"]
-CornerMethod = Literal["auto", "symmetric", "opencv"]
-CORNER_METHODS: tuple[str, ...] = ("auto", "symmetric", "opencv")
+CornerMethod = Literal["symmetric", "opencv"]
+CORNER_METHODS: tuple[str, ...] = ("symmetric", "opencv")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -233,26 +233,23 @@ def _consistent(left: HalfDetection, right: HalfDetection, board: Board) -> Half
 
 
 def detect_board(
-    image: torch.Tensor | np.ndarray, rig: BiPrismRig, board: Board, *, corners: CornerMethod = "auto"
+    image: torch.Tensor | np.ndarray, rig: BiPrismRig, board: Board, *, corners: CornerMethod = "symmetric"
 ) -> ViewDetection:
     """Find the board in each half-image of one capture.
 
     The halves are split at the rig's reference width (:attr:`BiPrismRig.reference_width`) and searched
     separately with OpenCV; positions come back in full-sensor pixels (pixel centres at integers, as OpenCV's).
-    With ``corners='symmetric'`` each corner is then refined to the centre of point symmetry of its half-image
-    (:func:`~prismstereo.calibration.corners.refine_corners`, on the full-precision image), about 10x closer to the
-    exact projections than OpenCV's own sub-pixel corners on rendered boards (``benchmarks/corners.py``); ChArUco
-    corners that do not converge (e.g. cut by the half's edge) are dropped. ``'auto'`` (default) refines ChArUco
-    corners and keeps ``findChessboardCornersSB``'s for checkerboards: with whole checkerboards in the halves'
-    common view, 12 views at 512 x 384, the refined corners (0.04 px RMS against 0.15 px) calibrate with a
-    principal point biased by up to 100 of its own standard errors, an effect not yet understood, while the
-    ChArUco boards' refined corners calibrate within 3 standard errors (``benchmarks/calibration.py``).
+    With ``corners='symmetric'`` (default) each corner is then refined to the centre of point symmetry of its
+    half-image (:func:`~prismstereo.calibration.corners.refine_corners`, on the full-precision image), 4-10x closer
+    to the exact projections than OpenCV's own sub-pixel corners on rendered boards (``benchmarks/corners.py``);
+    ChArUco corners that do not converge (e.g. cut by the half's edge) are dropped, a checkerboard's keep the
+    detector's position.
 
     Args:
         image: one capture, (C, H, W) / (H, W) float tensor in [0, 1] or a uint8 array (see :func:`to_gray`).
         rig: the (nominal) rig: its sensor size is checked, its split used.
         board: the target.
-        corners: 'auto', 'symmetric' or 'opencv' (the detectors' positions as they are).
+        corners: 'symmetric' or 'opencv' (the detectors' positions as they are).
 
     Returns:
         ViewDetection(left, right), each a :class:`HalfDetection` (uv (N, 2) float64, ids (N,)) or None.
@@ -277,7 +274,7 @@ def detect_board(
     halves = []
     for lo, hi in ((0, split), (split, rig.image_width)):
         found = find(np.ascontiguousarray(gray[:, lo:hi]), board)
-        if found is not None and (corners == "symmetric" or (corners == "auto" and board.kind == "charuco")):
+        if found is not None and corners == "symmetric":
             found = _refined(fine[:, lo:hi], found, board)
         if found is not None:
             found = HalfDetection(found.uv + torch.tensor([float(lo), 0.0], dtype=torch.float64), found.ids)

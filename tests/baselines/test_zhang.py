@@ -19,7 +19,8 @@ def least_squares():
 def test_zhang_registered_centres_near_least_squares(board_views, least_squares):
     """Zhang on boards rendered through the rig, registered by the boards' known corners: its virtual cameras
     sit where our all-pixel least-squares ones do (across the axis to 0.3 mm; along it, where a narrow field of
-    view trades the centre's distance against the focal length, to 5 mm)."""
+    view trades the centre's distance against the focal length, to 10 mm: changes of the corners' positions by
+    less than 0.1 px RMS move it by several mm)."""
     out = calibrate_zhang(board_views.detections, BOARD, SIZE, reference_points=board_views.references)
     assert isinstance(out, ZhangResult) and out.frame == "real" and out.views == tuple(range(8))
     assert float(out.rms_px.max()) < 0.3 and out.registration_rms_mm < 2.0
@@ -27,7 +28,7 @@ def test_zhang_registered_centres_near_least_squares(board_views, least_squares)
         assert cam.matrix.shape == (3, 3) and cam.distortion.shape == (5,)
         torch.testing.assert_close(cam.rotation.T @ cam.rotation, torch.eye(3, dtype=F64))
         assert float((cam.centre[:2] - ref.centre[:2]).abs().max()) < 0.3
-        assert abs(float(cam.centre[2] - ref.centre[2])) < 5.0
+        assert abs(float(cam.centre[2] - ref.centre[2])) < 10.0
     baseline = (out.cameras.right.centre - out.cameras.left.centre).norm()
     ref_baseline = (least_squares.right.centre - least_squares.left.centre).norm()
     assert abs(float(baseline / ref_baseline) - 1) < 0.01

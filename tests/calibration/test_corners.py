@@ -90,7 +90,7 @@ def test_corner_spacing_and_errors():
         refine_corners(img, uv, sigma_px=-1.0)
     with pytest.raises(CalibrationError, match="radius_px must be > 0"):
         refine_corners(img, uv, radius_px=0.0)
-    with pytest.raises(CalibrationError, match="unknown corners 'subpix'; valid: auto, symmetric, opencv"):
+    with pytest.raises(CalibrationError, match="unknown corners 'subpix'; valid: symmetric, opencv"):
         detect_board(img, NOMINAL, parse_target("checkerboard:4x7:6"), corners="subpix")
 
 
