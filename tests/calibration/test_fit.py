@@ -9,7 +9,7 @@ from prismstereo.calibration import DEFAULT_FIXED, NAMES, calibrate_board, detec
 from prismstereo.calibration.board import BoardProblem, gather_observations, initial_poses, rigid_fit
 from prismstereo.calibration.parameters import rig_vector, to_display, tolerance_vector, vector_to_rig
 from prismstereo.calibration.report import format_report, plot_residuals
-from prismstereo.calibration.solver import covariance, levenberg_marquardt, unobservable
+from prismstereo.calibration.solver import covariance, levenberg_marquardt, normal_inverse, unobservable
 from prismstereo.synthetic import calibration_views
 from tests.calibration.conftest import BOARD, NOMINAL, board_captures
 
@@ -29,6 +29,22 @@ def test_levenberg_marquardt_and_covariance_match_linear_regression():
     cov = covariance(a, float(r @ r))
     expected = float(r @ r) / 48 * torch.linalg.inv(a.T @ a)  # the textbook OLS covariance
     assert torch.allclose(cov, expected, rtol=1e-10)
+
+
+def test_normal_inverse_keeps_weak_directions_of_mixed_units():
+    """Columns in very different units with a weakly determined combination: the plain pseudo-inverse of J^T J
+    (condition ~1e19) truncates it and under-states the variance; the column-normalised one matches the exact
+    inverse computed in well-scaled coordinates."""
+    g = torch.Generator().manual_seed(2)
+    base = torch.randn(60, 3, generator=g, dtype=F64)
+    base[:, 2] = base[:, 0] + 1e-3 * base[:, 2]  # columns 0 and 2 nearly the same direction
+    units = torch.tensor([1e6, 1.0, 1e-3], dtype=F64)
+    j = base * units
+    exact = torch.linalg.inv(base.T @ base) / units[:, None] / units[None, :]
+    got = normal_inverse(j)
+    assert torch.allclose(got, exact, rtol=1e-6)
+    plain = torch.linalg.pinv(j.T @ j, hermitian=True)
+    assert float(plain[2, 2]) < 1e-3 * float(exact[2, 2])  # what the normalisation avoids
 
 
 def test_unobservable_finds_a_pure_scale_and_a_dead_parameter():
