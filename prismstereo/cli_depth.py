@@ -24,41 +24,45 @@ from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["add_depth_parser", "add_export_parser"]
 
-DEPTH_FORMATS = ("npy", "png")
+DEPTH_FORMATS = ("npy", "png", "tiff")
+_SUFFIX_FORMATS = {".npy": "npy", ".png": "png", ".tif": "tiff", ".tiff": "tiff"}
 BACKENDS = ("torch", "onnx")
 
 
 class _DepthTarget(NamedTuple):
-    """Where one image's results go: the depth file, its preview (png format), its point cloud (--ply) and its
-    confidence (--dense)."""
+    """Where one image's results go: the depth file, its preview and scale sidecar (png format), its point cloud
+    (--ply) and its confidence (--dense)."""
 
     depth: Path
     preview: Path | None
     ply: Path | None
     confidence: Path | None = None
+    sidecar: Path | None = None
 
 
 def _depth_targets(images: list[Path], out: Path, fmt: str | None, ply: bool,
                    dense: bool = False) -> list[_DepthTarget]:
-    """Output paths of ``prismstereo depth`` (OUT a .npy/.png file for one image, else a directory), checked
-    so that no two outputs collide and no output overwrites an input image."""
+    """Output paths of ``prismstereo depth`` (OUT a .npy/.png/.tiff file for one image, else a directory),
+    checked so that no two outputs collide and no output overwrites an input image."""
     suffix = out.suffix.lower()
-    if suffix in (".npy", ".png") and not out.is_dir():
+    if suffix in _SUFFIX_FORMATS and not out.is_dir():
         if len(images) > 1:
             raise PrismStereoError(f"{len(images)} images: --out must be a directory, got {out}")
-        if fmt is not None and fmt != suffix[1:]:
+        if fmt is not None and fmt != _SUFFIX_FORMATS[suffix]:
             raise PrismStereoError(f"--format {fmt} contradicts --out {out}")
-        fmt, stems = suffix[1:], [(out.parent, out.stem, out)]
+        fmt, stems = _SUFFIX_FORMATS[suffix], [(out.parent, out.stem, out)]
     else:
         if out.exists() and not out.is_dir():
             raise PrismStereoError(f"--out {out} exists and is not a directory")
         if suffix and not out.is_dir():
-            raise PrismStereoError(f"--out must end in .npy or .png (one image) or be a directory, got {out}")
+            raise PrismStereoError(f"--out must end in .npy, .png or .tiff (one image) or be a directory, got {out}")
         fmt = fmt or "npy"
         stems = [(out, image.stem, out / f"{image.stem}.{fmt}") for image in images]
+    png = fmt == "png"
     targets = [
-        _DepthTarget(path, folder / f"{stem}_preview.png" if fmt == "png" else None,
-                     folder / f"{stem}.ply" if ply else None, folder / f"{stem}_confidence.npy" if dense else None)
+        _DepthTarget(path, folder / f"{stem}_preview.png" if png else None,
+                     folder / f"{stem}.ply" if ply else None, folder / f"{stem}_confidence.npy" if dense else None,
+                     path.with_suffix(".json") if png else None)
         for folder, stem, path in stems
     ]
     inputs = {image.resolve(): image for image in images}
@@ -124,18 +128,17 @@ def _read_capture(path: Path, rig: BiPrismRig) -> torch.Tensor:
     return image
 
 
-def _write_depth(target: _DepthTarget, depth: torch.Tensor, valid: torch.Tensor, png_scale: float) -> str:
+def _write_depth(target: _DepthTarget, depth: torch.Tensor, valid: torch.Tensor, png_scale: float | None) -> str:
     """Write one depth map (H, W_ref) to its target; returns a note for the summary line."""
-    from prismstereo.io import write_depth_npy, write_depth_png, write_depth_preview
+    from prismstereo.io import write_depth, write_depth_preview
 
-    if target.depth.suffix.lower() == ".npy":
-        write_depth_npy(target.depth, depth, valid)
+    written = write_depth(target.depth, depth, valid, png_scale=png_scale)
+    if written.format != "png":
         return ""
-    clipped = write_depth_png(target.depth, depth, valid, png_scale)
     write_depth_preview(target.preview, depth, valid)
-    note = f", preview {target.preview.name}"
-    if clipped:
-        note += (f"; warning: {clipped} pixels deeper than {65535 / png_scale:.3f} mm clipped to 65535"
+    note = f", preview {target.preview.name}, {written.scale:g} levels/mm (stored in the PNG and {target.sidecar.name})"
+    if written.clipped:
+        note += (f"; warning: {written.clipped} pixels deeper than {65535 / written.scale:.3f} mm clipped to 65535"
                  " (see --png-scale)")
     return note
 
@@ -151,7 +154,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     targets = _depth_targets(images, Path(args.out), args.format, args.ply, args.dense)
     if args.batch_size < 1:
         raise PrismStereoError(f"--batch-size must be >= 1, got {args.batch_size}")
-    if not (math.isfinite(args.png_scale) and args.png_scale > 0):
+    if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
         raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
     for image in images:  # fail early, before any work or output, on an unreadable or wrong-sized image
         _read_capture(image, rig)
@@ -213,8 +216,9 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
                        help="full sensor image(s): 8/16-bit grey or RGB PNG/TIFF/JPEG of the rig's size")
     depth.add_argument("--rig", required=True, help="rig JSON file or preset name")
     depth.add_argument("--out", required=True,
-                       help="OUT.npy (float32 mm, NaN invalid) or OUT.png (16-bit mm x 256, 0 invalid, plus "
-                            "OUT_preview.png) for one image; a directory (created) of <stem>.npy/.png otherwise")
+                       help="OUT.npy or OUT.tiff (float32 mm, NaN invalid) or OUT.png (16-bit mm x scale, 0 "
+                            "invalid, plus OUT_preview.png and OUT.json with the scale) for one image; a directory "
+                            "(created) of <stem>.npy/.png/.tiff otherwise")
     depth.add_argument("--z-range", type=float, nargs=2, default=None, metavar=("ZMIN", "ZMAX"),
                        help="depths searched (mm); default from the rig's common field of view "
                             "(prismstereo.depth.default_z_range)")
@@ -225,8 +229,9 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--batch-size", type=int, default=1, metavar="B", help="images processed together")
     depth.add_argument("--format", choices=DEPTH_FORMATS, default=None,
                        help="output format when --out is a directory (default npy)")
-    depth.add_argument("--png-scale", type=float, default=256.0, metavar="S",
-                       help="16-bit PNG levels per mm (default 256: 1/256 mm steps, at most 255.996 mm)")
+    depth.add_argument("--png-scale", type=float, default=None, metavar="S",
+                       help="16-bit PNG levels per mm (default: 256, the endoscopy convention, where every depth "
+                            "is <= 255.996 mm, else the largest power of two that fits; stored in the PNG)")
     depth.add_argument("--ply", action="store_true",
                        help="also write <stem>.ply point clouds (camera frame, mm, coloured by the reference half)")
     depth.set_defaults(func=_cmd_depth)

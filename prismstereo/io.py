@@ -2,14 +2,19 @@
 
 Images in tensors are (C, H, W) or (B, C, H, W) float in [0, 1], RGB channel order; on disk they are 8- or
 16-bit PNG/TIFF/JPEG (OpenCV's BGR order is handled here). Ground truth goes to ``.npz`` with NaN for
-invalid values (see :mod:`prismstereo.conventions`). Depth maps go to ``.npy`` (float32 mm, NaN invalid) or
-to 16-bit PNG as round(Z * scale), 0 invalid (scale 256: the endoscopy datasets' convention, which caps
-depth at 65535 / 256 = 255.996 mm; deeper values are clipped), with a colour-mapped preview.
+invalid values (see :mod:`prismstereo.conventions`). Depth maps (:func:`write_depth`, :func:`read_depth`) go to
+``.npy`` or float32 ``.tiff`` (mm, NaN invalid, lossless) or to 16-bit PNG as round(Z * scale), 0 invalid. The
+endoscopy datasets' scale 256 caps depth at 65535 / 256 = 255.996 mm; when the depths do not fit, the scale is
+the largest power of two that does (:func:`depth_png_scale`), stored in the PNG (text chunk
+``prismstereo.depth_scale``) and in a sidecar ``.json``, where :func:`read_depth` finds it. OpenEXR is not
+offered: this OpenCV build has no EXR writer. A colour-mapped preview shows a depth map at a glance.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -26,7 +31,16 @@ __all__ = [
     "write_depth_png",
     "read_depth_png",
     "write_depth_preview",
+    "DEPTH_FILE_FORMATS",
+    "DepthFile",
+    "depth_png_scale",
+    "write_depth",
+    "read_depth",
 ]
+
+DEPTH_FILE_FORMATS: tuple[str, ...] = ("npy", "png", "tiff")
+_SUFFIXES = {".npy": "npy", ".png": "png", ".tif": "tiff", ".tiff": "tiff"}
+SCALE_KEY = "prismstereo.depth_scale"
 
 
 class ImageIOError(PrismStereoError, OSError):
@@ -235,3 +249,169 @@ def write_depth_preview(
     rgb = colormap(t)[..., :3]
     rgb[~ok] = 0.0
     _imwrite(Path(path), np.ascontiguousarray((rgb[..., ::-1] * 255).round().astype(np.uint8)))
+
+
+class DepthFile(NamedTuple):
+    """What :func:`write_depth` wrote.
+
+    Attributes:
+        path: the depth file.
+        format: 'npy', 'png' or 'tiff'.
+        scale: the PNG's levels per mm (None for float formats).
+        sidecar: the PNG's sidecar JSON holding the scale (None for float formats).
+        clipped: valid pixels clipped at 65535 (PNG with an explicit scale too small for them).
+    """
+
+    path: Path
+    format: str
+    scale: float | None
+    sidecar: Path | None
+    clipped: int
+
+
+def depth_png_scale(depth: torch.Tensor, valid: torch.Tensor | None = None) -> float:
+    """The 16-bit PNG scale (levels per mm) for a depth map: 256 (the endoscopy convention) where every valid
+    depth fits (<= 255.996 mm), else the largest power of two 2^k with max depth x 2^k <= 65535 (e.g. 32 for
+    the thesis' range up to 1374 mm: 1/32 mm steps, 0.03 mm, far below the depth model's error there).
+
+    Args:
+        depth: (H, W) depth (mm).
+        valid: optional (H, W) bool mask.
+
+    Returns:
+        The scale (a power of two, at most 256; 2^-k for depths beyond 65535 mm).
+
+    Example:
+        >>> depth_png_scale(torch.full((4, 4), 200.0)), depth_png_scale(torch.full((4, 4), 1374.0))
+        (256.0, 32.0)
+    """
+    d = _depth_array(depth, valid)
+    ok = np.isfinite(d) & (d > 0)
+    deepest = float(d[ok].max()) if ok.any() else 0.0
+    if deepest * 256.0 <= 65535.0:
+        return 256.0
+    return float(2.0 ** np.floor(np.log2(65535.0 / deepest)))
+
+
+def _format(path: Path, format: str | None) -> str:
+    by_suffix = _SUFFIXES.get(path.suffix.lower())
+    if format is None:
+        if by_suffix is None:
+            raise ImageIOError(f"cannot tell the depth format of {path}: use one of "
+                               f"{', '.join(sorted(_SUFFIXES))} or pass format ({', '.join(DEPTH_FILE_FORMATS)})")
+        return by_suffix
+    if format not in DEPTH_FILE_FORMATS:
+        raise ImageIOError(f"unknown depth format {format!r}. Choose from: {', '.join(DEPTH_FILE_FORMATS)}")
+    if by_suffix is not None and by_suffix != format:
+        raise ImageIOError(f"format {format!r} contradicts the file name {path.name}")
+    return format
+
+
+def write_depth(
+    path: str | Path,
+    depth: torch.Tensor,
+    valid: torch.Tensor | None = None,
+    *,
+    format: str | None = None,
+    png_scale: float | None = None,
+) -> DepthFile:
+    """Write a depth map (H, W) in mm: ``.npy`` or ``.tiff`` float32 (NaN invalid, lossless), or a 16-bit
+    ``.png`` of round(Z * scale) (0 invalid) whose scale is stored in a text chunk and a sidecar JSON
+    (``<path without suffix>.json``: ``{"depth_scale": s, "units": "mm", "invalid": 0}``).
+
+    Args:
+        path: output file; its suffix gives the format unless ``format`` is given.
+        depth: (H, W) depth Z (mm).
+        valid: optional (H, W) bool mask (False, NaN and non-finite depths are invalid).
+        format: 'npy', 'png' or 'tiff' (default: from the suffix).
+        png_scale: PNG levels per mm; None picks :func:`depth_png_scale` (no clipping).
+
+    Returns:
+        DepthFile(path, format, scale, sidecar, clipped).
+
+    Raises:
+        ImageIOError: unknown or contradicting format, bad scale, failed write.
+
+    Example:
+        >>> write_depth("depth.png", torch.full((96, 64), 900.0)).scale  # doctest: +SKIP
+        64.0
+    """
+    path = Path(path)
+    fmt = _format(path, format)
+    if fmt == "npy":
+        write_depth_npy(path, depth, valid)
+        return DepthFile(path, fmt, None, None, 0)
+    if fmt == "tiff":
+        _imwrite(path, _depth_array(depth, valid).astype(np.float32))
+        return DepthFile(path, fmt, None, None, 0)
+    scale = depth_png_scale(depth, valid) if png_scale is None else float(png_scale)
+    clipped = write_depth_png(path, depth, valid, scale)
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    info.add_text(SCALE_KEY, repr(scale))
+    levels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        Image.fromarray(levels).save(path, pnginfo=info)
+        sidecar = path.with_suffix(".json")
+        sidecar.write_text(json.dumps({"depth_scale": scale, "units": "mm", "invalid": 0}) + "\n")
+    except OSError as exc:
+        raise ImageIOError(f"cannot write depth map {path}: {exc}") from exc
+    return DepthFile(path, fmt, scale, sidecar, clipped)
+
+
+def _png_scale_of(path: Path) -> float | None:
+    """The scale stored by :func:`write_depth` (text chunk first, then the sidecar JSON), or None."""
+    from PIL import Image
+
+    with Image.open(path) as image:
+        text = getattr(image, "text", {}) or {}
+    if SCALE_KEY in text:
+        return float(text[SCALE_KEY])
+    sidecar = path.with_suffix(".json")
+    if sidecar.is_file():
+        try:
+            return float(json.loads(sidecar.read_text())["depth_scale"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ImageIOError(f"unreadable depth scale in {sidecar}: {exc}") from exc
+    return None
+
+
+def read_depth(path: str | Path, *, scale: float | None = None) -> torch.Tensor:
+    """Read a depth map written by :func:`write_depth` (or any float ``.npy`` / ``.tiff`` or 16-bit ``.png``):
+    (H, W) float32 mm, NaN invalid.
+
+    Args:
+        path: a ``.npy``, ``.tif``/``.tiff`` or ``.png`` file.
+        scale: a PNG's levels per mm, overriding the stored one; a PNG without a stored scale is read at 256
+            (the endoscopy convention).
+
+    Returns:
+        (H, W) float32 tensor.
+
+    Raises:
+        ImageIOError: missing or unreadable file, unknown suffix, wrong array shape or type.
+
+    Example:
+        >>> read_depth("depth.tiff").shape  # doctest: +SKIP
+        torch.Size([768, 512])
+    """
+    path = Path(path)
+    fmt = _format(path, None)
+    if not path.is_file():
+        raise ImageIOError(f"depth map not found: {path}")
+    if fmt == "png":
+        stored = _png_scale_of(path) if scale is None else scale
+        return read_depth_png(path, 256.0 if stored is None else stored)
+    if fmt == "npy":
+        try:
+            data = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise ImageIOError(f"cannot read depth map {path}: {exc}") from exc
+    else:
+        data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if data is None:
+            raise ImageIOError(f"cannot decode depth map {path}")
+    if data.ndim != 2 or not np.issubdtype(data.dtype, np.floating):
+        raise ImageIOError(f"a depth map must be a 2-D float array, {path} holds {data.dtype} {data.shape}")
+    return torch.from_numpy(data.astype(np.float32))

@@ -10,7 +10,7 @@ import torch
 
 from prismstereo import thesis_setup1
 from prismstereo.cli import main
-from prismstereo.io import read_depth_png, read_image, write_image
+from prismstereo.io import read_depth, read_depth_png, read_image, write_image
 
 NEAR, FAR = 240.0, 525.0  # mm: the near plane fits the 16-bit PNG's 255.996 mm, the far one does not
 
@@ -59,11 +59,13 @@ def test_png_round_trip_preview_and_ply(scene, tmp_path, capsys):
 
     raw = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
     assert raw.dtype == np.uint16 and raw.shape == (96, 64)
-    expected = np.where(np.isnan(depth), 0, np.clip(np.round(depth.astype(np.float64) * 256), 1, 65535))
-    assert (raw == expected).all()  # the same model run, written as round(mm x 256), 0 invalid
-    back = read_depth_png(png).numpy()
-    ok = np.isfinite(depth) & (depth < 255)
-    assert ok.mean() > 0.2 and np.abs(back[ok] - depth[ok]).max() <= 1 / 512
+    scale = json.loads((tmp_path / "near.json").read_text())["depth_scale"]  # 256 where every depth fits
+    assert scale == (256.0 if np.nanmax(depth) * 256 <= 65535 else 128.0)
+    expected = np.where(np.isnan(depth), 0, np.clip(np.round(depth.astype(np.float64) * scale), 1, 65535))
+    assert (raw == expected).all()  # the same model run, written as round(mm x scale), 0 invalid
+    back = read_depth(png).numpy()
+    ok = np.isfinite(depth)
+    assert ok.mean() > 0.2 and np.abs(back[ok] - depth[ok]).max() <= 0.5 / scale + 1e-4
     preview = read_image(tmp_path / "near_preview.png")
     assert preview.shape == (3, 96, 64) and (preview[:, torch.from_numpy(np.isnan(depth))] == 0).all()
     from prismstereo.depth import read_ply
@@ -140,12 +142,22 @@ def test_dense_confidence_file_cannot_collide_with_another_output(scene, tmp_pat
     assert _run(scene, a, b, *args) == 0  # without --dense no confidence file, no collision
 
 
-def test_png_clipping_warns(scene, tmp_path, capsys):
-    assert _run(scene, scene / "far.png", "--out", tmp_path / "far.png") == 0
+def test_png_scale_automatic_or_clipping_with_a_warning(scene, tmp_path, capsys):
+    """Depths beyond 256 mm: an explicit x256 clips with a warning; the default picks a scale that fits, stores
+    it in the PNG and its sidecar, says so, and read_depth finds it; float TIFF keeps the depth exactly."""
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "far.png", "--png-scale", 256) == 0
     assert "clipped to 65535 (see --png-scale)" in capsys.readouterr().out
-    assert _run(scene, scene / "far.png", "--out", tmp_path / "far32.png", "--png-scale", 32) == 0
-    assert "warning" not in capsys.readouterr().out
-    assert abs(np.nanmedian(read_depth_png(tmp_path / "far32.png", scale=32).numpy()) / FAR - 1) < 0.02
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "auto.png") == 0
+    out = capsys.readouterr().out
+    assert "warning" not in out and "levels/mm (stored in the PNG and auto.json)" in out
+    assert abs(np.nanmedian(read_depth(tmp_path / "auto.png").numpy()) / FAR - 1) < 0.02
+    scale = json.loads((tmp_path / "auto.json").read_text())["depth_scale"]
+    assert f"{scale:g} levels/mm" in out
+    assert abs(np.nanmedian(read_depth_png(tmp_path / "auto.png", scale).numpy()) / FAR - 1) < 0.02
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "far.tiff") == 0
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "far.npy") == 0
+    tiff, npy = read_depth(tmp_path / "far.tiff").numpy(), np.load(tmp_path / "far.npy")
+    np.testing.assert_array_equal(tiff, npy)
 
 
 def test_directory_of_two_images_batched_with_ply(scene, tmp_path, capsys):
@@ -160,7 +172,7 @@ def test_directory_of_two_images_batched_with_ply(scene, tmp_path, capsys):
 
     assert read_ply(out / "far.ply").colors.shape[1] == 3
     assert _run(scene, scene / "far.png", scene / "near.png", "--out", out, "--format", "png") == 0
-    assert {"far.png", "far_preview.png", "near.png", "near_preview.png"} <= {p.name for p in out.iterdir()}
+    assert {"far.png", "far_preview.png", "far.json", "near.png", "near_preview.png"} <= {p.name for p in out.iterdir()}
 
 
 @pytest.mark.parametrize(
@@ -176,7 +188,7 @@ def test_directory_of_two_images_batched_with_ply(scene, tmp_path, capsys):
         (["{far}", "{far}", "--out", "{tmp}/d.npy"], "2 images: --out must be a directory"),
         (["{far}", "{tmp}/x/far.png", "--out", "{tmp}/o"], "would both write {tmp}/o/far.npy"),
         (["{far}", "{tmp}/far_preview.png", "--out", "{tmp}/o", "--format", "png"], "would both write"),
-        (["{far}", "--out", "{tmp}/d.tif"], "--out must end in .npy or .png (one image) or be a directory"),
+        (["{far}", "--out", "{tmp}/d.exr"], "--out must end in .npy, .png or .tiff (one image) or be a directory"),
         (["{far}", "--out", "{tmp}/d.npy", "--format", "png"], "--format png contradicts --out"),
         (["{far}", "--out", "{tmp}/d.npy", "--batch-size", "0"], "--batch-size must be >= 1"),
         (["{far}", "--out", "{tmp}/d.npy", "--hypotheses", "1"], "--hypotheses must be >= 2"),

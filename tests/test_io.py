@@ -2,7 +2,15 @@ import numpy as np
 import pytest
 import torch
 
-from prismstereo.io import ImageIOError, read_image, write_image
+from prismstereo.io import (
+    ImageIOError,
+    depth_png_scale,
+    read_depth,
+    read_image,
+    write_depth,
+    write_depth_png,
+    write_image,
+)
 
 
 @pytest.mark.parametrize("channels", [1, 3])
@@ -84,3 +92,66 @@ def test_depth_preview(tmp_path):
     assert (img[:, 0, 1] - img[:, 3, 3]).abs().sum() > 0.5  # near and far get different colours
     with pytest.raises(ImageIOError, match="unknown matplotlib colormap"):
         write_depth_preview(tmp_path / "p.png", depth, cmap="nope")
+
+
+# ----------------------------------------------------------------------------- depth files in every format
+def _depth_and_mask(deepest: float = 1300.0):
+    g = torch.Generator().manual_seed(5)
+    depth = 300.0 + (deepest - 300.0) * torch.rand(24, 18, generator=g, dtype=torch.float64)
+    return depth, torch.rand(24, 18, generator=g) > 0.25
+
+
+@pytest.mark.parametrize("name", ["d.npy", "d.tiff", "d.tif", "d.png"])
+def test_write_depth_round_trips_every_format(tmp_path, name):
+    depth, valid = _depth_and_mask()
+    written = write_depth(tmp_path / name, depth, valid)
+    back = read_depth(written.path)
+    assert back.dtype == torch.float32 and back.shape == (24, 18)
+    assert torch.equal(torch.isfinite(back), valid)
+    err = (back.double() - depth)[valid].abs().max()
+    if written.format == "png":
+        assert written.scale == 32.0 and written.clipped == 0 and written.sidecar == tmp_path / "d.json"
+        assert err <= 0.5 / 32 + 1e-4
+    else:
+        assert written.scale is None and written.sidecar is None and err < 1e-4  # float32 exactly
+
+
+def test_depth_png_scale_reference_values_and_storage(tmp_path):
+    assert depth_png_scale(torch.full((2, 2), 255.9)) == 256.0  # the endoscopy convention where it fits
+    assert depth_png_scale(torch.full((2, 2), 256.1)) == 128.0
+    assert depth_png_scale(torch.full((2, 2), 1374.0)) == 32.0  # the thesis' range
+    assert depth_png_scale(torch.full((2, 2), 1e9), torch.zeros(2, 2, dtype=torch.bool)) == 256.0  # none valid
+    depth, valid = _depth_and_mask(900.0)
+    written = write_depth(tmp_path / "a.png", depth, valid)
+    assert written.scale == 64.0
+    (tmp_path / "a.json").unlink()  # the text chunk alone suffices
+    assert torch.allclose(read_depth(tmp_path / "a.png")[valid].double(), depth[valid], atol=0.5 / 64 + 1e-4)
+    legacy = tmp_path / "legacy.png"  # a PNG without a stored scale (another tool's): read at 256
+    write_depth_png(legacy, torch.full((4, 4), 100.0))
+    assert torch.allclose(read_depth(legacy), torch.full((4, 4), 100.0))
+    assert torch.allclose(read_depth(tmp_path / "a.png", scale=128.0)[valid].double(), depth[valid] / 2, atol=0.01)
+    clipped = write_depth(tmp_path / "c.png", depth, valid, png_scale=256.0)
+    assert clipped.scale == 256.0 and clipped.clipped == int((valid & (depth * 256 > 65535)).sum()) > 0
+
+
+def test_depth_file_errors(tmp_path):
+    depth = torch.full((4, 4), 500.0)
+    with pytest.raises(ImageIOError, match="cannot tell the depth format of .*d.exr"):
+        write_depth(tmp_path / "d.exr", depth)
+    with pytest.raises(ImageIOError, match="unknown depth format 'exr'. Choose from: npy, png, tiff"):
+        write_depth(tmp_path / "d", depth, format="exr")
+    with pytest.raises(ImageIOError, match="format 'npy' contradicts the file name d.png"):
+        write_depth(tmp_path / "d.png", depth, format="npy")
+    with pytest.raises(ImageIOError, match="depth map not found"):
+        read_depth(tmp_path / "missing.tiff")
+    np.save(tmp_path / "ints.npy", np.zeros((4, 4), np.int32))
+    with pytest.raises(ImageIOError, match="must be a 2-D float array"):
+        read_depth(tmp_path / "ints.npy")
+    write_depth(tmp_path / "s.png", depth)
+    (tmp_path / "s.json").write_text("{}")
+    from PIL import Image
+
+    Image.open(tmp_path / "s.png").save(tmp_path / "plain.png")  # without the text chunk
+    (tmp_path / "plain.json").write_text('{"scale": 3}')
+    with pytest.raises(ImageIOError, match="unreadable depth scale in .*plain.json"):
+        read_depth(tmp_path / "plain.png")
