@@ -143,6 +143,31 @@ def _write_depth(target: _DepthTarget, depth: torch.Tensor, valid: torch.Tensor,
     return note
 
 
+def _camera_to_world(path: str) -> torch.Tensor:
+    """A (4, 4) rigid camera-to-world transform from a JSON file: a 4 x 4 list, or {"camera_to_world": ...}."""
+    import json
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise PrismStereoError(f"cannot read --camera-to-world {path}: {exc}") from exc
+    if isinstance(data, dict):
+        data = data.get("camera_to_world")
+    try:
+        pose = torch.tensor(data, dtype=torch.float64)
+    except (TypeError, ValueError):
+        pose = None
+    if pose is None or pose.shape != (4, 4) or not bool(torch.isfinite(pose).all()):
+        raise PrismStereoError(f"--camera-to-world {path} must hold a finite 4 x 4 matrix")
+    rot = pose[:3, :3]
+    rigid = torch.allclose(rot.T @ rot, torch.eye(3, dtype=torch.float64), atol=1e-6) and abs(
+        float(torch.linalg.det(rot)) - 1) < 1e-6 and pose[3].tolist() == [0.0, 0.0, 0.0, 1.0]
+    if not rigid:
+        raise PrismStereoError(f"--camera-to-world {path} is not a rigid transform (rotation, translation, last row "
+                               "0 0 0 1)")
+    return pose
+
+
 def _cmd_depth(args: argparse.Namespace) -> int:
     import kornia
     from tqdm import tqdm
@@ -156,6 +181,9 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         raise PrismStereoError(f"--batch-size must be >= 1, got {args.batch_size}")
     if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
         raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
+    pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
+    if pose is not None and not args.ply:
+        raise PrismStereoError("--camera-to-world transforms the --ply point clouds: add --ply")
     for image in images:  # fail early, before any work or output, on an unreadable or wrong-sized image
         _read_capture(image, rig)
     model, summary = _build_model(args, rig)
@@ -178,7 +206,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                     np.save(targets[i].confidence, res.confidence[k, 0].numpy().astype(np.float32))
                     note += f", confidence {targets[i].confidence.name}"
                 if args.ply:
-                    count = write_ply(targets[i].ply, points[k], colors=captures[k][:, :, :w_ref])
+                    count = write_ply(targets[i].ply, points[k], colors=captures[k][:, :, :w_ref],
+                                      confidence=res.confidence[k, 0], camera_to_world=pose)
                     note += f", {targets[i].ply.name} ({count} points)"
                 ok = valid & torch.isfinite(depth)
                 median = f"median {float(depth[ok].median()):.1f} mm" if bool(ok.any()) else "no valid depth"
@@ -233,7 +262,11 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
                        help="16-bit PNG levels per mm (default: 256, the endoscopy convention, where every depth "
                             "is <= 255.996 mm, else the largest power of two that fits; stored in the PNG)")
     depth.add_argument("--ply", action="store_true",
-                       help="also write <stem>.ply point clouds (camera frame, mm, coloured by the reference half)")
+                       help="also write <stem>.ply point clouds (camera frame, mm, coloured by the reference half, "
+                            "with each point's confidence as a 'confidence' property)")
+    depth.add_argument("--camera-to-world", default=None, metavar="POSE.json",
+                       help="write the --ply points in a world frame: a JSON 4 x 4 rigid transform (a list, or "
+                            "{\"camera_to_world\": [[...], ...]}) from the camera frame")
     depth.set_defaults(func=_cmd_depth)
 
 

@@ -130,6 +130,30 @@ def test_dense_writes_every_covered_pixel_and_its_confidence(scene, tmp_path, ca
     assert both.mean() > 0.3 and np.median(np.abs(d0[both] / d1[both] - 1)) < 1e-4
 
 
+def test_ply_carries_confidence_and_a_world_frame(scene, tmp_path, capsys):
+    import json as _json
+
+    from prismstereo.depth import read_ply
+
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "cam.npy", "--ply") == 0
+    pose = [[0.0, -1.0, 0.0, 5.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, -100.0], [0.0, 0.0, 0.0, 1.0]]
+    (tmp_path / "pose.json").write_text(_json.dumps({"camera_to_world": pose}))
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "world.npy", "--ply", "--camera-to-world",
+                tmp_path / "pose.json") == 0
+    cam, world = read_ply(tmp_path / "cam.ply"), read_ply(tmp_path / "world.ply")
+    assert cam.confidence is not None and bool((cam.confidence >= 0.5).all())  # valid points: confident ones
+    p = torch.tensor(pose, dtype=torch.float64)
+    torch.testing.assert_close(world.points.double(), cam.points.double() @ p[:3, :3].T + p[:3, 3], atol=1e-3,
+                               rtol=1e-6)
+    (tmp_path / "bad.json").write_text(_json.dumps([[2.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))
+    capsys.readouterr()
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--ply", "--camera-to-world",
+                tmp_path / "bad.json") == 2
+    assert "is not a rigid transform" in capsys.readouterr().err
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--camera-to-world", tmp_path / "pose.json") == 2
+    assert "--camera-to-world transforms the --ply point clouds: add --ply" in capsys.readouterr().err
+
+
 def test_dense_confidence_file_cannot_collide_with_another_output(scene, tmp_path, capsys):
     import shutil
 

@@ -7,7 +7,9 @@ X = o + (Z - o_z) / d_z d, with o the exit point on the back plane and d the out
 exact (no virtual pinhole), so projecting the points back through the left face recovers the pixel grid.
 
 PLY files (:func:`write_ply`, :func:`read_ply`) are binary little-endian with one ``vertex`` element:
-float32 ``x y z`` (camera frame, mm) and optionally uchar ``red green blue``.
+float32 ``x y z`` (mm; the camera frame, or a world frame given by a camera-to-world transform), optionally uchar
+``red green blue`` and a float32 ``confidence`` (the depth model's, as MeshLab and Open3D read scalar
+properties).
 """
 
 from __future__ import annotations
@@ -35,10 +37,12 @@ class PointCloud(NamedTuple):
     Attributes:
         points: (N, 3) float32 camera-frame points (mm).
         colors: (N, 3) uint8 RGB, or None if the file has no colours.
+        confidence: (N,) float32, or None if the file has no ``confidence`` property.
     """
 
     points: torch.Tensor
     colors: torch.Tensor | None
+    confidence: torch.Tensor | None = None
 
 
 def depth_to_points(
@@ -89,6 +93,17 @@ def depth_to_points(
     return torch.where(ok, pts, torch.full_like(pts, float("nan")))
 
 
+def _per_point(values: torch.Tensor, points: torch.Tensor, name: str) -> np.ndarray:
+    """(N,) float32 numpy values laid out like a mask of ``points`` ((H, W) / (1, H, W) or (N,))."""
+    grid = points.dim() == 3 and points.shape[0] == 3
+    want = tuple(points.shape[1:]) if grid else (points.shape[0],)
+    n = int(np.prod(want))
+    if not isinstance(values, torch.Tensor) or values.numel() != n or values.dim() not in (len(want), len(want) + 1):
+        got = tuple(values.shape) if isinstance(values, torch.Tensor) else type(values).__name__
+        raise ShapeError(f"{name} must have shape {want}, got {got}")
+    return values.detach().reshape(-1).to(torch.float32).cpu().numpy()
+
+
 def _as_rows(points: torch.Tensor, valid: torch.Tensor | None, colors: torch.Tensor | None):
     """(N, 3) float32 points, (N,) keep mask and (N, 3) uint8 colours (or None) as numpy arrays."""
     if not isinstance(points, torch.Tensor):
@@ -129,24 +144,32 @@ def write_ply(
     points: torch.Tensor,
     valid: torch.Tensor | None = None,
     colors: torch.Tensor | None = None,
+    *,
+    confidence: torch.Tensor | None = None,
+    camera_to_world: torch.Tensor | None = None,
 ) -> int:
     """Write the valid, finite points as a binary little-endian PLY file.
 
-    Vertices are float32 ``x y z`` (mm), plus uchar ``red green blue`` when ``colors`` is given.
+    Vertices are float32 ``x y z`` (mm), plus uchar ``red green blue`` when ``colors`` is given and a float32
+    ``confidence`` when ``confidence`` is.
 
     Args:
         path: output ``.ply`` path (parent folders are created).
-        points: (3, H, W) points of an image (e.g. one item of :func:`depth_to_points`) or (N, 3) points.
+        points: (3, H, W) points of an image (e.g. one item of :func:`depth_to_points`) or (N, 3) points, in the
+            camera frame (mm).
         valid: optional mask, (H, W) or (1, H, W) for image points, (N,) for a list; non-finite points are
             always skipped.
         colors: optional colours laid out like ``points``: (C, H, W) or (N, C), C = 1 (grey, written as
             equal RGB) or 3; floats in [0, 1] (scaled by 255 and rounded) or uint8.
+        confidence: optional per-point confidence laid out like ``valid``: (H, W) / (1, H, W) or (N,).
+        camera_to_world: optional (4, 4) rigid transform applied to the points (X_world = R X + t), e.g. the
+            camera's pose on a robot or tracker; the file's comment names the frame.
 
     Returns:
         The number of points written.
 
     Raises:
-        ShapeError: on mismatched shapes.
+        ShapeError: on mismatched shapes or a transform that is not (4, 4).
         PointCloudError: if the file cannot be written.
 
     Example:
@@ -154,17 +177,32 @@ def write_ply(
         20
     """
     pts, keep, rgb = _as_rows(points, valid, colors)
+    frame = "camera frame"
+    if camera_to_world is not None:
+        if not isinstance(camera_to_world, torch.Tensor) or tuple(camera_to_world.shape) != (4, 4):
+            raise ShapeError("camera_to_world must be a (4, 4) tensor, got "
+                             f"{getattr(camera_to_world, 'shape', type(camera_to_world).__name__)}")
+        t = camera_to_world.detach().to(torch.float64).cpu().numpy()
+        pts = pts.astype(np.float64) @ t[:3, :3].T + t[:3, 3]
+        frame = "world frame (camera_to_world applied)"
+    conf = None
+    if confidence is not None:
+        conf = _per_point(confidence, points, "confidence")
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if rgb is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    if conf is not None:
+        fields += [("confidence", "<f4")]
     rows = np.empty(int(keep.sum()), dtype=np.dtype(fields))
     for k, name in enumerate("xyz"):
         rows[name] = pts[keep, k]
     if rgb is not None:
         for k, name in enumerate(("red", "green", "blue")):
             rows[name] = rgb[keep, k]
+    if conf is not None:
+        rows["confidence"] = conf[keep]
     props = "".join(f"property {'float' if kind == '<f4' else 'uchar'} {name}\n" for name, kind in fields)
-    header = (f"ply\nformat binary_little_endian 1.0\ncomment prismstereo camera frame, mm\n"
+    header = (f"ply\nformat binary_little_endian 1.0\ncomment prismstereo {frame}, mm\n"
               f"element vertex {rows.shape[0]}\n{props}end_header\n")
     path = Path(path)
     try:
@@ -187,7 +225,7 @@ def read_ply(path: str | Path) -> PointCloud:
     :func:`write_ply` writes; other scalar properties are read and ignored).
 
     Returns:
-        PointCloud(points (N, 3) float32, colors (N, 3) uint8 or None).
+        PointCloud(points (N, 3) float32, colors (N, 3) uint8 or None, confidence (N,) float32 or None).
 
     Raises:
         PointCloudError: if the file is missing, not PLY, ASCII / big-endian, has other elements or list
@@ -234,4 +272,5 @@ def read_ply(path: str | Path) -> PointCloud:
     colors = None
     if {"red", "green", "blue"} <= set(names):
         colors = torch.from_numpy(np.stack([rows[k].astype(np.uint8) for k in ("red", "green", "blue")], -1))
-    return PointCloud(pts, colors)
+    confidence = torch.from_numpy(rows["confidence"].astype(np.float32)) if "confidence" in names else None
+    return PointCloud(pts, colors, confidence)

@@ -103,7 +103,32 @@ def test_ply_round_trip_point_list(tmp_path):
     assert cloud.colors.tolist() == rgb.tolist()
     assert write_ply(tmp_path / "c.ply", pts, valid=torch.tensor([False, True])) == 1
     cloud = read_ply(tmp_path / "c.ply")
-    assert cloud.colors is None and cloud.points.tolist() == [[4.0, 5.0, 6.0]]
+    assert cloud.colors is None and cloud.confidence is None and cloud.points.tolist() == [[4.0, 5.0, 6.0]]
+
+
+def test_ply_confidence_and_camera_to_world(tmp_path):
+    """A confidence property laid out like the mask, and points moved by a rigid camera-to-world transform."""
+    gen = torch.Generator().manual_seed(2)
+    pts = torch.randn(3, 4, 5, generator=gen, dtype=F64) * 100
+    valid = torch.rand(4, 5, generator=gen) > 0.3
+    conf = torch.rand(1, 4, 5, generator=gen)
+    angle = torch.tensor(0.3, dtype=F64)
+    pose = torch.eye(4, dtype=F64)
+    pose[:3, :3] = torch.tensor([[torch.cos(angle), -torch.sin(angle), 0.0], [torch.sin(angle), torch.cos(angle), 0.0],
+                                 [0.0, 0.0, 1.0]], dtype=F64)
+    pose[:3, 3] = torch.tensor([10.0, -20.0, 500.0], dtype=F64)
+    n = write_ply(tmp_path / "w.ply", pts, valid, confidence=conf, camera_to_world=pose)
+    cloud = read_ply(tmp_path / "w.ply")
+    assert n == int(valid.sum()) and cloud.colors is None
+    torch.testing.assert_close(cloud.confidence, conf[0][valid])
+    camera = pts.permute(1, 2, 0)[valid]
+    world = camera @ pose[:3, :3].T + pose[:3, 3]
+    torch.testing.assert_close(cloud.points.double(), world, atol=1e-3, rtol=1e-6)
+    assert b"world frame" in (tmp_path / "w.ply").read_bytes()[:200]
+    with pytest.raises(ShapeError, match=r"confidence must have shape \(4, 5\)"):
+        write_ply(tmp_path / "x.ply", pts, confidence=torch.ones(3, 5))
+    with pytest.raises(ShapeError, match=r"camera_to_world must be a \(4, 4\) tensor"):
+        write_ply(tmp_path / "x.ply", pts, camera_to_world=torch.eye(3))
 
 
 def test_ply_errors(tmp_path):
