@@ -175,6 +175,13 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     from prismstereo.depth import depth_to_points, write_ply
 
     rig = load_rig(args.rig)
+    from prismstereo.video import is_sequence_source
+
+    if len(args.images) == 1 and is_sequence_source(args.images[0]):
+        return _cmd_depth_sequence(args, rig)
+    if args.preview_video or args.every != 1 or args.start != 0 or args.stop is not None:
+        raise PrismStereoError("--every, --start, --stop and --preview-video need a video, a directory or a glob "
+                               "of images")
     images = [Path(p) for p in args.images]
     targets = _depth_targets(images, Path(args.out), args.format, args.ply, args.dense)
     if args.batch_size < 1:
@@ -218,6 +225,95 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sequence_stem(source: str) -> str:
+    """The output stem of a video (its stem), a directory (its name) or a glob (its folder's name)."""
+    path = Path(source)
+    if any(c in source for c in "*?["):
+        return path.parent.name or "frames"
+    return path.name if path.is_dir() else path.stem
+
+
+def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig) -> int:
+    """``prismstereo depth`` on a video, a directory or a glob: one depth file per selected frame,
+    ``OUT/<stem>_000000.<format>`` numbered from 0 in frame order, through a :class:`~prismstereo.stream.DepthStream`
+    of the chosen backend, and optionally a colour-mapped depth video."""
+    import cv2
+    from tqdm import tqdm
+
+    from prismstereo.depth import depth_to_points, write_ply
+    from prismstereo.io import depth_preview
+    from prismstereo.stream import DepthStream
+    from prismstereo.video import VIDEO_SUFFIXES, check_selection, read_frames, sequence_files, sequence_length
+
+    source, out = args.images[0], Path(args.out)
+    if out.suffix.lower() in _SUFFIX_FORMATS or (out.exists() and not out.is_dir()):
+        raise PrismStereoError(f"a video or sequence writes one file per frame: --out must be a directory, got {out}")
+    fmt = args.format or "npy"
+    check_selection(args.every, args.start, args.stop)
+    total = sequence_length(source)  # fails early on a missing or unreadable source
+    stop = total if args.stop is None else min(args.stop, total)
+    count = max(0, -(-(stop - args.start) // args.every))
+    inputs = set()
+    if Path(source).suffix.lower() not in VIDEO_SUFFIXES or any(c in source for c in "*?["):
+        inputs = {p.resolve() for p in sequence_files(source)}
+    stem = _sequence_stem(source)
+    model, summary = _build_model(args, rig)
+    if args.backend == "onnx":
+        from prismstereo.export import onnx_session
+
+        stream = DepthStream(onnx_session(model, channels=1))
+    else:
+        stream = DepthStream(model)
+    pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
+    if pose is not None and not args.ply:
+        raise PrismStereoError("--camera-to-world transforms the --ply point clouds: add --ply")
+    print(f"{summary}, backend {args.backend}, {count} of {total} frames of {source}")
+    writer = None
+    try:
+        with tqdm(total=count, unit="frame", file=sys.stderr, desc="depth") as bar:
+            for k, frame in enumerate(read_frames(source, every=args.every, start=args.start, stop=args.stop)):
+                name = f"{stem}_{k:06d}"
+                path = out / f"{name}.{fmt}"
+                target = _DepthTarget(path, out / f"{name}_preview.png" if fmt == "png" else None,
+                                      out / f"{name}.ply" if args.ply else None,
+                                      out / f"{name}_confidence.npy" if args.dense else None,
+                                      path.with_suffix(".json") if fmt == "png" else None)
+                if any(p is not None and p.resolve() in inputs for p in target):
+                    raise PrismStereoError(f"{path} would overwrite an input frame")
+                res = stream.push(frame.image)
+                written = (res.confidence > 0) if args.dense else res.valid
+                depth, valid = res.depth[0, 0], written[0, 0]
+                out.mkdir(parents=True, exist_ok=True)
+                _write_depth(target, depth, valid, args.png_scale)
+                if target.confidence is not None:
+                    np.save(target.confidence, res.confidence[0, 0].numpy().astype(np.float32))
+                if args.ply:
+                    with torch.inference_mode():
+                        points = depth_to_points(rig, res.depth.to(torch.float64), written)
+                    write_ply(target.ply, points[0], colors=frame.image[:, :, : rig.reference_width],
+                              confidence=res.confidence[0, 0], camera_to_world=pose)
+                if args.preview_video:
+                    picture = depth_preview(depth, valid, limits_mm=tuple(model.z_range))
+                    if writer is None:
+                        Path(args.preview_video).parent.mkdir(parents=True, exist_ok=True)
+                        writer = cv2.VideoWriter(str(args.preview_video), cv2.VideoWriter_fourcc(*"mp4v"),
+                                                 args.preview_fps, (picture.shape[1], picture.shape[0]))
+                        if not writer.isOpened():
+                            raise PrismStereoError(f"OpenCV cannot write the video {args.preview_video}")
+                    writer.write(picture)
+                bar.set_postfix(ms=f"{res.milliseconds:.0f}")
+                bar.update(1)
+    finally:
+        if writer is not None:
+            writer.release()
+    times = sorted(stream.times_ms)
+    median = times[len(times) // 2] if times else float("nan")
+    print(f"wrote {stream.frames} depth files {stem}_000000.{fmt} ... to {out}: {median:.1f} ms per frame "
+          f"(median of the depth computation), {stream.frames_per_second():.1f} frames/s"
+          + (f"; preview video {args.preview_video}" if args.preview_video else ""))
+    return 0
+
+
 def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
     """``--downsample``, ``--full-band``, ``--band-edges`` and ``--dense``, shared by ``depth`` and ``export`` (the
     model's defaults when absent)."""
@@ -242,7 +338,9 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``prismstereo depth`` on the main parser's subcommands."""
     depth = sub.add_parser("depth", help="metric depth of the reference (left) half of bi-prism captures")
     depth.add_argument("images", metavar="IMAGE", nargs="+",
-                       help="full sensor image(s): 8/16-bit grey or RGB PNG/TIFF/JPEG of the rig's size")
+                       help="full sensor image(s): 8/16-bit grey or RGB PNG/TIFF/JPEG of the rig's size; or one "
+                            "video file (.mp4, .avi, .mkv, ...), directory of images or quoted glob ('frames/*.png'),"
+                            " written as OUT/<stem>_000000.<format>, ... numbered from 0 in frame order")
     depth.add_argument("--rig", required=True, help="rig JSON file or preset name")
     depth.add_argument("--out", required=True,
                        help="OUT.npy or OUT.tiff (float32 mm, NaN invalid) or OUT.png (16-bit mm x scale, 0 "
@@ -261,6 +359,12 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--png-scale", type=float, default=None, metavar="S",
                        help="16-bit PNG levels per mm (default: 256, the endoscopy convention, where every depth "
                             "is <= 255.996 mm, else the largest power of two that fits; stored in the PNG)")
+    depth.add_argument("--every", type=int, default=1, metavar="N", help="video / sequence: every N-th frame")
+    depth.add_argument("--start", type=int, default=0, metavar="I", help="video / sequence: first frame (0-based)")
+    depth.add_argument("--stop", type=int, default=None, metavar="J", help="video / sequence: end frame (exclusive)")
+    depth.add_argument("--preview-video", default=None, metavar="OUT.mp4",
+                       help="video / sequence: also write the colour-mapped depth as a video (mp4v)")
+    depth.add_argument("--preview-fps", type=float, default=10.0, help="frame rate of --preview-video")
     depth.add_argument("--ply", action="store_true",
                        help="also write <stem>.ply point clouds (camera frame, mm, coloured by the reference half, "
                             "with each point's confidence as a 'confidence' property)")

@@ -31,6 +31,7 @@ __all__ = [
     "write_depth_png",
     "read_depth_png",
     "write_depth_preview",
+    "depth_preview",
     "DEPTH_FILE_FORMATS",
     "DepthFile",
     "depth_png_scale",
@@ -218,21 +219,26 @@ def read_depth_png(path: str | Path, scale: float = 256.0) -> torch.Tensor:
     return torch.from_numpy(depth)
 
 
-def write_depth_preview(
-    path: str | Path,
+def depth_preview(
     depth: torch.Tensor,
     valid: torch.Tensor | None = None,
     cmap: str = "turbo",
     percentiles: tuple[float, float] = (2.0, 98.0),
-) -> None:
-    """Write an 8-bit RGB picture of a depth map (H, W): a matplotlib colormap of inverse depth (near warm,
-    far cool with ``turbo``) stretched between the given percentiles of the valid depths; invalid pixels black.
+    limits_mm: tuple[float, float] | None = None,
+) -> np.ndarray:
+    """An 8-bit picture of a depth map (H, W): a matplotlib colormap of inverse depth (near warm, far cool with
+    ``turbo``) stretched between the given percentiles of the valid depths, or between fixed ``limits_mm``
+    (z_min, z_max: the same colours in every frame of a video); invalid pixels black.
+
+    Returns:
+        (H, W, 3) uint8 BGR array (OpenCV's order, for ``cv2.imwrite`` / ``cv2.VideoWriter``).
 
     Raises:
-        ImageIOError: on an unknown colormap or a failed write.
+        ImageIOError: on an unknown colormap.
 
     Example:
-        >>> write_depth_preview("depth_preview.png", 400 + 100 * torch.rand(96, 64))  # doctest: +SKIP
+        >>> depth_preview(torch.full((4, 5), 500.0), limits_mm=(400.0, 700.0)).shape
+        (4, 5, 3)
     """
     import matplotlib
 
@@ -244,11 +250,32 @@ def write_depth_preview(
     ok = np.isfinite(d) & (d > 0)
     inv = np.zeros(d.shape)
     inv[ok] = 1.0 / d[ok]
-    lo, hi = np.percentile(inv[ok], percentiles) if ok.any() else (0.0, 1.0)
+    if limits_mm is not None:
+        lo, hi = 1.0 / limits_mm[1], 1.0 / limits_mm[0]
+    else:
+        lo, hi = np.percentile(inv[ok], percentiles) if ok.any() else (0.0, 1.0)
     t = np.clip((inv - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
     rgb = colormap(t)[..., :3]
     rgb[~ok] = 0.0
-    _imwrite(Path(path), np.ascontiguousarray((rgb[..., ::-1] * 255).round().astype(np.uint8)))
+    return np.ascontiguousarray((rgb[..., ::-1] * 255).round().astype(np.uint8))
+
+
+def write_depth_preview(
+    path: str | Path,
+    depth: torch.Tensor,
+    valid: torch.Tensor | None = None,
+    cmap: str = "turbo",
+    percentiles: tuple[float, float] = (2.0, 98.0),
+) -> None:
+    """Write :func:`depth_preview` of a depth map (H, W) as an 8-bit RGB image.
+
+    Raises:
+        ImageIOError: on an unknown colormap or a failed write.
+
+    Example:
+        >>> write_depth_preview("depth_preview.png", 400 + 100 * torch.rand(96, 64))  # doctest: +SKIP
+    """
+    _imwrite(Path(path), depth_preview(depth, valid, cmap, percentiles))
 
 
 class DepthFile(NamedTuple):

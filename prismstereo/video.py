@@ -1,0 +1,188 @@
+"""Frames of a video file or an image sequence, for depth over time (``prismstereo depth VIDEO``, :class:`DepthStream`).
+
+A source is a video file (whatever OpenCV's ``VideoCapture`` reads: .mp4, .avi, .mkv, ...), a directory of images
+(sorted by name) or a glob pattern of images (``frames/*.png``). Frames come back as (C, H, W) float tensors in
+[0, 1], RGB (as :func:`~prismstereo.io.read_image`), numbered by their position in the source, with ``every`` /
+``start`` / ``stop`` selecting which.
+"""
+
+from __future__ import annotations
+
+import glob
+from collections.abc import Iterator
+from pathlib import Path
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+import torch
+
+from prismstereo.errors import PrismStereoError
+from prismstereo.io import ImageIOError, read_image
+
+__all__ = ["VideoError", "Frame", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES", "is_sequence_source", "sequence_files",
+           "sequence_length", "check_selection", "read_frames"]
+
+VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".avi", ".mkv", ".mov", ".m4v", ".mpg", ".mpeg", ".wmv", ".webm")
+IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm")
+
+
+class VideoError(PrismStereoError, OSError):
+    """A video or image sequence that cannot be opened or read."""
+
+
+class Frame(NamedTuple):
+    """One frame of a source.
+
+    Attributes:
+        index: position in the source (0-based; before ``every`` / ``start`` selection).
+        image: (C, H, W) float32 in [0, 1], RGB or grey.
+        name: the image file's name for sequences, ``"<video stem>"`` for videos.
+    """
+
+    index: int
+    image: torch.Tensor
+    name: str
+
+
+def _is_glob(text: str) -> bool:
+    return any(c in text for c in "*?[")
+
+
+def is_sequence_source(path: str | Path) -> bool:
+    """True for a video file (by suffix), a directory or a glob pattern: what :func:`read_frames` reads.
+
+    Example:
+        >>> is_sequence_source("clip.mp4"), is_sequence_source("frames/*.png"), is_sequence_source("a.png")
+        (True, True, False)
+    """
+    text = str(path)
+    return Path(text).suffix.lower() in VIDEO_SUFFIXES or _is_glob(text) or Path(text).is_dir()
+
+
+def sequence_files(source: str | Path) -> list[Path]:
+    """The image files of a directory (sorted by name) or a glob pattern.
+
+    Raises:
+        VideoError: no image files there.
+
+    Example:
+        >>> sequence_files("frames/*.png")  # doctest: +SKIP
+        [PosixPath('frames/000.png'), PosixPath('frames/001.png')]
+    """
+    source = str(source)
+    if _is_glob(source):
+        files = [Path(p) for p in sorted(glob.glob(source))]
+    else:
+        files = sorted(p for p in Path(source).iterdir())
+    files = [p for p in files if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
+    if not files:
+        raise VideoError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {source}")
+    return files
+
+
+def _open(path: Path) -> cv2.VideoCapture:
+    if not path.is_file():
+        raise VideoError(f"video not found: {path}")
+    capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        raise VideoError(f"OpenCV cannot open the video {path}")
+    return capture
+
+
+def sequence_length(source: str | Path) -> int:
+    """Number of frames of a source (a video's container count, which some codecs only estimate).
+
+    Raises:
+        VideoError: a missing or unreadable source.
+
+    Example:
+        >>> sequence_length("clip.mp4")  # doctest: +SKIP
+        120
+    """
+    text = str(source)
+    if Path(text).suffix.lower() in VIDEO_SUFFIXES and not _is_glob(text):
+        capture = _open(Path(text))
+        try:
+            return int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        finally:
+            capture.release()
+    return len(sequence_files(text))
+
+
+def check_selection(every: int, start: int, stop: int | None) -> None:
+    """Check a frame selection (``every`` >= 1, ``start`` >= 0, ``stop`` > ``start`` or None).
+
+    Raises:
+        VideoError: a bad selection.
+
+    Example:
+        >>> check_selection(2, 0, None)
+    """
+    if not isinstance(every, int) or every < 1:
+        raise VideoError(f"every must be an int >= 1, got {every!r}")
+    if not isinstance(start, int) or start < 0:
+        raise VideoError(f"start must be an int >= 0, got {start!r}")
+    if stop is not None and (not isinstance(stop, int) or stop <= start):
+        raise VideoError(f"stop must be an int > start ({start}) or None, got {stop!r}")
+
+
+def _to_tensor(bgr: np.ndarray) -> torch.Tensor:
+    """A decoded 8-bit video frame (H, W) or (H, W, 3) BGR as (C, H, W) float32 RGB in [0, 1]."""
+    if bgr.ndim == 2:
+        return torch.from_numpy(bgr.astype(np.float32) / np.float32(255.0))[None]
+    rgb = np.ascontiguousarray(bgr[..., ::-1])
+    return torch.from_numpy(rgb.astype(np.float32) / np.float32(255.0)).permute(2, 0, 1).contiguous()
+
+
+def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+    """The frames ``start``, ``start + every``, ... (< ``stop``) of a video file, directory or glob of images.
+
+    Args:
+        source: a video file, a directory of images or a glob pattern.
+        every: keep one frame in ``every``.
+        start: first frame (0-based).
+        stop: end (exclusive), None for the whole source.
+
+    Yields:
+        Frame(index, image (C, H, W) float32 in [0, 1], name).
+
+    Raises:
+        VideoError: a missing, unopenable or empty source, bad selection, or a frame that cannot be decoded.
+
+    Example:
+        >>> [f.index for f in read_frames("frames/", every=2, stop=5)]  # doctest: +SKIP
+        [0, 2, 4]
+    """
+    check_selection(every, start, stop)
+    text = str(source)
+    wanted = (lambda i: i >= start and (i - start) % every == 0)
+    if Path(text).suffix.lower() in VIDEO_SUFFIXES and not _is_glob(text):
+        path = Path(text)
+        capture = _open(path)
+        try:
+            index = 0
+            while stop is None or index < stop:
+                ok = capture.grab()
+                if not ok:
+                    break
+                if wanted(index):
+                    ok, bgr = capture.retrieve()
+                    if not ok or bgr is None:
+                        raise VideoError(f"cannot decode frame {index} of {path}")
+                    yield Frame(index, _to_tensor(bgr), path.stem)
+                index += 1
+            if index == 0:
+                raise VideoError(f"no frames could be read from {path}")
+        finally:
+            capture.release()
+        return
+    files = sequence_files(text)
+    for index, file in enumerate(files[: stop if stop is not None else len(files)]):
+        if not wanted(index):
+            continue
+        try:
+            image = read_image(file)
+        except ImageIOError as exc:
+            raise VideoError(f"cannot read frame {index}: {exc}") from exc
+        yield Frame(index, image, file.name)

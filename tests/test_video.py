@@ -1,0 +1,177 @@
+"""Video and image-sequence sources, the stream API (torch and ONNX) and ``prismstereo depth`` on them."""
+
+import threading
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from prismstereo import thesis_setup1
+from prismstereo.cli import main
+from prismstereo.errors import OptionError, ShapeError
+from prismstereo.io import read_depth, write_image
+from prismstereo.stream import DepthStream
+from prismstereo.video import VideoError, is_sequence_source, read_frames, sequence_length
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+DEPTHS = (500.0, 520.0, 540.0, 560.0, 580.0)  # a plane moving away, one depth per frame
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    """A rig file, five frames of a receding textured plane as PNGs and as an MJPG .avi (written with OpenCV)."""
+    from prismstereo import synthetic as syn
+
+    folder = tmp_path_factory.mktemp("video")
+    rig = thesis_setup1().downscaled(8)
+    rig.to_json(folder / "small.json")
+    scenes = [syn.fronto_parallel_plane(rig, z, seed=3) for z in DEPTHS]
+    cap = syn.render(rig, scenes, syn.ImageFormation(supersample=2, noise_sigma=1 / 255, seed=1))
+    (folder / "frames").mkdir()
+    writer = cv2.VideoWriter(str(folder / "clip.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 5.0,
+                             (rig.image_width, rig.image_height))
+    assert writer.isOpened()
+    for k, image in enumerate(cap.image):
+        write_image(folder / "frames" / f"f{k:03d}.png", image, bits=8)
+        grey = (image[0].numpy() * 255).round().astype(np.uint8)
+        writer.write(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    return folder
+
+
+def _depth(*args):
+    return main(["depth", *[str(a) for a in args]])
+
+
+def test_read_frames_of_videos_directories_and_globs(clip):
+    assert is_sequence_source(clip / "clip.avi") and is_sequence_source(clip / "frames")
+    assert not is_sequence_source(clip / "frames" / "f000.png")
+    assert sequence_length(clip / "clip.avi") == 5 and sequence_length(clip / "frames") == 5
+    video = list(read_frames(clip / "clip.avi", every=2))
+    assert [f.index for f in video] == [0, 2, 4] and video[0].image.shape == (3, 96, 128)
+    assert video[0].name == "clip" and video[0].image.dtype == torch.float32
+    files = list(read_frames(str(clip / "frames" / "*.png"), start=1, stop=4))
+    assert [f.index for f in files] == [1, 2, 3] and files[0].name == "f001.png"
+    same = list(read_frames(clip / "frames", start=1, stop=4))
+    assert all(torch.equal(a.image, b.image) for a, b in zip(files, same, strict=True))
+    # MJPG is lossy: the video's frames are close to the PNGs, not equal
+    assert float((video[1].image.mean(0) - list(read_frames(clip / "frames"))[2].image[0]).abs().mean()) < 0.03
+
+
+def test_read_frames_errors(clip, tmp_path):
+    with pytest.raises(VideoError, match="video not found"):
+        list(read_frames(tmp_path / "missing.mp4"))
+    (tmp_path / "junk.mp4").write_bytes(b"not a video")
+    with pytest.raises(VideoError, match="OpenCV cannot open the video|no frames could be read"):
+        list(read_frames(tmp_path / "junk.mp4"))
+    with pytest.raises(VideoError, match="no images"):
+        list(read_frames(tmp_path))
+    with pytest.raises(VideoError, match="every must be an int >= 1"):
+        list(read_frames(clip / "frames", every=0))
+    with pytest.raises(VideoError, match="stop must be an int > start"):
+        list(read_frames(clip / "frames", start=3, stop=2))
+    (tmp_path / "seq").mkdir()
+    (tmp_path / "seq" / "a.png").write_bytes(b"broken")
+    with pytest.raises(VideoError, match="cannot read frame 0"):
+        list(read_frames(tmp_path / "seq"))
+
+
+def test_stream_torch_and_onnx_agree_and_number_frames(clip, tmp_path):
+    from prismstereo.export import export_onnx
+    from prismstereo.model import PrismStereo
+
+    rig = thesis_setup1().downscaled(8)
+    model = PrismStereo(rig, (400.0, 700.0))
+    frames = [f.image for f in read_frames(clip / "frames")]
+    torch_stream = DepthStream(model)
+    onnx_stream = DepthStream(export_onnx(model, tmp_path / "m.onnx"))
+    assert (torch_stream.backend, onnx_stream.backend) == ("torch", "onnx")
+    for k, (frame, z) in enumerate(zip(frames, DEPTHS, strict=True)):
+        a, b = torch_stream.push(frame), onnx_stream.push(frame)  # RGB -> grey inside
+        assert a.frame == b.frame == k and a.depth.shape == (1, 1, 96, 64)
+        assert torch.equal(a.valid, b.valid)
+        torch.testing.assert_close(a.depth[a.valid], b.depth[b.valid], rtol=1e-4, atol=1e-3)
+        assert abs(float(a.depth[a.valid].median()) / z - 1) < 0.01
+    bgr = cv2.cvtColor((frames[0][0].numpy() * 255).round().astype(np.uint8), cv2.COLOR_GRAY2BGR)
+    assert torch_stream.push(bgr).frame == 5 and len(torch_stream.times_ms) == 6
+    assert torch_stream.frames_per_second() > 0
+
+
+def test_stream_is_thread_safe_and_checks_its_input():
+    from prismstereo.model import PrismStereo
+
+    stream = DepthStream(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)))
+    numbers: list[int] = []
+    gen = torch.Generator().manual_seed(0)
+    frames = [torch.rand(1, 48, 64, generator=gen) for _ in range(6)]
+
+    def feed(items):
+        numbers.extend(stream.push(f).frame for f in items)
+
+    threads = [threading.Thread(target=feed, args=(frames[i::2],)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(numbers) == list(range(6)) and stream.frames == 6
+    with pytest.raises(ShapeError, match="frame is 32x48 px but the model expects 64x48"):
+        stream.push(torch.rand(1, 48, 32))
+    with pytest.raises(ShapeError, match=r"a frame must be \(C, H, W\) or \(1, C, H, W\)"):
+        stream.push(torch.rand(2, 1, 48, 64))
+    with pytest.raises(ShapeError, match="OpenCV's uint8"):
+        stream.push(np.zeros((48, 64, 3), np.float32))
+    with pytest.raises(OptionError, match="an .onnx file"):
+        DepthStream("model.pt")
+    with pytest.raises(OptionError, match="a torch module with a rig"):
+        DepthStream(torch.nn.Identity())
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_depth_cli_on_a_video_writes_numbered_frames(clip, tmp_path, capsys, backend):
+    out = tmp_path / "out"
+    assert _depth(clip / "clip.avi", "--rig", clip / "small.json", "--out", out, "--z-range", 400, 700,
+                  "--every", 2, "--backend", backend, "--preview-video", tmp_path / "preview.mp4",
+                  "--format", "tiff") == 0
+    text = capsys.readouterr().out
+    assert "3 of 5 frames" in text and "frames/s" in text
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["clip_000000.tiff", "clip_000001.tiff", "clip_000002.tiff"]
+    for k, z in enumerate(DEPTHS[::2]):
+        depth = read_depth(out / f"clip_{k:06d}.tiff").numpy()
+        assert abs(np.nanmedian(depth) / z - 1) < 0.02
+    preview = cv2.VideoCapture(str(tmp_path / "preview.mp4"))
+    assert preview.isOpened() and int(preview.get(cv2.CAP_PROP_FRAME_COUNT)) == 3
+    preview.release()
+
+
+def test_depth_cli_on_a_directory_and_its_errors(clip, tmp_path, capsys):
+    out = tmp_path / "seq"
+    assert _depth(clip / "frames", "--rig", clip / "small.json", "--out", out, "--z-range", 400, 700,
+                  "--start", 3, "--ply") == 0
+    assert sorted(p.name for p in out.iterdir()) == ["frames_000000.npy", "frames_000000.ply", "frames_000001.npy",
+                                                     "frames_000001.ply"]
+    assert abs(np.nanmedian(np.load(out / "frames_000001.npy")) / DEPTHS[4] - 1) < 0.02
+    capsys.readouterr()
+    cases = [
+        ([clip / "clip.avi", "--out", tmp_path / "d.npy"], "--out must be a directory"),
+        ([tmp_path / "none.mp4", "--out", tmp_path / "o"], "video not found"),
+        ([clip / "frames", "--out", tmp_path / "o", "--every", 0], "every must be an int >= 1"),
+        ([clip / "frames" / "f000.png", "--out", tmp_path / "o", "--every", 2], "need a video, a directory"),
+        ([tmp_path / "copy", "--out", tmp_path / "copy", "--format", "png"], None),
+    ]
+    import shutil
+
+    shutil.copytree(clip / "frames", tmp_path / "copy")
+    for args, message in cases:
+        code = _depth(*args, "--rig", clip / "small.json", "--z-range", 400, 700)
+        err = capsys.readouterr().err
+        if message is None:  # writing next to the frames is fine as long as no frame is overwritten
+            assert code == 0
+        else:
+            assert code == 2 and message in err, err
+    (tmp_path / "clash").mkdir()
+    write_image(tmp_path / "clash" / "clash_000000.png", torch.rand(1, 96, 128))
+    code = _depth(tmp_path / "clash", "--rig", clip / "small.json", "--out", tmp_path / "clash", "--format", "png")
+    assert code == 2 and "would overwrite an input frame" in capsys.readouterr().err
