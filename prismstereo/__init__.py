@@ -5,8 +5,12 @@ The public API (conventions: :mod:`prismstereo.conventions`):
 * rig: :class:`BiPrismRig`, :class:`RigParameters`, :func:`thesis_setup1`, :func:`thesis_setup2`
 * exact optics: :func:`trace_pixels`, :func:`project_points`, :func:`refract`, :func:`points_at_depth`
 * virtual cameras (thesis ch. 3): :func:`virtual_camera`, :func:`virtual_cameras`
+* depth: :class:`PrismStereo` (the model), :class:`DepthResult` (its output), :class:`DepthStream` (frames
+  pushed one at a time); loaded on first use, so ``import prismstereo`` stays light
 * errors: :class:`PrismStereoError` and its family
 """
+
+import importlib
 
 from prismstereo.errors import CalibrationError, OptionError, PrismStereoError, RigError, ShapeError
 from prismstereo.geometry.optics import (
@@ -65,4 +69,16 @@ __all__ = [
     "ray_midpoint",
     "virtual_camera",
     "virtual_cameras",
+    "PrismStereo",
+    "DepthResult",
+    "DepthStream",
 ]
+
+_LAZY = {"PrismStereo": "prismstereo.model", "DepthResult": "prismstereo.model", "DepthStream": "prismstereo.stream"}
+
+
+def __getattr__(name: str):
+    """The depth model's names, imported on first use (PEP 562)."""
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'prismstereo' has no attribute {name!r}")

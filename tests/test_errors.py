@@ -52,3 +52,15 @@ def test_check_floating():
         check_floating(torch.zeros(2, dtype=torch.int64), "x")
     with pytest.raises(TypeError):
         check_floating(torch.zeros(2, dtype=torch.int64), "x")
+
+
+def test_top_level_exports_the_depth_model_lazily():
+    import prismstereo
+    from prismstereo.model import DepthResult, PrismStereo
+    from prismstereo.stream import DepthStream
+
+    assert prismstereo.PrismStereo is PrismStereo and prismstereo.DepthResult is DepthResult
+    assert prismstereo.DepthStream is DepthStream
+    assert {"PrismStereo", "DepthResult", "DepthStream"} <= set(prismstereo.__all__)
+    with pytest.raises(AttributeError, match="has no attribute 'Nope'"):
+        prismstereo.Nope  # noqa: B018
