@@ -93,26 +93,43 @@ def _run_backend(name: str, model, batch: torch.Tensor):
     raise PrismStereoError(f"unknown backend {name!r}. Choose from: {', '.join(BACKENDS)}")
 
 
+def _resolve_config(args: argparse.Namespace):
+    """The model's :class:`~prismstereo.config.StereoConfig`: ``--preset`` (default 'accurate') or ``--config``,
+    with the explicit options (``--hypotheses``, ``--downsample``, ``--full-band``, ``--band-edges``, ``--dense``)
+    on top; sets ``args.dense`` to the config's."""
+    from prismstereo.config import StereoConfig, preset
+
+    if args.preset is not None and args.config is not None:
+        raise PrismStereoError("--preset and --config exclude each other")
+    base = StereoConfig.from_json(args.config) if args.config is not None else preset(args.preset or "accurate")
+    search = {k: v for k, v in (("num_hypotheses", args.hypotheses), ("downsample", args.downsample),
+                                ("full_band", args.full_band), ("band_edges", args.band_edges)) if v is not None}
+    config = base.replace(search=search, validity={"dense": True} if args.dense else {})
+    args.dense = config.validity.dense
+    return config
+
+
 def _build_model(args: argparse.Namespace, rig: BiPrismRig):
-    """The PrismStereo of ``--z-range`` / ``--hypotheses`` (shared by ``depth`` and ``export``), with a line
-    describing its range."""
+    """The PrismStereo of ``--z-range`` and the config (:func:`_resolve_config`; shared by ``depth`` and
+    ``export``), with a line describing its range."""
     from prismstereo.depth import check_z_range, default_z_range
     from prismstereo.model import PrismStereo
 
-    if args.hypotheses is not None and args.hypotheses < 2:
-        raise PrismStereoError(f"--hypotheses must be >= 2, got {args.hypotheses}")
-    if args.downsample is not None and args.downsample < 1:
-        raise PrismStereoError(f"--downsample must be >= 1, got {args.downsample}")
-    downsample = PrismStereo.default_downsample(rig) if args.downsample is None else args.downsample
-    if args.full_band is not None and (args.full_band < 0 or (args.full_band and downsample == 1)):
+    config = _resolve_config(args)
+    search = config.search
+    if search.num_hypotheses is not None and search.num_hypotheses < 2:
+        raise PrismStereoError(f"--hypotheses must be >= 2, got {search.num_hypotheses}")
+    if search.downsample is not None and search.downsample < 1:
+        raise PrismStereoError(f"--downsample must be >= 1, got {search.downsample}")
+    downsample = PrismStereo.default_downsample(rig) if search.downsample is None else search.downsample
+    if search.full_band is not None and (search.full_band < 0 or (search.full_band and downsample == 1)):
         raise PrismStereoError(f"--full-band must be >= 0 and needs --downsample >= 2 (here {downsample}), "
-                               f"got {args.full_band}")
+                               f"got {search.full_band}")
     if args.z_range is None:
         z_range, how = default_z_range(rig), "default for this rig"
     else:
         z_range, how = check_z_range(rig, args.z_range), "--z-range"
-    model = PrismStereo(rig, z_range, num_hypotheses=args.hypotheses, downsample=args.downsample,
-                        full_band=args.full_band, band_edges=args.band_edges, dense=args.dense).eval()
+    model = PrismStereo.from_config(rig, z_range, config).eval()
     return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
 
 
@@ -175,6 +192,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     from prismstereo.depth import depth_to_points, write_ply
 
     rig = load_rig(args.rig)
+    _resolve_config(args)  # --preset / --config: fails early, and sets args.dense for the outputs
     from prismstereo.video import is_sequence_source
 
     if len(args.images) == 1 and is_sequence_source(args.images[0]):
@@ -315,8 +333,8 @@ def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig) -> int:
 
 
 def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--downsample``, ``--full-band``, ``--band-edges`` and ``--dense``, shared by ``depth`` and ``export`` (the
-    model's defaults when absent)."""
+    """``--downsample``, ``--full-band``, ``--band-edges``, ``--dense``, ``--preset`` and ``--config``, shared by
+    ``depth`` and ``export`` (the preset's values when absent)."""
     parser.add_argument("--downsample", type=int, default=None, metavar="K",
                         help="match on KxK-binned pixels, depth on the full grid (~K^2 faster, K x coarser "
                              "unless --full-band); default: 2 with --full-band 2 on sensors whose reference "
@@ -325,10 +343,16 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --downsample: re-estimate every pixel at full resolution in a band of 2R+1 "
                              "hypotheses around the binned estimate (0: each pixel its block's value; "
                              "default: 0 with an explicit --downsample)")
-    parser.add_argument("--band-edges", choices=("reject", "clamp"), default="reject",
+    parser.add_argument("--band-edges", choices=("reject", "clamp"), default=None,
                         help="a pixel whose best hypothesis is on the edge of its final band: invalid (reject, "
                              "default) or refined from the edge's inner neighbour (clamp; with --full-band 1 the "
                              "fast full-resolution setting)")
+    parser.add_argument("--preset", choices=("accurate", "fast", "dense", "reference"), default=None,
+                        help="named model settings (prismstereo.config.PRESETS; default accurate); the options "
+                             "above override it")
+    parser.add_argument("--config", default=None, metavar="FILE.json",
+                        help="model settings from a StereoConfig JSON file (prismstereo.config); the options above "
+                             "override it")
     parser.add_argument("--dense", action="store_true",
                         help="a depth for every pixel of the common field of view with its calibrated confidence "
                              "(the probability of a depth within 1 %%), not only for the valid ones")

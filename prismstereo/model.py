@@ -51,6 +51,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.batching import per_image
+from prismstereo.config import StereoConfig, preset
 from prismstereo.defaults import default_coarse_factor, default_downsample, pyramid_band, pyramid_coarse_factor
 from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.range import default_z_range
@@ -427,6 +428,24 @@ class PrismStereo(nn.Module):
         """Rebuild the fine band after the coarse level with half width ``band``."""
         self.band = band
         self.fine = FineBand(self.fine.options, band, self.fine.step, self.fine.split)
+
+    @classmethod
+    def from_config(
+        cls, rig: BiPrismRig, z_range_mm: tuple[float, float] | None = None,
+        config: StereoConfig | str | None = None,
+    ) -> PrismStereo:
+        """The model of a :class:`~prismstereo.config.StereoConfig` or a preset's name ('accurate' (default),
+        'fast', 'dense', 'reference'; :data:`~prismstereo.config.PRESETS`).
+
+        Example:
+            >>> PrismStereo.from_config(thesis_setup1().downscaled(8), (400.0, 700.0), "dense").dense
+            True
+        """
+        resolved = preset("accurate" if config is None else config) if isinstance(config, str) or config is None \
+            else config
+        if not isinstance(resolved, StereoConfig):
+            raise OptionError(f"config must be a StereoConfig or a preset name, got {type(config).__name__}")
+        return cls(rig, z_range_mm, **resolved.to_kwargs())
 
     def config(self) -> dict[str, object]:
         """The constructor's options as resolved (defaults filled in), JSON-ready; with the rig

@@ -1,0 +1,87 @@
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from prismstereo import OptionError, thesis_setup1
+from prismstereo.cli import main
+from prismstereo.config import PRESETS, StereoConfig, preset
+from prismstereo.model import PrismStereo
+
+RIG = thesis_setup1().downscaled(2)  # 512 x 384: coarse-to-fine by default (the dense output needs it)
+Z = (400.0, 900.0)
+
+
+def test_default_config_is_the_models_default():
+    assert PrismStereo.from_config(RIG, Z).config() == PrismStereo(RIG, Z).config()
+    assert PrismStereo.from_config(RIG, Z, "accurate").config() == PrismStereo(RIG, Z).config()
+    assert PrismStereo.from_config(RIG, Z, StereoConfig()).config() == PrismStereo(RIG, Z).config()
+
+
+@pytest.mark.parametrize("name", list(PRESETS))
+def test_presets_build_the_model_of_their_options_and_round_trip(name, tmp_path):
+    model = PrismStereo.from_config(RIG, Z, name)
+    assert model.config() == PrismStereo(RIG, Z, **preset(name).to_kwargs()).config()
+    rebuilt = PrismStereo.from_config(RIG, Z, StereoConfig.from_kwargs(**model.config()))
+    assert rebuilt.config() == model.config()  # the resolved options are a config too
+    preset(name).to_json(tmp_path / "c.json")
+    assert StereoConfig.from_json(tmp_path / "c.json") == preset(name)
+
+
+def test_presets_differ_where_they_say():
+    assert PrismStereo.from_config(RIG, Z, "dense").dense
+    fast = PrismStereo.from_config(RIG, Z, "fast")
+    assert fast.downsample == 2 and fast.binned is not None and fast.band == 1 and fast.band_edges == "clamp"
+    reference = PrismStereo.from_config(RIG, Z, "reference")
+    assert reference.factor == 1 and reference.binned is None and reference.downsample == 1
+    image = torch.rand(1, 1, 384, 512, generator=torch.Generator().manual_seed(0))
+    assert fast(image).depth.shape == (1, 1, 384, RIG.reference_width)
+
+
+def test_config_errors(tmp_path):
+    with pytest.raises(OptionError, match="unknown preset 'quick'. Choose from: accurate, fast, dense, reference"):
+        preset("quick")
+    with pytest.raises(OptionError, match="unknown option 'zoom'; valid: .*band_edges"):
+        StereoConfig.from_kwargs(zoom=2)
+    with pytest.raises(OptionError, match="unknown config group 'speed'; valid: search, cost"):
+        StereoConfig().replace(speed={})
+    with pytest.raises(OptionError, match="config group 'search': .*unexpected keyword argument 'zoom'"):
+        StereoConfig().replace(search={"zoom": 1})
+    with pytest.raises(OptionError, match="config group 'search' must be an object of options"):
+        StereoConfig.from_dict({"search": 3})
+    with pytest.raises(OptionError, match="a config must be a JSON object of groups"):
+        StereoConfig.from_dict([1])
+    with pytest.raises(OptionError, match="cannot read the config"):
+        StereoConfig.from_json(tmp_path / "missing.json")
+    with pytest.raises(OptionError, match="config must be a StereoConfig or a preset name"):
+        PrismStereo.from_config(RIG, Z, 3)
+    with pytest.raises(OptionError, match="band_edges"):  # values are checked by the model
+        PrismStereo.from_config(RIG, Z, StereoConfig().replace(search={"band_edges": "wrap"}))
+
+
+def test_cli_preset_and_config(tmp_path, capsys):
+    from prismstereo import synthetic as syn
+    from prismstereo.io import write_image
+
+    rig = thesis_setup1().downscaled(8)
+    rig.to_json(tmp_path / "rig.json")
+    cap = syn.render(rig, [syn.fronto_parallel_plane(rig, 600.0, seed=3)], syn.ImageFormation(noise_sigma=1 / 255))
+    write_image(tmp_path / "c.png", cap.image[0])
+    base = ["depth", str(tmp_path / "c.png"), "--rig", str(tmp_path / "rig.json"), "--z-range", "400", "900"]
+    assert main([*base, "--out", str(tmp_path / "d.npy"), "--preset", "fast"]) == 0
+    assert "2x2-binned model" in capsys.readouterr().out
+    assert main([*base, "--out", str(tmp_path / "x.npy"), "--preset", "dense"]) == 2  # a single level here
+    assert "dense needs a coarse-to-fine model" in capsys.readouterr().err
+    config = {"validity": {"dense": True}, "search": {"num_hypotheses": 30, "coarse_factor": 2}}
+    (tmp_path / "cfg.json").write_text(json.dumps(config))
+    assert main([*base, "--out", str(tmp_path / "e.npy"), "--config", str(tmp_path / "cfg.json")]) == 0
+    out = capsys.readouterr().out
+    assert "30 hypotheses" in out and (tmp_path / "e_confidence.npy").exists()  # a dense config: as --dense
+    assert np.isfinite(np.load(tmp_path / "e.npy")).mean() > 0.5
+    both = ["--preset", "fast", "--config", str(tmp_path / "cfg.json")]
+    assert main([*base, "--out", str(tmp_path / "f.npy"), *both]) == 2
+    assert "--preset and --config exclude each other" in capsys.readouterr().err
+    (tmp_path / "bad.json").write_text('{"search": {"zoom": 1}}')
+    assert main([*base, "--out", str(tmp_path / "g.npy"), "--config", str(tmp_path / "bad.json")]) == 2
+    assert "unexpected keyword argument 'zoom'" in capsys.readouterr().err
