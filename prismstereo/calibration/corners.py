@@ -10,12 +10,10 @@ with J the image smoothed by a small Gaussian, d over a disk of radius r and g a
 (vignetting, the prism faces' different Fresnel transmission) that would otherwise pull the corner towards the
 brighter side. Gauss-Newton on (c, g), a fixed number of steps, all corners at once.
 
-OpenCV's detectors find the corners and their ids; this refinement replaces their positions. On the package's
-renders of a ChArUco board through ``thesis_setup1`` at 512 x 384 (26 px squares, noise 2/255) it reduces the
-error against the exact projections from 0.13 px RMS (``CharucoDetector``) to about 0.01 px (see
-``benchmarks/corners.py``). The disk must stay inside the corner's symmetric neighbourhood: for ChArUco boards the
-markers' inner bits start a quarter of a square from each corner, so the radius is 0.15 of the local corner
-spacing by default.
+OpenCV's detectors find the corners and their ids; this refinement replaces their positions (several times closer
+to the exact projections on rendered boards: ``benchmarks/corners.py``). The disk must stay inside the corner's
+symmetric neighbourhood: a ChArUco marker's inner bits start a quarter of a square from each corner, so the
+default radius is 0.15 of the local corner spacing.
 """
 
 from __future__ import annotations
