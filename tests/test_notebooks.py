@@ -13,12 +13,13 @@ def test_notebooks_exist():
     names = {p.name for p in NOTEBOOKS}
     for required in ("01_prism_geometry.ipynb", "02_synthetic_capture.ipynb", "03_epipolar.ipynb",
                      "04_depth.ipynb", "05_onnx_deployment.ipynb", "06_fov_and_error_analysis.ipynb",
-                     "07_calibration.ipynb"):
+                     "07_calibration.ipynb", "08_learned.ipynb"):
         assert required in names
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_executes(path):
+def test_notebook_executes(path, monkeypatch):
+    monkeypatch.setenv("PRISMSTEREO_NOTEBOOK_QUICK", "1")  # notebooks that train run a reduced version
     nb = nbformat.read(path, as_version=4)
     # run from notebooks/ so relative paths (e.g. ../../shared/data) resolve as they do for a reader
     client = NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}})
