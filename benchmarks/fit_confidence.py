@@ -24,6 +24,7 @@ import torch.nn.functional as F
 
 from prismstereo import thesis_setup1, thesis_setup2
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.learned.data import procedural_picture
 from prismstereo.matching.confidence import FEATURES, ConfidenceModel, fit_confidence
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import (
@@ -40,26 +41,11 @@ SETUPS = {"1": thesis_setup1, "2": thesis_setup2}
 SAMPLES_PER_CAPTURE = 200_000
 
 
-def _smooth_noise(gen: torch.Generator, h: int, w: int, cell: int) -> torch.Tensor:
-    g = torch.randn(1, 1, h // cell + 3, w // cell + 3, generator=gen)
-    return F.interpolate(g, size=(h, w), mode="bicubic", align_corners=False)[0, 0]
-
-
 def procedural_surface(seed: int, h: int = 360, w: int = 480) -> tuple[torch.Tensor, torch.Tensor]:
-    """(picture (h, w) in [0, 1], bumps (h, w) of unit scale): texture strong in some regions, nearly absent in
-    others, on smooth shading; the bumps a sum of four random Gaussians."""
-    gen = torch.Generator().manual_seed(seed)
-    fine = sum(0.5**k * _smooth_noise(gen, h, w, 2 * 2**k) for k in range(3))
-    fine = fine / fine.std()
-    contrast = 0.01 + 0.2 * torch.sigmoid(3 * _smooth_noise(gen, h, w, 60))
-    picture = (0.5 + 0.15 * _smooth_noise(gen, h, w, 120) + contrast * fine).clamp(0, 1)
-    yy, xx = torch.meshgrid(torch.linspace(0, 1, h), torch.linspace(0, 1, w), indexing="ij")
-    bumps = torch.zeros(h, w)
-    for _ in range(4):
-        cy, cx = torch.rand(2, generator=gen).tolist()
-        r = 0.1 + 0.25 * float(torch.rand(1, generator=gen))
-        bumps += float(torch.randn(1, generator=gen)) * torch.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * r * r))
-    return picture, bumps
+    """(picture (h, w) in [0, 1], bumps (h, w) of unit scale) of seed ``seed``:
+    :func:`~prismstereo.learned.data.procedural_picture` (texture strong in some regions, nearly absent in others,
+    on smooth shading; the bumps a sum of four random Gaussians)."""
+    return procedural_picture(torch.Generator().manual_seed(seed), h, w)
 
 
 def training_scenes(rig: BiPrismRig, seed: int, count: int, z_range: tuple[float, float]) -> list[Scene]:

@@ -398,6 +398,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_depth_parser(sub)
     add_export_parser(sub)
     add_calibrate_parser(sub)
+    from prismstereo.cli_train import add_train_parser  # the learned model's trainer
+    add_train_parser(sub)
 
     demo = sub.add_parser("demo", help="run the main job on a built-in default")
     demo.add_argument("--rig", default="thesis_setup1", help="rig JSON file or preset name")

@@ -109,12 +109,33 @@ def _resolve_config(args: argparse.Namespace):
     return config
 
 
+def _learned_model(args: argparse.Namespace, rig: BiPrismRig):
+    """The :class:`~prismstereo.learned.LearnedStereo` of ``--learned`` (shipped weights) or ``--weights FILE``."""
+    from prismstereo.depth import check_z_range, default_z_range
+    from prismstereo.learned import LearnedStereo
+
+    classical = [name for name, value in (("--preset", args.preset), ("--config", args.config),
+                                          ("--downsample", args.downsample), ("--full-band", args.full_band),
+                                          ("--band-edges", args.band_edges)) if value is not None]
+    if classical:
+        raise PrismStereoError(f"{', '.join(classical)} set the classical model's options, not --learned's")
+    if args.z_range is None:
+        z_range, how = default_z_range(rig), "default for this rig"
+    else:
+        z_range, how = check_z_range(rig, args.z_range), "--z-range"
+    weights = "default" if args.weights is None else args.weights
+    model = LearnedStereo(rig, tuple(z_range), num_hypotheses=args.hypotheses or 48, weights=weights).eval()
+    return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
+
+
 def _build_model(args: argparse.Namespace, rig: BiPrismRig):
     """The PrismStereo of ``--z-range`` and the config (:func:`_resolve_config`; shared by ``depth`` and
     ``export``), with a line describing its range."""
     from prismstereo.depth import check_z_range, default_z_range
     from prismstereo.model import PrismStereo
 
+    if args.learned or args.weights is not None:
+        return _learned_model(args, rig)
     config = _resolve_config(args)
     search = config.search
     if search.num_hypotheses is not None and search.num_hypotheses < 2:
@@ -347,6 +368,11 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a pixel whose best hypothesis is on the edge of its final band: invalid (reject, "
                              "default) or refined from the edge's inner neighbour (clamp; with --full-band 1 the "
                              "fast full-resolution setting)")
+    parser.add_argument("--learned", action="store_true",
+                        help="the learned model (prismstereo.learned.LearnedStereo) with its shipped weights "
+                             "instead of the classical one (--hypotheses: its D, default 48)")
+    parser.add_argument("--weights", default=None, metavar="FILE.pt",
+                        help="the learned model with these weights (written by prismstereo train); implies --learned")
     parser.add_argument("--preset", choices=("accurate", "fast", "dense", "reference"), default=None,
                         help="named model settings (prismstereo.config.PRESETS; default accurate); the options "
                              "above override it")

@@ -438,8 +438,8 @@ class PrismStereo(nn.Module):
         'fast', 'dense', 'reference'; :data:`~prismstereo.config.PRESETS`).
 
         Example:
-            >>> PrismStereo.from_config(thesis_setup1().downscaled(8), (400.0, 700.0), "dense").dense
-            True
+            >>> PrismStereo.from_config(thesis_setup1().downscaled(8), (400.0, 700.0), "fast").summary()
+            '2x2-binned model (8 hypotheses in one level), then a full-resolution band +-1 of 15, band edges clamped'
         """
         resolved = preset("accurate" if config is None else config) if isinstance(config, str) or config is None \
             else config

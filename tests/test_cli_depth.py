@@ -274,3 +274,28 @@ def test_console_script_error_has_no_traceback(scene, tmp_path):
                            str(scene / "small.json"), "--out", str(tmp_path / "d.npy")], capture_output=True, text=True)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "the rig's sensor is 128x96 px" in proc.stderr
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_learned_model_from_the_cli(scene, tmp_path, capsys, backend):
+    """--learned runs the shipped learned model (both backends); --weights takes another file; the classical
+    model's options are refused with it."""
+    out = tmp_path / "far.npy"
+    assert _run(scene, scene / "far.png", "--out", out, "--learned", "--z-range", 400, 900, "--backend", backend) == 0
+    assert "learned model: " in capsys.readouterr().out
+    depth = np.load(out)
+    assert depth.shape == (96, 64) and abs(np.nanmedian(depth) / FAR - 1) < 0.05
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--learned", "--preset", "fast") == 2
+    assert "--preset set the classical model's options, not --learned's" in capsys.readouterr().err
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--weights", tmp_path / "none.pt") == 2
+    assert "none.pt" in capsys.readouterr().err
+
+
+def test_export_learned(scene, tmp_path, capsys):
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(tmp_path / "l.onnx"), "--learned",
+                 "--z-range", "400", "900"]) == 0
+    from prismstereo.export import OnnxDepth
+
+    runner = OnnxDepth(tmp_path / "l.onnx")
+    assert '"matcher": "learned"' in runner.metadata["prismstereo.config"]
+    assert runner(torch.rand(1, 1, 96, 128)).depth.shape == (1, 1, 96, 64)

@@ -110,7 +110,8 @@ def _metadata(model: nn.Module, channels: int, opset: int) -> dict[str, str]:
 
 
 def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset: int = DEFAULT_OPSET) -> Path:
-    """Export a :class:`~prismstereo.model.PrismStereo` to an ONNX file (checked with ``onnx.checker``).
+    """Export a :class:`~prismstereo.model.PrismStereo` (or a :class:`~prismstereo.learned.LearnedStereo`) to an
+    ONNX file (checked with ``onnx.checker``).
 
     Args:
         model: the model (its rig, range and options are baked into the graph).
@@ -132,10 +133,11 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
     """
     import onnx
 
+    from prismstereo.learned import LearnedStereo
     from prismstereo.model import PrismStereo
 
-    if not isinstance(model, PrismStereo):
-        raise ExportError(f"model must be a PrismStereo, got {type(model).__name__}")
+    if not isinstance(model, (PrismStereo, LearnedStereo)):
+        raise ExportError(f"model must be a PrismStereo or a LearnedStereo, got {type(model).__name__}")
     if channels not in (1, 3):
         raise ExportError(f"channels must be 1 or 3, got {channels!r}")
     if not isinstance(opset, int) or not 16 <= opset <= 20:
