@@ -35,8 +35,8 @@ from prismstereo.learned.network import Architecture, LearnedStereo
 
 __all__ = ["TrainResult", "train"]
 
-# The shipped weights/thesis_setup1.pt (session of 2026-11-25, 2 shared cores, one torch thread: two threads
-# ran ~4x slower while another process used the CPU):
+# The shipped weights/thesis_setup1.pt (2 shared cores, one torch thread: two threads ran ~4x slower while another
+# process used the CPU):
 #   OMP_NUM_THREADS=1 .venv/bin/prismstereo train --rig thesis_setup1 --steps 900 --cache .cache/learned \
 #       --out prismstereo/learned/weights/thesis_setup1.pt
 # 80 captures at 512 x 384 rendered in ~1 min, 900 steps of 4 captures in 601 s; loss (mean per tenth of the run)
