@@ -85,6 +85,8 @@ VALIDITIES: tuple[str, ...] = ("calibrated", "thresholds")
 BAND_EDGES: tuple[str, ...] = ("reject", "clamp")
 SAMPLINGS: tuple[str, ...] = ("sweep", "rectified")
 REFINEMENTS: tuple[str, ...] = ("equiangular", "parabola", "soft_argmin")
+Matcher = Literal["classical", "learned"]
+MATCHERS: tuple[str, ...] = ("classical", "learned")
 
 
 class DepthResult(NamedTuple):
@@ -129,6 +131,18 @@ class _Estimate(NamedTuple):
     match: torch.Tensor | None
     features: torch.Tensor | None
     sampled: torch.Tensor
+
+
+def _learned_model(rig: BiPrismRig, z_range_mm: tuple[float, float] | None = None, num_hypotheses: int | None = None,
+                   *, matcher: str = "learned", weights: str = "default", **options: object) -> nn.Module:
+    """``PrismStereo(..., matcher='learned')``: the :class:`~prismstereo.learned.LearnedStereo` of the rig."""
+    from prismstereo.learned import LearnedStereo
+
+    if options:
+        raise OptionError(f"matcher='learned' takes z_range_mm, num_hypotheses and weights, not "
+                          f"{', '.join(sorted(options))}")
+    z_range = default_z_range(rig) if z_range_mm is None else z_range_mm
+    return LearnedStereo(rig, tuple(z_range), num_hypotheses=num_hypotheses or 48, weights=weights)
 
 
 class PrismStereo(nn.Module):
@@ -227,6 +241,10 @@ class PrismStereo(nn.Module):
             the valid pixels within this many pixels (a normalised box convolution; 0: their own estimates),
             where there are any (:func:`~prismstereo.matching.levels.extend_estimate`); their confidence stays
             their own match's.
+        matcher: 'classical' (this model) or 'learned': then the constructor returns a
+            :class:`~prismstereo.learned.LearnedStereo` (shipped weights, or ``weights=PATH``; it takes
+            ``z_range_mm`` and ``num_hypotheses`` (default 48), no other option) with the same
+            :class:`DepthResult` output, which is not a ``PrismStereo`` instance.
 
     The measurements behind each default and the alternatives: :mod:`prismstereo.defaults`.
 
@@ -236,6 +254,12 @@ class PrismStereo(nn.Module):
         >>> model(torch.rand(1, 1, 96, 128)).depth.shape
         torch.Size([1, 1, 96, 64])
     """
+
+    def __new__(cls, *args: object, **kwargs: object):
+        """``matcher='learned'`` returns the learned model instead (see the class docstring)."""
+        if kwargs.get("matcher") == "learned":
+            return _learned_model(*args, **kwargs)
+        return super().__new__(cls)
 
     def __init__(
         self,
@@ -272,8 +296,10 @@ class PrismStereo(nn.Module):
         wide_box: int = 21,
         weak_texture: float = 8.0 / 255,
         dense_fill: int = 15,
+        matcher: Matcher = "classical",
     ) -> None:
         super().__init__()
+        check_option(matcher, MATCHERS, "matcher")  # 'learned' never gets here: see __new__
         if validity is not None:
             check_option(validity, VALIDITIES, "validity")
         if not isinstance(dense, bool):
