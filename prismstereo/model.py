@@ -37,7 +37,7 @@ side (k = 2, R = 2: the thesis setups at 1024 x 768; :meth:`PrismStereo.default_
 get steps 3-4 at full resolution (``downsample=1``), as any sensor does when asked.
 
 Why these defaults (coarse-to-fine, the rectified coarse level, the pyramid, each option's value) and what the
-alternatives measured: :mod:`prismstereo.defaults`.
+alternatives measured: ``docs/design.md`` (*How the model picks its defaults*; the rules: :mod:`prismstereo.defaults`).
 """
 
 from __future__ import annotations
@@ -246,7 +246,7 @@ class PrismStereo(nn.Module):
             ``z_range_mm`` and ``num_hypotheses`` (default 48), no other option) with the same
             :class:`DepthResult` output, which is not a ``PrismStereo`` instance.
 
-    The measurements behind each default and the alternatives: :mod:`prismstereo.defaults`.
+    The measurements behind each default and the alternatives: ``docs/design.md``.
 
     Example:
         >>> small = thesis_setup1().downscaled(8)

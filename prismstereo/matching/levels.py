@@ -55,7 +55,7 @@ _TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05}  # soft-argmin tempera
 # 1.5, between uncorrelated and anti-correlated): the worst cost made the shifts whose windows reach past the other
 # half's edge lose to shorter ones there, a margin of about the aggregated window (the binned coarse level of the
 # narrow-range pyramid with factor 4: coverage of setup 2's step scene 93.7 -> 95.1 %); measurements in
-# :mod:`prismstereo.defaults` (``coarse_factor``)
+# docs/design.md (*How the model picks its defaults*, ``coarse_factor``)
 _SHIFT_FILL = 0.75
 _STRIP_VOXELS = 400_000  # fine band voxels per strip in torch eager (~1.6 MB per float32 volume: cache-sized)
 _EXPORT_STRIP_VOXELS = 2_000_000  # per strip of an exported graph (the pyramid's bands: one piece; see FineBand)
