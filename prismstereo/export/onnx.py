@@ -185,12 +185,9 @@ class OnnxDepth:
         threads: intra-op threads (inter-op: 1).
         optimization: onnxruntime graph optimisation level: 'all' (default), 'extended', 'basic', 'disable'.
         spinning: let idle intra-op threads spin for work (onnxruntime's default) instead of sleeping. Spinning
-            wins when the cores are the graph's alone and loses when other processes want them: setup 1 at
-            1024 x 768, 2 threads, medians of 7-9 alternating frames, spinning vs not, on an earlier graph: the pyramid
-            (``downsample=2, full_band=2``) graph 93 vs 105 ms on a quiet machine but 232 vs 138 ms with one
-            core busy elsewhere (an earlier run: 98 / 108 and 170 / 142 ms), the ``downsample=1`` graph 163 vs 188 ms
-            quiet and 307 vs 234 ms loaded. Pass False where the depth graph shares the CPU (an endoscope
-            application's other threads).
+            wins when the cores are the graph's alone and loses when other processes want them (measurements:
+            ``docs/design.md``, *Implementation measurements*): pass False where the depth graph shares the CPU
+            (an endoscope application's other threads).
 
     Attributes:
         metadata: the ``prismstereo.*`` metadata_props (str -> str).

@@ -31,14 +31,11 @@ def box_filter(volume: torch.Tensor, window: int) -> torch.Tensor:
     """Mean over a ``window`` x ``window`` box of every slice of a (B, D, H, W) volume, over the whole volume at
     once (borders average the pixels inside the image only).
 
-    Two implementations of the same mean, by runtime. Torch eager adds, in place, each slice's neighbours
-    1..r rows away on both sides (no padding), then the same along W, and multiplies by the reciprocal pixel
-    count, a separable (row count x column count) map. Measured on a (1, 11, 76, 512) strip of the fine band,
-    k = 7: 0.39 / 0.43 ms at 1 / 2 threads, where two depthwise 1-D convolutions of ones (the previous form)
-    took 1.09 / 1.75 ms (oneDNN's depthwise convolution got slower with a second thread; 78 boxes per
-    1024 x 768 frame) and avg_pool2d with count_include_pad=False ~10x longer. In an ONNX export the graph
-    gets one AveragePool (count_include_pad=0), which onnxruntime runs in 3.9 ms on a (1, 11, 768, 512)
-    volume (separable pools 5.9 ms, depthwise convolutions 7.3 ms). The forms agree to float rounding.
+    Two implementations of the same mean, by runtime (each the fastest measured there; numbers in
+    ``docs/design.md``, *Implementation measurements*). Torch eager adds, in place, each slice's neighbours 1..r
+    rows away on both sides (no padding), then the same along W, and multiplies by the reciprocal pixel count, a
+    separable (row count x column count) map; an ONNX export gets one AveragePool (count_include_pad=0). The
+    forms agree to float rounding.
 
     Example:
         >>> box_filter(torch.ones(1, 3, 8, 8), 5).shape
@@ -106,15 +103,12 @@ def _scan(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
     -P2, one graph node less). In an ONNX export N is one MaxPool over 3 hypotheses (it also covers d itself,
     which cannot win there since P1 >= 0): 7 graph nodes per scan step (ReduceMax, Sub, MaxPool, Sub, Max,
     Clip, Add; ONNX has a MaxPool, no MinPool). The slices are taken along axis 0 with one Split and the steps
-    concatenated back along it (no Reshape, Squeeze or Unsqueeze per step). Measured no faster in onnxruntime
-    (the narrow range's coarse volume (1, 28, 192, 128), paired): the recursion without the
-    per-step normalisation (the maxima subtracted once at the end; one full pass per step less, but its P2 term
-    a Max with a broadcast (1, N, 1, X) operand) 1.02x, that with 5-D slices and one three-input Max (6 nodes
-    per step) 1.01x, the hypotheses on the last axis 1.17x. Differentiable torch eager keeps the Slice /
-    Maximum / Concat form (its max_pool2d also computes indices: 100 us per step against 20 us); without
-    autograd :func:`_scan_eager` computes the same values faster (the same operations in the same order:
-    bitwise). A ``shift`` of 1 makes the scan diagonal: the predecessor of position x in a slice is x - 1 in
-    the previous slice.
+    concatenated back along it (no Reshape, Squeeze or Unsqueeze per step); the alternatives measured are in
+    ``docs/design.md`` (*Implementation measurements*). Differentiable torch eager keeps the Slice / Maximum /
+    Concat form (its max_pool2d also computes indices, ~5x slower per step); without autograd
+    :func:`_scan_eager` computes the same values faster (the same operations in the same order: bitwise). A
+    ``shift`` of 1 makes the scan diagonal: the predecessor of position x in a slice is x - 1 in the previous
+    slice.
     """
     s, n, d, x = volume.shape
     # rank-changing Reshapes (to 5-D and back) before the Split: onnxruntime's transpose optimizer cannot push the
