@@ -21,11 +21,11 @@ import torch
 from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.presets import load_rig
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.io import DEPTH_SUFFIXES
 
 __all__ = ["add_depth_parser", "add_export_parser"]
 
 DEPTH_FORMATS = ("npy", "png", "tiff")
-_SUFFIX_FORMATS = {".npy": "npy", ".png": "png", ".tif": "tiff", ".tiff": "tiff"}
 BACKENDS = ("torch", "onnx")
 
 
@@ -40,17 +40,25 @@ class _DepthTarget(NamedTuple):
     sidecar: Path | None = None
 
 
+def _target(folder: Path, stem: str, path: Path, ply: bool, dense: bool) -> _DepthTarget:
+    """The outputs of one image or frame: ``path`` and its companions ``folder/<stem>_...``."""
+    png = path.suffix.lower() == ".png"
+    return _DepthTarget(path, folder / f"{stem}_preview.png" if png else None,
+                        folder / f"{stem}.ply" if ply else None, folder / f"{stem}_confidence.npy" if dense else None,
+                        path.with_suffix(".json") if png else None)
+
+
 def _depth_targets(images: list[Path], out: Path, fmt: str | None, ply: bool,
                    dense: bool = False) -> list[_DepthTarget]:
     """Output paths of ``prismstereo depth`` (OUT a .npy/.png/.tiff file for one image, else a directory),
     checked so that no two outputs collide and no output overwrites an input image."""
     suffix = out.suffix.lower()
-    if suffix in _SUFFIX_FORMATS and not out.is_dir():
+    if suffix in DEPTH_SUFFIXES and not out.is_dir():
         if len(images) > 1:
             raise PrismStereoError(f"{len(images)} images: --out must be a directory, got {out}")
-        if fmt is not None and fmt != _SUFFIX_FORMATS[suffix]:
+        if fmt is not None and fmt != DEPTH_SUFFIXES[suffix]:
             raise PrismStereoError(f"--format {fmt} contradicts --out {out}")
-        fmt, stems = _SUFFIX_FORMATS[suffix], [(out.parent, out.stem, out)]
+        fmt, stems = DEPTH_SUFFIXES[suffix], [(out.parent, out.stem, out)]
     else:
         if out.exists() and not out.is_dir():
             raise PrismStereoError(f"--out {out} exists and is not a directory")
@@ -58,13 +66,7 @@ def _depth_targets(images: list[Path], out: Path, fmt: str | None, ply: bool,
             raise PrismStereoError(f"--out must end in .npy, .png or .tiff (one image) or be a directory, got {out}")
         fmt = fmt or "npy"
         stems = [(out, image.stem, out / f"{image.stem}.{fmt}") for image in images]
-    png = fmt == "png"
-    targets = [
-        _DepthTarget(path, folder / f"{stem}_preview.png" if png else None,
-                     folder / f"{stem}.ply" if ply else None, folder / f"{stem}_confidence.npy" if dense else None,
-                     path.with_suffix(".json") if png else None)
-        for folder, stem, path in stems
-    ]
+    targets = [_target(folder, stem, path, ply, dense) for folder, stem, path in stems]
     inputs = {image.resolve(): image for image in images}
     written: dict[Path, Path] = {}
     for image, target in zip(images, targets, strict=True):
@@ -109,9 +111,17 @@ def _resolve_config(args: argparse.Namespace):
     return config
 
 
+def _z_range(args: argparse.Namespace, rig: BiPrismRig) -> tuple[tuple[float, float], str]:
+    """``--z-range`` checked against the rig, or the rig's default, with how it was chosen."""
+    from prismstereo.depth import check_z_range, default_z_range
+
+    if args.z_range is None:
+        return default_z_range(rig), "default for this rig"
+    return check_z_range(rig, args.z_range), "--z-range"
+
+
 def _learned_model(args: argparse.Namespace, rig: BiPrismRig):
     """The :class:`~prismstereo.learned.LearnedStereo` of ``--learned`` (shipped weights) or ``--weights FILE``."""
-    from prismstereo.depth import check_z_range, default_z_range
     from prismstereo.learned import LearnedStereo
 
     classical = [name for name, value in (("--preset", args.preset), ("--config", args.config),
@@ -119,10 +129,7 @@ def _learned_model(args: argparse.Namespace, rig: BiPrismRig):
                                           ("--band-edges", args.band_edges)) if value is not None]
     if classical:
         raise PrismStereoError(f"{', '.join(classical)} set the classical model's options, not --learned's")
-    if args.z_range is None:
-        z_range, how = default_z_range(rig), "default for this rig"
-    else:
-        z_range, how = check_z_range(rig, args.z_range), "--z-range"
+    z_range, how = _z_range(args, rig)
     weights = "default" if args.weights is None else args.weights
     model = LearnedStereo(rig, tuple(z_range), num_hypotheses=args.hypotheses or 48, weights=weights).eval()
     return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
@@ -131,7 +138,6 @@ def _learned_model(args: argparse.Namespace, rig: BiPrismRig):
 def _build_model(args: argparse.Namespace, rig: BiPrismRig):
     """The PrismStereo of ``--z-range`` and the config (:func:`_resolve_config`; shared by ``depth`` and
     ``export``), with a line describing its range."""
-    from prismstereo.depth import check_z_range, default_z_range
     from prismstereo.model import PrismStereo
 
     if args.learned or args.weights is not None:
@@ -146,10 +152,7 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig):
     if search.full_band is not None and (search.full_band < 0 or (search.full_band and downsample == 1)):
         raise PrismStereoError(f"--full-band must be >= 0 and needs --downsample >= 2 (here {downsample}), "
                                f"got {search.full_band}")
-    if args.z_range is None:
-        z_range, how = default_z_range(rig), "default for this rig"
-    else:
-        z_range, how = check_z_range(rig, args.z_range), "--z-range"
+    z_range, how = _z_range(args, rig)
     model = PrismStereo.from_config(rig, z_range, config).eval()
     return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
 
@@ -178,6 +181,23 @@ def _write_depth(target: _DepthTarget, depth: torch.Tensor, valid: torch.Tensor,
     if written.clipped:
         note += (f"; warning: {written.clipped} pixels deeper than {65535 / written.scale:.3f} mm clipped to 65535"
                  " (see --png-scale)")
+    return note
+
+
+def _write_outputs(target: _DepthTarget, depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor,
+                   png_scale: float | None, points: torch.Tensor | None, colors: torch.Tensor,
+                   pose: torch.Tensor | None) -> str:
+    """Write one result's depth (:func:`_write_depth`), confidence (--dense) and point cloud (--ply: ``points``
+    (3, H, W_ref)); returns the note for the summary line."""
+    from prismstereo.depth import write_ply
+
+    note = _write_depth(target, depth, valid, png_scale)
+    if target.confidence is not None:
+        np.save(target.confidence, confidence.numpy().astype(np.float32))
+        note += f", confidence {target.confidence.name}"
+    if target.ply is not None and points is not None:
+        count = write_ply(target.ply, points, colors=colors, confidence=confidence, camera_to_world=pose)
+        note += f", {target.ply.name} ({count} points)"
     return note
 
 
@@ -210,14 +230,19 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     import kornia
     from tqdm import tqdm
 
-    from prismstereo.depth import depth_to_points, write_ply
+    from prismstereo.depth import depth_to_points
 
     rig = load_rig(args.rig)
     _resolve_config(args)  # --preset / --config: fails early, and sets args.dense for the outputs
+    if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
+        raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
+    pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
+    if pose is not None and not args.ply:
+        raise PrismStereoError("--camera-to-world transforms the --ply point clouds: add --ply")
     from prismstereo.video import is_sequence_source
 
     if len(args.images) == 1 and is_sequence_source(args.images[0]):
-        return _cmd_depth_sequence(args, rig)
+        return _cmd_depth_sequence(args, rig, pose)
     if args.preview_video or args.every != 1 or args.start != 0 or args.stop is not None:
         raise PrismStereoError("--every, --start, --stop and --preview-video need a video, a directory or a glob "
                                "of images")
@@ -225,11 +250,6 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     targets = _depth_targets(images, Path(args.out), args.format, args.ply, args.dense)
     if args.batch_size < 1:
         raise PrismStereoError(f"--batch-size must be >= 1, got {args.batch_size}")
-    if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
-        raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
-    pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
-    if pose is not None and not args.ply:
-        raise PrismStereoError("--camera-to-world transforms the --ply point clouds: add --ply")
     for image in images:  # fail early, before any work or output, on an unreadable or wrong-sized image
         _read_capture(image, rig)
     model, summary = _build_model(args, rig)
@@ -247,14 +267,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                     points = depth_to_points(rig, res.depth.to(torch.float64), written)
             for k, i in enumerate(chunk):
                 depth, valid = res.depth[k, 0], written[k, 0]
-                note = _write_depth(targets[i], depth, valid, args.png_scale)
-                if targets[i].confidence is not None:
-                    np.save(targets[i].confidence, res.confidence[k, 0].numpy().astype(np.float32))
-                    note += f", confidence {targets[i].confidence.name}"
-                if args.ply:
-                    count = write_ply(targets[i].ply, points[k], colors=captures[k][:, :, :w_ref],
-                                      confidence=res.confidence[k, 0], camera_to_world=pose)
-                    note += f", {targets[i].ply.name} ({count} points)"
+                note = _write_outputs(targets[i], depth, valid, res.confidence[k, 0], args.png_scale,
+                                      points[k] if args.ply else None, captures[k][:, :, :w_ref], pose)
                 ok = valid & torch.isfinite(depth)
                 median = f"median {float(depth[ok].median()):.1f} mm" if bool(ok.any()) else "no valid depth"
                 kind = "with a depth (dense)" if args.dense else "valid"
@@ -264,28 +278,27 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     return 0
 
 
-def _sequence_stem(source: str) -> str:
-    """The output stem of a video (its stem), a directory (its name) or a glob (its folder's name)."""
-    path = Path(source)
-    if any(c in source for c in "*?["):
-        return path.parent.name or "frames"
-    return path.name if path.is_dir() else path.stem
-
-
-def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig) -> int:
+def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig, pose: torch.Tensor | None) -> int:
     """``prismstereo depth`` on a video, a directory or a glob: one depth file per selected frame,
     ``OUT/<stem>_000000.<format>`` numbered from 0 in frame order, through a :class:`~prismstereo.stream.DepthStream`
     of the chosen backend, and optionally a colour-mapped depth video."""
     import cv2
     from tqdm import tqdm
 
-    from prismstereo.depth import depth_to_points, write_ply
+    from prismstereo.depth import depth_to_points
     from prismstereo.io import depth_preview
     from prismstereo.stream import DepthStream
-    from prismstereo.video import VIDEO_SUFFIXES, check_selection, read_frames, sequence_files, sequence_length
+    from prismstereo.video import (
+        check_selection,
+        is_video_file,
+        read_frames,
+        sequence_files,
+        sequence_length,
+        sequence_name,
+    )
 
     source, out = args.images[0], Path(args.out)
-    if out.suffix.lower() in _SUFFIX_FORMATS or (out.exists() and not out.is_dir()):
+    if out.suffix.lower() in DEPTH_SUFFIXES or (out.exists() and not out.is_dir()):
         raise PrismStereoError(f"a video or sequence writes one file per frame: --out must be a directory, got {out}")
     fmt = args.format or "npy"
     check_selection(args.every, args.start, args.stop)
@@ -293,9 +306,9 @@ def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig) -> int:
     stop = total if args.stop is None else min(args.stop, total)
     count = max(0, -(-(stop - args.start) // args.every))
     inputs = set()
-    if Path(source).suffix.lower() not in VIDEO_SUFFIXES or any(c in source for c in "*?["):
+    if not is_video_file(source):
         inputs = {p.resolve() for p in sequence_files(source)}
-    stem = _sequence_stem(source)
+    stem = sequence_name(source)
     model, summary = _build_model(args, rig)
     if args.backend == "onnx":
         from prismstereo.export import onnx_session
@@ -303,9 +316,6 @@ def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig) -> int:
         stream = DepthStream(onnx_session(model, channels=1))
     else:
         stream = DepthStream(model)
-    pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
-    if pose is not None and not args.ply:
-        raise PrismStereoError("--camera-to-world transforms the --ply point clouds: add --ply")
     print(f"{summary}, backend {args.backend}, {count} of {total} frames of {source}")
     writer = None
     try:
@@ -313,24 +323,19 @@ def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig) -> int:
             for k, frame in enumerate(read_frames(source, every=args.every, start=args.start, stop=args.stop)):
                 name = f"{stem}_{k:06d}"
                 path = out / f"{name}.{fmt}"
-                target = _DepthTarget(path, out / f"{name}_preview.png" if fmt == "png" else None,
-                                      out / f"{name}.ply" if args.ply else None,
-                                      out / f"{name}_confidence.npy" if args.dense else None,
-                                      path.with_suffix(".json") if fmt == "png" else None)
+                target = _target(out, name, path, args.ply, args.dense)
                 if any(p is not None and p.resolve() in inputs for p in target):
                     raise PrismStereoError(f"{path} would overwrite an input frame")
                 res = stream.push(frame.image)
                 written = (res.confidence > 0) if args.dense else res.valid
                 depth, valid = res.depth[0, 0], written[0, 0]
                 out.mkdir(parents=True, exist_ok=True)
-                _write_depth(target, depth, valid, args.png_scale)
-                if target.confidence is not None:
-                    np.save(target.confidence, res.confidence[0, 0].numpy().astype(np.float32))
+                points = None
                 if args.ply:
                     with torch.inference_mode():
-                        points = depth_to_points(rig, res.depth.to(torch.float64), written)
-                    write_ply(target.ply, points[0], colors=frame.image[:, :, : rig.reference_width],
-                              confidence=res.confidence[0, 0], camera_to_world=pose)
+                        points = depth_to_points(rig, res.depth.to(torch.float64), written)[0]
+                _write_outputs(target, depth, valid, res.confidence[0, 0], args.png_scale, points,
+                               frame.image[:, :, : rig.reference_width], pose)
                 if args.preview_video:
                     picture = depth_preview(depth, valid, limits_mm=tuple(model.z_range))
                     if writer is None:

@@ -33,6 +33,7 @@ __all__ = [
     "write_depth_preview",
     "depth_preview",
     "DEPTH_FILE_FORMATS",
+    "DEPTH_SUFFIXES",
     "DepthFile",
     "depth_png_scale",
     "write_depth",
@@ -40,7 +41,7 @@ __all__ = [
 ]
 
 DEPTH_FILE_FORMATS: tuple[str, ...] = ("npy", "png", "tiff")
-_SUFFIXES = {".npy": "npy", ".png": "png", ".tif": "tiff", ".tiff": "tiff"}
+DEPTH_SUFFIXES: dict[str, str] = {".npy": "npy", ".png": "png", ".tif": "tiff", ".tiff": "tiff"}
 SCALE_KEY = "prismstereo.depth_scale"
 
 
@@ -321,11 +322,11 @@ def depth_png_scale(depth: torch.Tensor, valid: torch.Tensor | None = None) -> f
 
 
 def _format(path: Path, format: str | None) -> str:
-    by_suffix = _SUFFIXES.get(path.suffix.lower())
+    by_suffix = DEPTH_SUFFIXES.get(path.suffix.lower())
     if format is None:
         if by_suffix is None:
             raise ImageIOError(f"cannot tell the depth format of {path}: use one of "
-                               f"{', '.join(sorted(_SUFFIXES))} or pass format ({', '.join(DEPTH_FILE_FORMATS)})")
+                               f"{', '.join(sorted(DEPTH_SUFFIXES))} or pass format ({', '.join(DEPTH_FILE_FORMATS)})")
         return by_suffix
     if format not in DEPTH_FILE_FORMATS:
         raise ImageIOError(f"unknown depth format {format!r}. Choose from: {', '.join(DEPTH_FILE_FORMATS)}")

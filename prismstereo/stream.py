@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 from prismstereo.errors import OptionError, ShapeError
+from prismstereo.video import frame_to_tensor
 
 if TYPE_CHECKING:
     from prismstereo.export import OnnxDepth
@@ -96,11 +97,7 @@ class DepthStream:
 
     def _prepare(self, frame: torch.Tensor | np.ndarray) -> torch.Tensor:
         if isinstance(frame, np.ndarray):  # OpenCV's decoded frame: uint8 (H, W) or (H, W, 3) BGR
-            if frame.dtype != np.uint8 or frame.ndim not in (2, 3) or (frame.ndim == 3 and frame.shape[2] != 3):
-                raise ShapeError(f"an array frame must be OpenCV's uint8 (H, W) or (H, W, 3) BGR, got "
-                                 f"{frame.dtype} {frame.shape}")
-            rgb = frame[..., ::-1] if frame.ndim == 3 else frame[..., None]
-            frame = torch.from_numpy(np.ascontiguousarray(rgb).astype(np.float32) / 255.0).permute(2, 0, 1)
+            frame = frame_to_tensor(frame)
         if not isinstance(frame, torch.Tensor) or frame.dim() not in (3, 4) or (frame.dim() == 4 and
                                                                                  frame.shape[0] != 1):
             got = tuple(frame.shape) if isinstance(frame, torch.Tensor) else type(frame).__name__

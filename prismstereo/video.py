@@ -17,11 +17,11 @@ import cv2
 import numpy as np
 import torch
 
-from prismstereo.errors import PrismStereoError
+from prismstereo.errors import PrismStereoError, ShapeError
 from prismstereo.io import ImageIOError, read_image
 
-__all__ = ["VideoError", "Frame", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES", "is_sequence_source", "sequence_files",
-           "sequence_length", "check_selection", "read_frames"]
+__all__ = ["VideoError", "Frame", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES", "is_sequence_source", "is_video_file",
+           "sequence_name", "sequence_files", "sequence_length", "check_selection", "frame_to_tensor", "read_frames"]
 
 VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".avi", ".mkv", ".mov", ".m4v", ".mpg", ".mpeg", ".wmv", ".webm")
 IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm")
@@ -57,7 +57,31 @@ def is_sequence_source(path: str | Path) -> bool:
         (True, True, False)
     """
     text = str(path)
-    return Path(text).suffix.lower() in VIDEO_SUFFIXES or _is_glob(text) or Path(text).is_dir()
+    return is_video_file(text) or _is_glob(text) or Path(text).is_dir()
+
+
+def is_video_file(path: str | Path) -> bool:
+    """True for a video file by its suffix (:data:`VIDEO_SUFFIXES`), not a glob pattern.
+
+    Example:
+        >>> is_video_file("clip.MP4"), is_video_file("frames/*.mp4")
+        (True, False)
+    """
+    return Path(str(path)).suffix.lower() in VIDEO_SUFFIXES and not _is_glob(str(path))
+
+
+def sequence_name(source: str | Path) -> str:
+    """A name for the frames of a source: a video's stem, a directory's name, a glob's folder name.
+
+    Example:
+        >>> sequence_name("data/clip.mp4"), sequence_name("data/run1/*.png")
+        ('clip', 'run1')
+    """
+    text = str(source)
+    path = Path(text)
+    if _is_glob(text):
+        return path.parent.name or "frames"
+    return path.name if path.is_dir() else path.stem
 
 
 def sequence_files(source: str | Path) -> list[Path]:
@@ -101,7 +125,7 @@ def sequence_length(source: str | Path) -> int:
         120
     """
     text = str(source)
-    if Path(text).suffix.lower() in VIDEO_SUFFIXES and not _is_glob(text):
+    if is_video_file(text):
         capture = _open(Path(text))
         try:
             return int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
@@ -127,8 +151,20 @@ def check_selection(every: int, start: int, stop: int | None) -> None:
         raise VideoError(f"stop must be an int > start ({start}) or None, got {stop!r}")
 
 
-def _to_tensor(bgr: np.ndarray) -> torch.Tensor:
-    """A decoded 8-bit video frame (H, W) or (H, W, 3) BGR as (C, H, W) float32 RGB in [0, 1]."""
+def frame_to_tensor(bgr: np.ndarray) -> torch.Tensor:
+    """A decoded 8-bit frame, OpenCV's uint8 (H, W) or (H, W, 3) BGR, as (C, H, W) float32 RGB in [0, 1].
+
+    Raises:
+        ShapeError: not such an array.
+
+    Example:
+        >>> frame_to_tensor(np.zeros((4, 5, 3), np.uint8)).shape
+        torch.Size([3, 4, 5])
+    """
+    if not isinstance(bgr, np.ndarray) or bgr.dtype != np.uint8 or bgr.ndim not in (2, 3) or (
+            bgr.ndim == 3 and bgr.shape[2] != 3):
+        got = f"{bgr.dtype} {bgr.shape}" if isinstance(bgr, np.ndarray) else type(bgr).__name__
+        raise ShapeError(f"a decoded frame must be OpenCV's uint8 (H, W) or (H, W, 3) BGR, got {got}")
     if bgr.ndim == 2:
         return torch.from_numpy(bgr.astype(np.float32) / np.float32(255.0))[None]
     rgb = np.ascontiguousarray(bgr[..., ::-1])
@@ -157,7 +193,7 @@ def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int
     check_selection(every, start, stop)
     text = str(source)
     wanted = (lambda i: i >= start and (i - start) % every == 0)
-    if Path(text).suffix.lower() in VIDEO_SUFFIXES and not _is_glob(text):
+    if is_video_file(text):
         path = Path(text)
         capture = _open(path)
         try:
@@ -170,7 +206,7 @@ def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int
                     ok, bgr = capture.retrieve()
                     if not ok or bgr is None:
                         raise VideoError(f"cannot decode frame {index} of {path}")
-                    yield Frame(index, _to_tensor(bgr), path.stem)
+                    yield Frame(index, frame_to_tensor(bgr), path.stem)
                 index += 1
             if index == 0:
                 raise VideoError(f"no frames could be read from {path}")
