@@ -187,6 +187,13 @@ def write_depth_png(
         >>> write_depth_png("depth.png", torch.full((96, 64), 200.0))  # doctest: +SKIP
         0
     """
+    levels, clipped = _png_levels(depth, valid, scale)
+    _imwrite(Path(path), levels)
+    return clipped
+
+
+def _png_levels(depth: torch.Tensor, valid: torch.Tensor | None, scale: float) -> tuple[np.ndarray, int]:
+    """(H, W) uint16 round(Z * scale) clipped to [1, 65535], 0 invalid; and how many valid pixels were clipped."""
     if not (np.isfinite(scale) and scale > 0):
         raise ImageIOError(f"the depth PNG scale must be a positive number, got {scale!r}")
     d = _depth_array(depth, valid)
@@ -195,8 +202,7 @@ def write_depth_png(
     levels[ok] = np.round(d[ok] * scale)
     clipped = int((levels[ok] > 65535).sum())
     levels[ok] = np.clip(levels[ok], 1, 65535)  # a valid depth never becomes the invalid 0
-    _imwrite(Path(path), levels.astype(np.uint16))
-    return clipped
+    return levels.astype(np.uint16), clipped
 
 
 def read_depth_png(path: str | Path, scale: float = 256.0) -> torch.Tensor:
@@ -373,13 +379,13 @@ def write_depth(
         _imwrite(path, _depth_array(depth, valid).astype(np.float32))
         return DepthFile(path, fmt, None, None, 0)
     scale = depth_png_scale(depth, valid) if png_scale is None else float(png_scale)
-    clipped = write_depth_png(path, depth, valid, scale)
+    levels, clipped = _png_levels(depth, valid, scale)
     from PIL import Image, PngImagePlugin
 
     info = PngImagePlugin.PngInfo()
     info.add_text(SCALE_KEY, repr(scale))
-    levels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         Image.fromarray(levels).save(path, pnginfo=info)
         sidecar = path.with_suffix(".json")
         sidecar.write_text(json.dumps({"depth_scale": scale, "units": "mm", "invalid": 0}) + "\n")
