@@ -25,15 +25,14 @@ Run: .venv/bin/python benchmarks/learned.py [--z-range ZMIN ZMAX] [--hypotheses 
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import median_ms  # noqa: E402
 from dense_depth import captures as dense_captures  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
@@ -56,25 +55,19 @@ def captures(rig, cache: Path) -> dict[str, dict]:
 def onnx_ms(model: torch.nn.Module, image: torch.Tensor, repeat: int, threads: int, folder: Path) -> float:
     """Median onnxruntime time (ms) of the model's exported graph over ``repeat`` runs after a warm-up."""
     runner = OnnxDepth(export_onnx(model, folder / f"{type(model).__name__}.onnx"), threads=threads)
-    runner(image)
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        runner(image)
-        times.append(1e3 * (time.perf_counter() - t0))
-    return statistics.median(times)
+    return median_ms(lambda: runner(image), repeat)
 
 
 def run(model: torch.nn.Module, image: torch.Tensor, repeat: int) -> tuple[object, float]:
     """The model's result and its median forward time (ms) over ``repeat`` runs after a warm-up."""
-    times = []
+    last = {}
+
+    def forward() -> None:
+        last["result"] = model(image)
+
     with torch.inference_mode():
-        result = model(image)
-        for _ in range(repeat):
-            t0 = time.perf_counter()
-            result = model(image)
-            times.append(1e3 * (time.perf_counter() - t0))
-    return result, statistics.median(times)
+        ms = median_ms(forward, repeat)
+    return last["result"], ms
 
 
 def main() -> None:
