@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo.epipolar.sweep import evaluate_sweep, fit_sweep, sweep_coefficients
+from prismstereo.epipolar.sweep import depth_to_sweep, evaluate_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
@@ -307,6 +307,20 @@ class LearnedStereo(nn.Module):
         return (f"learned model: {count} parameters, {self.num_hypotheses} hypotheses on "
                 f"1/{self.architecture.scale}-resolution features")
 
+    def index_to_depth(self, index: torch.Tensor) -> torch.Tensor:
+        """Depth (mm) of fractional hypothesis indices (any shape): the hypotheses are uniform in 1/Z.
+
+        Example:
+            >>> model = LearnedStereo(thesis_setup1().downscaled(8), (450.0, 900.0), num_hypotheses=3, weights=None)
+            >>> model.index_to_depth(torch.tensor([0.0, 1.0, 2.0]))
+            tensor([450., 600., 900.])
+        """
+        return sweep_to_depth(index * (2.0 / (self.num_hypotheses - 1)) - 1.0, self.z_range_mm)
+
+    def depth_to_index(self, depth: torch.Tensor) -> torch.Tensor:
+        """Fractional hypothesis index of depths (mm, any shape), the inverse of :meth:`index_to_depth`."""
+        return (depth_to_sweep(depth, self.z_range_mm) + 1.0) * ((self.num_hypotheses - 1) / 2.0)
+
     def extra_repr(self) -> str:
         return (f"z_range_mm={self.z_range_mm}, num_hypotheses={self.num_hypotheses}, "
                 f"sensor={self.rig.image_width}x{self.rig.image_height}, {self.architecture}")
@@ -346,9 +360,8 @@ class LearnedStereo(nn.Module):
             volume = volume.contiguous(memory_format=torch.channels_last_3d)
         cost = self.aggregation(volume)[:, 0]  # (B, D, h, w_b)
         regression = depth_regression(cost, self.volume.depths, self.volume.valid)
-        z0, z1 = self.z_range_mm
         d = self.num_hypotheses
-        low = (1.0 / regression.depth - 1.0 / z0) * ((d - 1) / (1.0 / z1 - 1.0 / z0))
+        low = self.depth_to_index(regression.depth)
         w_ref = rig.reference_width
         s = self.architecture.scale
         inside_low = self.volume.valid.any(0).view(1, 1, *self.volume.valid.shape[1:]).to(dtype)
@@ -378,14 +391,11 @@ class LearnedStereo(nn.Module):
             ShapeError: an image that is not (B, 1 or 3, H, W) of the rig's sensor, or not floating point.
         """
         parts = self._parts(image)
-        d = self.num_hypotheses
-        z0, z1 = self.z_range_mm
-        inverse = 1.0 / z0 + parts.index * ((1.0 / z1 - 1.0 / z0) / (d - 1))
-        depth = 1.0 / inverse
+        depth = self.index_to_depth(parts.index)
         confidence = torch.sigmoid(parts.logit) * parts.inside.to(parts.logit.dtype)
         valid = confidence >= 0.5
         if self.with_match:
-            sweep = (parts.index * (2.0 / (d - 1)) - 1.0)[:, 0]  # (B, H, W_ref)
+            sweep = parts.index[:, 0] * (2.0 / (self.num_hypotheses - 1)) - 1.0  # (B, H, W_ref)
             match = evaluate_sweep(self.coefficients.unsqueeze(0), sweep).permute(0, 3, 1, 2)
         else:
             match = torch.full_like(depth, math.nan).expand(-1, 2, -1, -1)

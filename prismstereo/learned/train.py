@@ -89,16 +89,15 @@ def _searches(model: LearnedStereo, rig: BiPrismRig, z_range: tuple[float, float
 def _loss(model: LearnedStereo, image: torch.Tensor, depth: torch.Tensor, covisible: torch.Tensor) -> torch.Tensor:
     """The training loss of one batch (module docstring)."""
     parts = model._parts(image)
-    z0, z1 = model.z_range_mm
     d = model.num_hypotheses
-    truth = (1.0 / depth - 1.0 / z0) * ((d - 1) / (1.0 / z1 - 1.0 / z0))
+    truth = model.depth_to_index(depth)
     known = covisible & torch.isfinite(depth) & (truth >= 0) & (truth <= d - 1) & parts.inside
     truth = torch.where(known, truth, torch.zeros_like(truth))
     count = known.sum().clamp_min(1)
     fine = (F.smooth_l1_loss(parts.index, truth, reduction="none") * known).sum() / count
     coarse = (F.smooth_l1_loss(parts.coarse, truth, reduction="none") * known).sum() / count
     with torch.no_grad():
-        estimate = 1.0 / (1.0 / z0 + parts.index * ((1.0 / z1 - 1.0 / z0) / (d - 1)))
+        estimate = model.index_to_depth(parts.index)
         correct = known & ((estimate - depth).abs() < 0.01 * depth)
     rays = parts.inside.expand_as(correct)
     bce = F.binary_cross_entropy_with_logits(parts.logit, correct.to(parts.logit.dtype), reduction="none")
