@@ -55,6 +55,7 @@ from prismstereo.config import StereoConfig, preset
 from prismstereo.defaults import default_coarse_factor, default_downsample, pyramid_band, pyramid_coarse_factor
 from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.range import default_z_range
+from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.epipolar.table import (
     series_at,
@@ -87,27 +88,6 @@ SAMPLINGS: tuple[str, ...] = ("sweep", "rectified")
 REFINEMENTS: tuple[str, ...] = ("equiangular", "parabola", "soft_argmin")
 Matcher = Literal["classical", "learned"]
 MATCHERS: tuple[str, ...] = ("classical", "learned")
-
-
-class DepthResult(NamedTuple):
-    """Depth of the reference half.
-
-    Attributes:
-        depth: (B, 1, H, W_ref) depth Z (mm); meaningless where not valid.
-        valid: (B, 1, H, W_ref) bool.
-        confidence: (B, 1, H, W_ref) in [0, 1]: with ``validity`` 'calibrated' the probability that the depth is
-            within 1 % of the truth, with 'thresholds' the final NCC; 0 where invalid (a dense model: 0 exactly
-            where it gives no depth).
-        index: (B, 1, H, W_ref) fractional index into the model's ``depths`` (uniform in 1/Z).
-        match: (B, 2, H, W_ref) (u, v) of each pixel's match in the other half, full-sensor pixels (the
-            generalised disparity); like the depth, meaningful where valid.
-    """
-
-    depth: torch.Tensor
-    valid: torch.Tensor
-    confidence: torch.Tensor
-    index: torch.Tensor
-    match: torch.Tensor
 
 
 class ConfidenceInputs(NamedTuple):

@@ -28,11 +28,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, evaluate_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_shape
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.model import DepthResult
 from prismstereo.nn import PrismCostVolume, depth_regression
 
 __all__ = ["DEFAULT_WEIGHTS", "FORMAT", "Architecture", "LearnedStereo", "WeightsError", "load_weights"]
