@@ -1,4 +1,5 @@
-"""Fit the calibrated confidence of PrismStereo (``prismstereo.matching.confidence.DEFAULT_WEIGHTS``).
+"""Fit the calibrated confidence of PrismStereo (``prismstereo.matching.confidence.DEFAULT_WEIGHTS`` and
+``SMOOTHED_WEIGHTS``).
 
 Renders training captures of ``thesis_setup1`` and ``thesis_setup2`` at full resolution with this package's
 renderer: fronto-parallel planes (near ones included, where most of the reference half is not co-visible),
@@ -8,7 +9,10 @@ blur. None of the held-out scenes of ``benchmarks/dense_depth.py`` (the Middlebu
 captures) is used. Every pixel with an estimate is a sample: correct when it is co-visible and its depth is
 within 1 % of the truth, wrong otherwise (pixels the other half does not see included). Prints the fitted
 weights (paste them into ``DEFAULT_WEIGHTS``), the training log-loss and, per capture, the coverage and
-wrong share at p >= 0.5.
+wrong share at p >= 0.5. Then the second stage, the re-scoring after the model's smoothing
+(``SMOOTHED_WEIGHTS``, on :data:`~prismstereo.matching.confidence.SMOOTHED_FEATURES` of the smoothed depth):
+it is fitted on the model's current first stage, so after pasting new ``DEFAULT_WEIGHTS`` run the script
+again for the second.
 
 Run: .venv/bin/python benchmarks/fit_confidence.py [--cache DIR] [--scenes N] [--z-range ZMIN ZMAX]
 """
@@ -25,7 +29,7 @@ import torch.nn.functional as F
 from prismstereo import thesis_setup1, thesis_setup2
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.data import procedural_picture
-from prismstereo.matching.confidence import FEATURES, ConfidenceModel, fit_confidence
+from prismstereo.matching.confidence import FEATURES, SMOOTHED_FEATURES, ConfidenceModel, fit_confidence
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import (
     ImageFormation,
@@ -83,6 +87,7 @@ def main() -> None:
     torch.manual_seed(0)
     args.cache.mkdir(parents=True, exist_ok=True)
     xs, ys, per_capture = [], [], []
+    xs2, ys2, per_capture2 = [], [], []
     for key, make in SETUPS.items():
         rig = make()
         model = PrismStereo(rig, tuple(args.z_range))
@@ -106,25 +111,35 @@ def main() -> None:
             keep = torch.randperm(len(y))[:SAMPLES_PER_CAPTURE]
             xs.append(x[keep])
             ys.append(y[keep])
-            per_capture.append((f"setup {key} {scene.name}", inputs, covisible, correct))
+            per_capture.append((f"setup {key} {scene.name}", inputs.features, inputs.sampled, covisible, correct))
+            correct2 = covisible & ((inputs.smoothed_depth.double() - gt).abs() <= 0.01 * gt)
+            x2 = inputs.smoothed_features.permute(0, 2, 3, 1)[sel].double()
+            xs2.append(x2[keep])
+            ys2.append(correct2[:, 0][sel][keep])
+            per_capture2.append((f"setup {key} {scene.name}", inputs.smoothed_features, inputs.sampled, covisible,
+                                 correct2))
             print(f"setup {key} {scene.name}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct",
                   flush=True)
-    x, y = torch.cat(xs), torch.cat(ys)
-    weights = fit_confidence(x, y)
-    logit = x @ weights[:-1] + weights[-1]
-    loss = float(F.binary_cross_entropy_with_logits(logit, y.double()))
-    print(f"\nfeatures {', '.join(FEATURES)}, bias; {len(y)} samples, log-loss {loss:.4f}")
-    print("DEFAULT_WEIGHTS = (" + ", ".join(f"{v:.3f}" for v in weights.tolist()) + ")")
-    calibration = ConfidenceModel(weights)
-    print(f"\n{'capture':40s} {'cover %':>8s} {'wrong %':>8s}   (p >= 0.5, co-visible pixels)")
-    for name, inputs, covisible, correct in per_capture:
-        with torch.inference_mode():
-            p = calibration(inputs.features.float())
-        accepted = inputs.sampled & (p >= 0.5) & covisible
-        cover = 100 * float(accepted.sum() / covisible.sum().clamp_min(1))
-        wrong = 100 * float((accepted & ~correct).sum() / accepted.sum().clamp_min(1))
-        print(f"{name:40s} {cover:8.1f} {wrong:8.2f}")
-    if not math.isfinite(loss):
+    losses = []
+    for names, label, xs_, ys_, captures in ((FEATURES, "DEFAULT_WEIGHTS", xs, ys, per_capture),
+                                             (SMOOTHED_FEATURES, "SMOOTHED_WEIGHTS", xs2, ys2, per_capture2)):
+        x, y = torch.cat(xs_), torch.cat(ys_)
+        weights = fit_confidence(x, y)
+        logit = x @ weights[:-1] + weights[-1]
+        loss = float(F.binary_cross_entropy_with_logits(logit, y.double()))
+        losses.append(loss)
+        print(f"\nfeatures {', '.join(names)}, bias; {len(y)} samples, log-loss {loss:.4f}")
+        print(f"{label} = (" + ", ".join(f"{v:.3f}" for v in weights.tolist()) + ")")
+        calibration = ConfidenceModel(weights, names)
+        print(f"\n{'capture':40s} {'cover %':>8s} {'wrong %':>8s}   (p >= 0.5, co-visible pixels)")
+        for name, features, sampled, covisible, correct in captures:
+            with torch.inference_mode():
+                p = calibration(features.float())
+            accepted = sampled & (p >= 0.5) & covisible
+            cover = 100 * float(accepted.sum() / covisible.sum().clamp_min(1))
+            wrong = 100 * float((accepted & ~correct).sum() / accepted.sum().clamp_min(1))
+            print(f"{name:40s} {cover:8.1f} {wrong:8.2f}")
+    if not all(math.isfinite(v) for v in losses):
         raise SystemExit("the fit diverged")
 
 

@@ -69,9 +69,16 @@ from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_std
 from prismstereo.matching.build import build_search
-from prismstereo.matching.confidence import FITTED_PLACEMENT, ConfidenceModel, confidence_features
+from prismstereo.matching.confidence import (
+    FITTED_PLACEMENT,
+    SMOOTHED_FEATURES,
+    ConfidenceModel,
+    confidence_features,
+    smoothed_features,
+)
 from prismstereo.matching.cost import COSTS, Cost
 from prismstereo.matching.levels import FineBand, SearchOptions, extend_estimate
+from prismstereo.matching.postprocess import robust_mean
 from prismstereo.matching.split import SplitImage
 
 __all__ = [
@@ -97,11 +104,16 @@ class ConfidenceInputs(NamedTuple):
         features: (B, 6, H, W_ref) :func:`~prismstereo.matching.confidence.confidence_features`.
         depth: (B, 1, H, W_ref) the depth (mm) they describe.
         sampled: (B, 1, H, W_ref) bool, pixels with an estimate (the confidence applies there).
+        smoothed_features: (B, 3, H, W_ref) :func:`~prismstereo.matching.confidence.smoothed_features` of the
+            smoothed estimate (``smoothing`` > 0), else None.
+        smoothed_depth: (B, 1, H, W_ref) the depth (mm) after smoothing (what they describe), else None.
     """
 
     features: torch.Tensor
     depth: torch.Tensor
     sampled: torch.Tensor
+    smoothed_features: torch.Tensor | None = None
+    smoothed_depth: torch.Tensor | None = None
 
 
 class _Estimate(NamedTuple):
@@ -221,6 +233,14 @@ class PrismStereo(nn.Module):
             the valid pixels within this many pixels (a normalised box convolution; 0: their own estimates),
             where there are any (:func:`~prismstereo.matching.levels.extend_estimate`); their confidence stays
             their own match's.
+        smoothing: the final estimate (and the binned model's) becomes the confidence-weighted mean of the
+            estimates within a ``smoothing`` x ``smoothing`` window that agree with the window's mean to
+            ``smoothing_tolerance`` hypothesis steps (:func:`~prismstereo.matching.postprocess.robust_mean`; 0:
+            off): sub-pixel noise of weak texture and defocus averages out, depth steps stay, confident pixels
+            that disagree (thin structures) keep their own estimate, and a calibrated model re-scores each
+            pixel's confidence from the evidence around it
+            (:data:`~prismstereo.matching.confidence.SMOOTHED_FEATURES`).
+        smoothing_tolerance: see ``smoothing`` (hypothesis steps, > 0).
         matcher: 'classical' (this model) or 'learned': then the constructor returns a
             :class:`~prismstereo.learned.LearnedStereo` (shipped weights, or ``weights=PATH``; it takes
             ``z_range_mm`` and ``num_hypotheses`` (default 48), no other option) with the same
@@ -276,6 +296,8 @@ class PrismStereo(nn.Module):
         wide_box: int = 21,
         weak_texture: float = 8.0 / 255,
         dense_fill: int = 15,
+        smoothing: int = 15,
+        smoothing_tolerance: float = 4.0,
         matcher: Matcher = "classical",
     ) -> None:
         super().__init__()
@@ -290,7 +312,8 @@ class PrismStereo(nn.Module):
             coarse_factor=coarse_factor, band=band, refinement=refinement, min_confidence=min_confidence,
             min_uniqueness=min_uniqueness, occlusion_tolerance=occlusion_tolerance,
             occluder_confidence=occluder_confidence, lr_threshold=lr_threshold, coarse_reach=coarse_reach,
-            reach_confidence=reach_confidence, band_edges=band_edges, wide_box=wide_box, weak_texture=weak_texture)
+            reach_confidence=reach_confidence, band_edges=band_edges, wide_box=wide_box, weak_texture=weak_texture,
+            smoothing=smoothing, smoothing_tolerance=smoothing_tolerance)
         # the binned model of a pyramid places the final band: its thresholds decide which estimates are
         # extended to their neighbours; its NCC is a feature of the calibrated confidence
         placement = dict(level_options, validity="thresholds", dense=False, wide_box=0)
@@ -315,6 +338,12 @@ class PrismStereo(nn.Module):
             raise OptionError(f"weak_texture must be a finite number > 0, got {weak_texture!r}")
         if isinstance(dense_fill, bool) or not isinstance(dense_fill, int) or dense_fill < 0:
             raise OptionError(f"dense_fill must be an int >= 0, got {dense_fill!r}")
+        if isinstance(smoothing, bool) or not isinstance(smoothing, int) or smoothing < 0 or smoothing in (1, 2) or (
+                smoothing and smoothing % 2 == 0):
+            raise OptionError(f"smoothing must be 0 (off) or an odd int >= 3, got {smoothing!r}")
+        if isinstance(smoothing_tolerance, bool) or not (isinstance(smoothing_tolerance, (int, float))
+                                                         and 0 < smoothing_tolerance < math.inf):
+            raise OptionError(f"smoothing_tolerance must be a finite number > 0, got {smoothing_tolerance!r}")
         if downsample is None:  # the default: the pyramid on large sensors
             downsample = self.default_downsample(rig)
             full_band = (2 if downsample > 1 else 0) if full_band is None else full_band
@@ -393,7 +422,10 @@ class PrismStereo(nn.Module):
                               "has no band to place everywhere")
         self.validity, self.dense = validity, dense
         self.wide_box, self.weak_texture, self.dense_fill = wide_box, float(weak_texture), dense_fill
+        self.smoothing, self.smoothing_tolerance = smoothing, float(smoothing_tolerance)
         self.calibration = ConfidenceModel() if validity == "calibrated" else None
+        self.smoothed_calibration = (ConfidenceModel(names=SMOOTHED_FEATURES) if validity == "calibrated" and smoothing
+                                     else None)
 
         w_o = rig.image_width - w_ref
         rays = trace_pixels(rig, uv.view(-1, 2))
@@ -428,12 +460,13 @@ class PrismStereo(nn.Module):
             fine_options = dataclasses.replace(options, cost=fine_cost, box=fine_box,
                                                band_edges="clamp" if dense else band_edges, wide_box=wide_box,
                                                weak_texture=float(weak_texture))
-            self.fine = FineBand(fine_options, self.band, 2.0 / (num_hypotheses - 1), self.split.split)
+            self.fine = FineBand(fine_options, self.band, 2.0 / (num_hypotheses - 1), self.split.split,
+                                 with_match=not smoothing)  # a smoothed s gets its match afterwards
 
     def _set_band(self, band: int) -> None:
         """Rebuild the fine band after the coarse level with half width ``band``."""
         self.band = band
-        self.fine = FineBand(self.fine.options, band, self.fine.step, self.fine.split)
+        self.fine = FineBand(self.fine.options, band, self.fine.step, self.fine.split, self.fine.with_match)
 
     @classmethod
     def from_config(
@@ -466,7 +499,8 @@ class PrismStereo(nn.Module):
             return {**self.binned.config(), "downsample": self.downsample, "full_band": self.band,
                     "min_confidence": self.min_confidence, "min_uniqueness": self.min_uniqueness,
                     "validity": self.validity, "dense": self.dense, "wide_box": self.wide_box,
-                    "weak_texture": self.weak_texture, "dense_fill": self.dense_fill}
+                    "weak_texture": self.weak_texture, "dense_fill": self.dense_fill, "smoothing": self.smoothing,
+                    "smoothing_tolerance": self.smoothing_tolerance}
         return {
             "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses, "cost": self.cost,
             "fine_cost": self.fine_cost, "sampling": self.sampling, "window": self.window,
@@ -479,7 +513,8 @@ class PrismStereo(nn.Module):
             "downsample": self.downsample, "coarse_reach": self.coarse_reach,
             "reach_confidence": self.reach_confidence, "full_band": 0, "band_edges": self.band_edges,
             "validity": self.validity, "dense": self.dense, "wide_box": self.wide_box,
-            "weak_texture": self.weak_texture, "dense_fill": self.dense_fill,
+            "weak_texture": self.weak_texture, "dense_fill": self.dense_fill, "smoothing": self.smoothing,
+            "smoothing_tolerance": self.smoothing_tolerance,
         }
 
     def summary(self) -> str:
@@ -582,8 +617,13 @@ class PrismStereo(nn.Module):
             raise OptionError("confidence_inputs needs the full-resolution model (downsample 1 or a pyramid)")
         est = self._estimate(image)
         z_range = torch.tensor(self.z_range, dtype=est.s.dtype, device=est.s.device)
-        return ConfidenceInputs(est.features, sweep_to_depth(est.s.clamp(-1.0, 1.0), z_range),
-                                est.ok & self.reference_valid)
+        s = est.s.clamp(-1.0, 1.0)
+        sampled = est.ok & self.reference_valid
+        if not self.smoothing:
+            return ConfidenceInputs(est.features, sweep_to_depth(s, z_range), sampled)
+        smoothed, _, features = self._smooth(s, est.confidence, est.sampled)
+        return ConfidenceInputs(est.features, sweep_to_depth(s, z_range), sampled, features,
+                                sweep_to_depth(smoothed, z_range))
 
     def _estimate(self, image: torch.Tensor) -> _Estimate:
         """The final level's s, validity, raw confidence (NCC) or calibrated confidence, match and features."""
@@ -637,13 +677,29 @@ class PrismStereo(nn.Module):
                 ok = ok & (~rejected | (confidence >= self.reach_confidence))
         return _Estimate(s, ok, confidence, match, features, sampled)
 
+    def _smooth(self, s: torch.Tensor, confidence: torch.Tensor, sampled: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The confidence-weighted robust mean of the estimates around each pixel (``smoothing``; the confidence
+        a weight, not a path of gradients), the confidence re-scored from the evidence around the pixel
+        (calibrated models), and those features."""
+        step = 2.0 / (self.num_hypotheses - 1)
+        weight = confidence.detach().clamp(0.0, 1.0) * (sampled & self.reference_valid).to(s.dtype)
+        smoothed = robust_mean(s, weight, self.smoothing, self.smoothing_tolerance * step)
+        features = smoothed_features(weight, smoothed.agreement, smoothed.support)
+        if self.smoothed_calibration is not None:
+            confidence = self.smoothed_calibration(features)
+        return smoothed.values, confidence, features
+
     def _depth(self, image: torch.Tensor) -> DepthResult:
         s, ok, confidence, match, _, sampled = self._estimate(image)
         step = 2.0 / (self.num_hypotheses - 1)
         s = s.clamp(-1.0, 1.0)
+        if self.smoothing:
+            s, confidence, _ = self._smooth(s, confidence, sampled)
+            match = None
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
-        if match is None:  # the fine band interpolates its samples; otherwise the series at s
+        if match is None:  # the series at s (the search's own match unless the estimate was smoothed)
             match = torch.cat(series_at(self.series, s), 1)
         valid = ok & self.reference_valid & (confidence >= self.min_confidence)
         covered = sampled & self.reference_valid  # dense: a depth wherever the band had a real sample

@@ -71,7 +71,11 @@ def test_cli_preset_and_config(tmp_path, capsys):
     base = ["depth", str(tmp_path / "c.png"), "--rig", str(tmp_path / "rig.json"), "--z-range", "400", "900"]
     assert main([*base, "--out", str(tmp_path / "d.npy"), "--preset", "fast"]) == 0
     assert "2x2-binned model" in capsys.readouterr().out
-    assert main([*base, "--out", str(tmp_path / "x.npy"), "--preset", "dense"]) == 2  # a single level here
+    assert main([*base, "--out", str(tmp_path / "x.npy"), "--preset", "dense"]) == 0  # its coarse factor 2
+    assert (tmp_path / "x_confidence.npy").exists()
+    capsys.readouterr()
+    (tmp_path / "single.json").write_text(json.dumps({"validity": {"dense": True}, "search": {"coarse_factor": 1}}))
+    assert main([*base, "--out", str(tmp_path / "y.npy"), "--config", str(tmp_path / "single.json")]) == 2
     assert "dense needs a coarse-to-fine model" in capsys.readouterr().err
     config = {"validity": {"dense": True}, "search": {"num_hypotheses": 30, "coarse_factor": 2}}
     (tmp_path / "cfg.json").write_text(json.dumps(config))

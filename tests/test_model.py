@@ -368,8 +368,8 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
     depth varies inside the 2 x 2 blocks on a slanted plane and is more precise than the block values."""
     rig = scaled_rig(thesis_setup1(), 2)  # 512 x 384 -> binned 256 x 192
     z_range = (300.0, 900.0)
-    blocks = PrismStereo(rig, z_range, downsample=2)
-    model = PrismStereo(rig, z_range, downsample=2, full_band=2)
+    blocks = PrismStereo(rig, z_range, downsample=2, smoothing=0)  # the estimates themselves, not smoothed
+    model = PrismStereo(rig, z_range, downsample=2, full_band=2, smoothing=0)
     assert model.binned is not None and model.binned.rig == rig.binned(2) and model.binned.binned is None
     assert model.binned.num_hypotheses == blocks.num_hypotheses and model.coarse_hypotheses == blocks.num_hypotheses
     assert model.num_hypotheses == PrismStereo(rig, z_range).num_hypotheses and model.band == 2
@@ -448,7 +448,7 @@ def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
     rig = scaled_rig(thesis_setup1(), 2)
     cap = render(rig, fronto_parallel_plane(rig, 240.0, seed=2), FORM)
     with torch.no_grad():
-        rules = dict(validity="thresholds", wide_box=0)  # the reach_confidence rule of the NCC thresholds
+        rules = dict(validity="thresholds", wide_box=0, smoothing=0)  # the reach_confidence rule of the NCC thresholds
         plain = PrismStereo(rig, (220.0, 900.0), coarse_reach=0, **rules)(cap.image)
         reach = PrismStereo(rig, (220.0, 900.0), **rules)(cap.image)
         unreached = PrismStereo(rig, (220.0, 900.0), reach_confidence=1.0, **rules)(cap.image)  # (1) only
@@ -478,3 +478,25 @@ def test_rgb_capture_matches_its_grey_mean(setup1_model):
     assert (rgb.valid == grey.valid).float().mean() > 0.999 and rgb.valid.float().mean() > 0.5
     both = rgb.valid & grey.valid
     assert float(((rgb.depth - grey.depth).abs() / grey.depth)[both].max()) < 1e-4
+
+
+def test_smoothing_averages_the_estimate_over_agreeing_neighbours():
+    """The confidence-weighted robust mean of the final estimate (``smoothing``): on a textured slanted plane the
+    error falls (measured at 512 x 384, 30 degrees: mean 0.064 % -> 0.024 %) with nearly the same coverage; off,
+    the model returns its estimates as they are; bad options are refused."""
+    rig = scaled_rig(thesis_setup1(), 4)
+    cap = render(rig, slanted_plane(rig, 560.0, 30.0, seed=4), FORM)
+    with torch.no_grad():
+        raw = PrismStereo(rig, (300.0, 900.0), coarse_factor=2, smoothing=0)(cap.image)
+        smooth = PrismStereo(rig, (300.0, 900.0), coarse_factor=2)(cap.image)
+    rel_raw, cover_raw = _errors(rig, raw, cap)
+    rel, cover = _errors(rig, smooth, cap)
+    assert rel.mean() < 0.6 * rel_raw.mean() and cover > cover_raw - 0.03, (rel.mean(), rel_raw.mean(), cover)
+    model = PrismStereo(rig, (300.0, 900.0), coarse_factor=2, smoothing=9, smoothing_tolerance=2.5)
+    assert model.config()["smoothing"] == 9 and PrismStereo(rig, **model.config()).smoothing_tolerance == 2.5
+    for bad in (1, 4, -3, True, 2.0):
+        with pytest.raises(OptionError, match="smoothing must be 0 .off. or an odd int >= 3"):
+            PrismStereo(rig, (300.0, 900.0), smoothing=bad)
+    for bad in (0.0, -1.0, float("inf"), True):
+        with pytest.raises(OptionError, match="smoothing_tolerance must be a finite number > 0"):
+            PrismStereo(rig, (300.0, 900.0), smoothing_tolerance=bad)

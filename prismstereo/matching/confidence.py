@@ -9,7 +9,12 @@ model of these features (:data:`FEATURES`) turns them into the probability that 
 
     p = sigmoid(w . f + b)                                                      (logistic regression)
 
-fitted on renders of this package with :func:`fit_confidence` (``benchmarks/fit_confidence.py`` regenerates
+fitted on renders of this package with :func:`fit_confidence`. A model that smooths its estimate
+(:func:`~prismstereo.matching.postprocess.robust_mean`, weighted by p) re-scores every pixel with a second
+logistic model of the evidence around it (:data:`SMOOTHED_FEATURES`: p, the share of the window's
+confidence that agrees with its mean, the window's mean confidence):
+
+    p' = sigmoid(w' . f' + b') (``benchmarks/fit_confidence.py`` regenerates
 :data:`DEFAULT_WEIGHTS`; the renders it uses are disjoint from the held-out scenes of
 ``benchmarks/dense_depth.py``, which report the reliability curve: how often pixels with p >= c are wrong).
 """
@@ -29,16 +34,25 @@ __all__ = [
     "DEFAULT_WEIGHTS",
     "FEATURES",
     "FITTED_PLACEMENT",
+    "SMOOTHED_FEATURES",
+    "SMOOTHED_WEIGHTS",
     "ConfidenceModel",
     "confidence_features",
     "fit_confidence",
+    "smoothed_features",
 ]
 
 FEATURES: tuple[str, ...] = ("ncc", "coarse", "roughness", "offset", "texture", "rejected")
 """The feature channels of :func:`confidence_features`, in order."""
 
 # fitted by benchmarks/fit_confidence.py (the last entry is the bias)
-DEFAULT_WEIGHTS: tuple[float, ...] = (3.425, 1.879, -2.359, -1.775, 0.076, -0.290, -0.472)
+DEFAULT_WEIGHTS: tuple[float, ...] = (3.461, 1.851, -2.042, -2.227, 0.009, -0.684, -0.187)
+
+SMOOTHED_FEATURES: tuple[str, ...] = ("confidence", "agreement", "support")
+"""The feature channels of :func:`smoothed_features`, in order."""
+
+# fitted by benchmarks/fit_confidence.py (the last entry is the bias)
+SMOOTHED_WEIGHTS: tuple[float, ...] = (0.918, 23.335, 7.197, -26.024)
 
 # the thresholds of the coarse level (the binned model of a pyramid) whose validity the features "coarse" and
 # "rejected" describe: those of the renders DEFAULT_WEIGHTS were fitted on (the model's defaults), whatever the
@@ -100,12 +114,40 @@ def confidence_features(
     return torch.cat([ncc.to(s.dtype), coarse.to(s.dtype), roughness, offset, texture, rejected.to(s.dtype)], 1)
 
 
+def smoothed_features(confidence: torch.Tensor, agreement: torch.Tensor, support: torch.Tensor) -> torch.Tensor:
+    """The features of :data:`SMOOTHED_FEATURES` per pixel, after a
+    :func:`~prismstereo.matching.postprocess.robust_mean` of the estimate weighted by ``confidence``: the pixel's
+    own confidence, the share of its window's confidence that agrees with the window's mean
+    (:class:`~prismstereo.matching.postprocess.RobustMean` ``agreement``) and the window's mean confidence
+    (``support``).
+
+    Args:
+        confidence, agreement, support: (B, 1, H, W) in [0, 1].
+
+    Returns:
+        (B, 3, H, W) features, dtype of ``confidence``.
+
+    Example:
+        >>> z = torch.full((1, 1, 4, 4), 0.5)
+        >>> smoothed_features(z, z, z).shape
+        torch.Size([1, 3, 4, 4])
+    """
+    check_shape(confidence, ["B", 1, "H", "W"], "confidence")
+    for name, t in (("agreement", agreement), ("support", support)):
+        if t.shape != confidence.shape:
+            raise ShapeError(f"{name} must have the shape of confidence {tuple(confidence.shape)}, got "
+                             f"{tuple(t.shape)}")
+    return torch.cat([confidence, agreement.to(confidence), support.to(confidence)], 1)
+
+
 class ConfidenceModel(nn.Module):
     """p = sigmoid(w . f + b) per pixel: the probability that a pixel's depth is within 1 % of the truth.
 
     Args:
-        weights: len(FEATURES) + 1 numbers (the feature weights, then the bias); default
-            :data:`DEFAULT_WEIGHTS`.
+        weights: len(names) + 1 numbers (the feature weights, then the bias); default :data:`DEFAULT_WEIGHTS`
+            (:data:`SMOOTHED_WEIGHTS` with ``names=SMOOTHED_FEATURES``).
+        names: the features, :data:`FEATURES` (:func:`confidence_features`) or :data:`SMOOTHED_FEATURES`
+            (:func:`smoothed_features`).
 
     Example:
         >>> model = ConfidenceModel()
@@ -114,32 +156,41 @@ class ConfidenceModel(nn.Module):
         (torch.Size([2, 1, 4, 4]), True)
     """
 
-    def __init__(self, weights: Sequence[float] | torch.Tensor | None = None) -> None:
+    def __init__(self, weights: Sequence[float] | torch.Tensor | None = None,
+                 names: tuple[str, ...] = FEATURES) -> None:
         super().__init__()
-        w = torch.as_tensor(DEFAULT_WEIGHTS if weights is None else weights, dtype=torch.float32).flatten()
-        if w.numel() != len(FEATURES) + 1 or not bool(torch.isfinite(w).all()):
-            raise OptionError(f"weights must be {len(FEATURES) + 1} finite numbers ({', '.join(FEATURES)}, bias), "
+        if names not in (FEATURES, SMOOTHED_FEATURES):
+            raise OptionError(f"names must be FEATURES {FEATURES} or SMOOTHED_FEATURES {SMOOTHED_FEATURES}, "
+                              f"got {names!r}")
+        if weights is None:
+            weights = DEFAULT_WEIGHTS if names == FEATURES else SMOOTHED_WEIGHTS
+        w = torch.as_tensor(weights, dtype=torch.float32).flatten()
+        if w.numel() != len(names) + 1 or not bool(torch.isfinite(w).all()):
+            raise OptionError(f"weights must be {len(names) + 1} finite numbers ({', '.join(names)}, bias), "
                               f"got {w.numel()}")
+        self.names = names
         self.register_buffer("weight", w[:-1].view(1, -1, 1, 1))
         self.register_buffer("bias", w[-1:].view(1, 1, 1, 1))
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
-        """(B, 1, H, W) probability from (B, len(FEATURES), H, W) features (:func:`confidence_features`)."""
-        check_shape(features, ["B", len(FEATURES), "H", "W"], "features")
-        logit = (features * self.weight.to(features)).sum(1, keepdim=True) + self.bias.to(features)
-        return torch.sigmoid(logit)
+        """(B, 1, H, W) probability from (B, len(names), H, W) features (:func:`confidence_features` or
+        :func:`smoothed_features`)."""
+        check_shape(features, ["B", len(self.names), "H", "W"], "features")
+        # one 1 x 1 convolution (one node in an exported graph, instead of a product and a sum)
+        return torch.sigmoid(F.conv2d(features, self.weight.to(features), self.bias.view(1).to(features)))
 
 
 def fit_confidence(features: torch.Tensor, correct: torch.Tensor, max_iter: int = 500) -> torch.Tensor:
     """Logistic regression of ``correct`` on ``features`` (maximum likelihood, L-BFGS, float64).
 
     Args:
-        features: (N, len(FEATURES)) samples (pixels of :func:`confidence_features`).
+        features: (N, F) samples (pixels of :func:`confidence_features`, F = len(FEATURES), or of
+            :func:`smoothed_features`).
         correct: (N,) bool, the pixel's depth is within 1 % of the truth.
         max_iter: L-BFGS iterations.
 
     Returns:
-        (len(FEATURES) + 1,) float64 weights, the bias last (:class:`ConfidenceModel`'s ``weights``).
+        (F + 1,) float64 weights, the bias last (:class:`ConfidenceModel`'s ``weights``).
 
     Raises:
         ShapeError: bad shapes. OptionError: ``correct`` has only one class.
@@ -151,7 +202,7 @@ def fit_confidence(features: torch.Tensor, correct: torch.Tensor, max_iter: int 
         >>> round(float(fit_confidence(f, y)[0]), 0)
         2.0
     """
-    check_shape(features, ["N", len(FEATURES)], "features")
+    check_shape(features, ["N", "F"], "features")
     if correct.shape != features.shape[:1]:
         raise ShapeError(f"correct must be ({features.shape[0]},), got {tuple(correct.shape)}")
     y = correct.to(torch.float64)

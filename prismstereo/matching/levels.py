@@ -298,6 +298,7 @@ class FineBand(nn.Module):
         band: R.
         step: hypothesis spacing in s.
         split: the other half's first full-sensor column.
+        with_match: return each pixel's match (False: ``match`` None, for a caller that moves s afterwards).
 
     Example:
         >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
@@ -314,9 +315,10 @@ class FineBand(nn.Module):
         torch.Size([1, 1, 96, 64])
     """
 
-    def __init__(self, options: SearchOptions, band: int, step: float, split: int) -> None:
+    def __init__(self, options: SearchOptions, band: int, step: float, split: int, with_match: bool = True) -> None:
         super().__init__()
         self.options, self.band, self.step, self.split = options, band, step, split
+        self.with_match = with_match
 
     def forward(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
                 series: torch.Tensor, interval: torch.Tensor, texture: torch.Tensor | None = None) -> LevelResult:
@@ -340,8 +342,8 @@ class FineBand(nn.Module):
             res = self._rows(reference[..., lo:hi, :], other, s0[..., lo:hi, :], ok0[..., lo:hi, :],
                              series, lo, interval[:, lo:hi], None if texture is None else texture[..., lo:hi, :])
             keep = slice(top - lo, top - lo + min(rows, h - top))
-            strips.append([t[..., keep, :] for t in res])
-        return LevelResult(*(torch.cat(ts, -2) for ts in zip(*strips, strict=True)))
+            strips.append([None if t is None else t[..., keep, :] for t in res])
+        return LevelResult(*(None if ts[0] is None else torch.cat(ts, -2) for ts in zip(*strips, strict=True)))
 
     def _rows(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
               series: torch.Tensor, top: int, interval: torch.Tensor,
@@ -381,7 +383,7 @@ class FineBand(nn.Module):
         s = s_j + frac * step
         # the match: the series at s (16 multiply-adds per pixel with setup 1's degree 4, cheaper in onnxruntime
         # than gathering the band's samples around s and interpolating between them, which was within 2e-4 px)
-        match = torch.cat(series_at(series, s, top), 1)
+        match = torch.cat(series_at(series, s, top), 1) if self.with_match else None
         return LevelResult(s, ok, similarity(_pick(local, j), o.cost, channels, o.window), match)
 
 

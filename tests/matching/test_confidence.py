@@ -5,9 +5,12 @@ from prismstereo import OptionError, ShapeError
 from prismstereo.matching.confidence import (
     DEFAULT_WEIGHTS,
     FEATURES,
+    SMOOTHED_FEATURES,
+    SMOOTHED_WEIGHTS,
     ConfidenceModel,
     confidence_features,
     fit_confidence,
+    smoothed_features,
 )
 
 
@@ -96,3 +99,26 @@ def test_features_and_model_gradcheck():
         return model(confidence_features(**dict(x, ncc=ncc, s=s, s0=s0)))
 
     assert torch.autograd.gradcheck(f, (x["ncc"], x["s"]), eps=1e-6, atol=1e-4)
+
+
+def test_smoothed_features_and_model():
+    g = torch.Generator().manual_seed(2)
+    p, agreement, support = (torch.rand(1, 1, 5, 6, generator=g, dtype=torch.float64) for _ in range(3))
+    f = smoothed_features(p, agreement, support)
+    assert f.shape == (1, len(SMOOTHED_FEATURES), 5, 6) and f.dtype == torch.float64
+    assert torch.equal(f[:, 0:1], p) and torch.equal(f[:, 1:2], agreement) and torch.equal(f[:, 2:3], support)
+    model = ConfidenceModel(names=SMOOTHED_FEATURES)
+    q = model(f.float())
+    assert q.shape == (1, 1, 5, 6) and bool(((q > 0) & (q < 1)).all())
+    w = SMOOTHED_WEIGHTS
+    assert w[SMOOTHED_FEATURES.index("confidence")] > 0 and w[SMOOTHED_FEATURES.index("agreement")] > 0
+    more = smoothed_features(p, (agreement + 0.1).clamp(max=1.0), support)
+    assert bool((model(more.float()) >= q).all())  # more agreement around a pixel: more trust
+    reference = torch.sigmoid((f * torch.tensor(w[:-1], dtype=f.dtype).view(1, -1, 1, 1)).sum(1, keepdim=True) + w[-1])
+    torch.testing.assert_close(ConfidenceModel(names=SMOOTHED_FEATURES).double()(f), reference, rtol=1e-5, atol=1e-6)
+    with pytest.raises(ShapeError, match="support must have the shape"):
+        smoothed_features(p, agreement, support[..., :2])
+    with pytest.raises(OptionError, match="names must be FEATURES"):
+        ConfidenceModel(names=("ncc",))
+    with pytest.raises(OptionError, match="weights must be 4 finite numbers"):
+        ConfidenceModel(DEFAULT_WEIGHTS, SMOOTHED_FEATURES)

@@ -53,7 +53,7 @@ def test_searches_share_one_interface_and_find_the_plane(plane, sampling, direct
 
 def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     rig, cap = plane
-    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2)
+    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, smoothing=0)  # the band with its match
     assert isinstance(model.fine, FineBand) and model.fine.band == 3
     ref, other = model.split(cap.image)
     s0 = torch.full((1, 1, rig.image_height, rig.reference_width), float(depth_to_sweep(
@@ -82,8 +82,8 @@ def test_fine_band_edges_reject_or_clamp(plane):
     half a step beyond that neighbour, with the exact sweep's match there and that hypothesis' (low) confidence.
     Pixels whose best hypothesis is inside the band are the same either way."""
     rig, cap = plane
-    reject = PrismStereo(rig, (450.0, 900.0), coarse_factor=2)
-    clamp = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, band_edges="clamp")
+    reject = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, smoothing=0)
+    clamp = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, band_edges="clamp", smoothing=0)
     assert reject.fine.options.band_edges == "reject" and clamp.fine.options.band_edges == "clamp"
     ref, other = reject.split(cap.image)
     truth = float(depth_to_sweep(torch.tensor(600.0), torch.tensor(reject.z_range)))
@@ -120,7 +120,7 @@ def test_fine_band_of_three_clamped_is_the_centre_refined(plane, refinement):
     half a step of s0 (the parabola; a soft-argmin stays within the band), the match the exact sweep's position
     at s."""
     rig, cap = plane
-    options = dict(coarse_factor=2, band=1, refinement=refinement, wide_box=0)  # the band's own box only
+    options = dict(coarse_factor=2, band=1, refinement=refinement, wide_box=0, smoothing=0)  # the band's own box only
     reject = PrismStereo(rig, (450.0, 900.0), **options)
     clamp = PrismStereo(rig, (450.0, 900.0), band_edges="clamp", **options)
     ref, other = reject.split(cap.image)
@@ -181,7 +181,7 @@ def test_fine_band_wide_box_blends_only_in_weak_texture(plane):
     """The wide box's weight is 1 - sigma / weak_texture: a vanishing threshold leaves the band as without it,
     a huge one replaces the box by the wide box everywhere (the same numbers as a band with that box)."""
     rig, cap = plane
-    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2)
+    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, smoothing=0)
     ref, other = model.split(cap.image)
     s0 = torch.full((1, 1, rig.image_height, rig.reference_width), float(depth_to_sweep(
         torch.tensor(600.0), torch.tensor(model.z_range)))) + 0.01

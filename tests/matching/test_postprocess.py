@@ -3,7 +3,7 @@ import torch
 
 from prismstereo import OptionError, ShapeError
 from prismstereo.matching import fill_background, median_filter, subpixel_refine, subpixel_refine_guarded
-from prismstereo.matching.postprocess import weighted_median
+from prismstereo.matching.postprocess import robust_mean, weighted_median
 
 F64 = torch.float64
 
@@ -141,3 +141,57 @@ def test_weighted_median_errors():
         weighted_median(d, guide, step=0)
     with pytest.raises(OptionError, match="sigma_space and sigma_colour must be > 0"):
         weighted_median(d, guide, sigma_colour=0.0)
+
+
+def _plane_with_noise(seed=0, h=40, w=48):
+    g = torch.Generator().manual_seed(seed)
+    yy, xx = torch.meshgrid(torch.arange(h, dtype=F64), torch.arange(w, dtype=F64), indexing="ij")
+    plane = (0.02 * xx - 0.01 * yy + 3.0).view(1, 1, h, w)
+    return plane, plane + 0.05 * torch.randn(1, 1, h, w, generator=g, dtype=F64)
+
+
+def test_robust_mean_averages_noise_on_a_plane_and_keeps_a_step():
+    plane, noisy = _plane_with_noise()
+    weight = torch.full_like(noisy, 0.3)  # no pixel confident enough to keep a disagreeing value
+    out = robust_mean(noisy, weight, 9, 0.2)
+    assert out.values.shape == noisy.shape and out.values.dtype == F64
+    inner = (..., slice(4, -4), slice(4, -4))  # a centred window's mean of a plane is the plane
+    err_before = (noisy - plane)[inner].abs().mean()
+    err_after = (out.values - plane)[inner].abs().mean()
+    assert err_after < 0.25 * err_before
+    assert torch.allclose(out.agreement[inner], torch.ones_like(out.agreement[inner]))
+    assert torch.allclose(out.support, weight)  # the window's mean weight
+    step = torch.where(torch.arange(48, dtype=F64) < 24, 3.0, 5.0).expand(1, 1, 40, 48)
+    sharp = robust_mean(step, torch.full_like(step, 0.3), 9, 0.2).values
+    assert torch.allclose(sharp, step)  # the other side of a step is further than the tolerance
+
+
+def test_robust_mean_fills_unconfident_outliers_and_keeps_confident_thin_structures():
+    flat = torch.full((1, 1, 21, 21), 2.0, dtype=F64)
+    weight = torch.full_like(flat, 0.4)
+    x = flat.clone()
+    x[0, 0, 10, 10] = 9.0  # an unconfident outlier: takes its neighbourhood's value
+    assert float(robust_mean(x, weight, 7, 0.5).values[0, 0, 10, 10]) == pytest.approx(2.0)
+    rod = flat.clone()
+    rod[0, 0, :, 10] = 1.0  # a confident one-pixel rod in front of the wall
+    w_rod = weight.clone()
+    w_rod[0, 0, :, 10] = 0.9
+    out = robust_mean(rod, w_rod, 7, 0.5).values
+    assert torch.equal(out[0, 0, :, 10], rod[0, 0, :, 10])
+    isolated = robust_mean(x, torch.zeros_like(x), 7, 0.5).values  # no support: own values
+    assert torch.equal(isolated, x)
+
+
+def test_robust_mean_errors_and_gradcheck():
+    _, noisy = _plane_with_noise(h=8, w=9)
+    weight = torch.rand(1, 1, 8, 9, generator=torch.Generator().manual_seed(3), dtype=F64)
+    with pytest.raises(OptionError, match="window must be an odd int >= 3"):
+        robust_mean(noisy, weight, 4, 0.1)
+    with pytest.raises(OptionError, match="tolerance must be a finite number > 0"):
+        robust_mean(noisy, weight, 5, 0.0)
+    with pytest.raises(ShapeError, match="weight"):
+        robust_mean(noisy, weight[..., :5], 5, 0.1)
+    with pytest.raises(ShapeError):
+        robust_mean(noisy[0], weight[0], 5, 0.1)
+    x = noisy.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda v: robust_mean(v, weight, 5, 0.1).values, (x,), eps=1e-6, atol=1e-5)
