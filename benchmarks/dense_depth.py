@@ -17,8 +17,11 @@ depth), bad>1 % (share of those off by more than 1 %), mean relative error, time
 reliability of the confidence over all captures (dense output): for each c, the share of co-visible pixels
 with confidence >= c and how many of them are off by more than 1 %.
 
-Models: ``thresholds`` = ``PrismStereo(validity='thresholds')`` (NCC >= 0.5 and a coarse uniqueness >= 0.3: the
-earlier default), ``default`` = the calibrated confidence >= 0.5, ``dense`` = ``PrismStereo(dense=True)``.
+Models: ``thresholds`` = ``PrismStereo(validity='thresholds', smoothing=0)`` (NCC >= 0.5 and a coarse uniqueness
+>= 0.3: the earlier default), ``unsmoothed`` = the calibrated confidence without the smoothing of the estimate
+(``smoothing=0``), ``default`` = the model's defaults (calibrated confidence >= 0.5, smoothing), ``dense`` = the
+``'dense'`` preset (``dense=True``, ``coarse_factor=2``; coverage counts every pixel with a depth, and its
+``valid`` mask is reported as ``dense valid``).
 
 Run: .venv/bin/python benchmarks/dense_depth.py [--z-range ZMIN ZMAX] [--scale K] [--cache DIR]
 """
@@ -36,6 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fit_confidence import procedural_surface  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
+from prismstereo.config import preset  # noqa: E402
 from prismstereo.model import PrismStereo  # noqa: E402
 from prismstereo.synthetic import (  # noqa: E402
     ImageFormation,
@@ -46,7 +50,8 @@ from prismstereo.synthetic import (  # noqa: E402
 )
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
-MODELS = {"thresholds": {"validity": "thresholds"}, "default": {}, "dense": {"dense": True}}
+MODELS = {"thresholds": {"validity": "thresholds", "smoothing": 0}, "unsmoothed": {"smoothing": 0}, "default": {},
+          "dense": preset("dense").to_kwargs()}
 LEVELS = (0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95)
 
 
@@ -84,7 +89,7 @@ def main() -> None:
     models = {k: PrismStereo(rig, tuple(args.z_range), **v) for k, v in MODELS.items()}
     print(f"thesis_setup1 {rig.image_width}x{rig.image_height}, searched {args.z_range[0]:g}-{args.z_range[1]:g} mm; "
           f"{models['default'].summary()}")
-    print(f"{'capture':26s} {'model':10s} {'cover %':>8s} {'bad>1% %':>9s} {'mean %':>8s} {'ms':>6s}")
+    print(f"{'capture':26s} {'model':11s} {'cover %':>8s} {'bad>1% %':>9s} {'mean %':>8s} {'ms':>6s}")
     w = rig.reference_width
     pooled_p, pooled_ok = [], []
     for name, cap in caps.items():
@@ -94,14 +99,16 @@ def main() -> None:
             with torch.inference_mode():
                 res = model(cap["image"])
             ms = 1e3 * (time.perf_counter() - t0)
-            has = (res.confidence > 0) if key == "dense" else res.valid
             rel = (res.depth.double() - gt).abs() / gt
-            sel = has & covisible
-            cover = 100 * float(sel.sum() / covisible.sum())
-            bad = 100 * float((rel[sel] > 0.01).double().mean()) if sel.any() else float("nan")
-            mean = 100 * float(rel[sel].mean()) if sel.any() else float("nan")
-            print(f"{name:26s} {key:10s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:6.0f}")
-            if key == "dense":
+            for label, has in ((key, (res.confidence > 0) if key == "dense" else res.valid),
+                               *((("dense valid", res.valid),) if key == "dense" else ())):
+                sel = has & covisible
+                cover = 100 * float(sel.sum() / covisible.sum())
+                bad = 100 * float((rel[sel] > 0.01).double().mean()) if sel.any() else float("nan")
+                mean = 100 * float(rel[sel].mean()) if sel.any() else float("nan")
+                print(f"{name:26s} {label:11s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:6.0f}")
+            if key == "dense":  # every co-visible pixel with a depth
+                sel = (res.confidence > 0) & covisible
                 pooled_p.append(res.confidence[sel])
                 pooled_ok.append(rel[sel] <= 0.01)
     p, ok = torch.cat(pooled_p), torch.cat(pooled_ok)

@@ -115,6 +115,8 @@ def main() -> None:
                         help="PrismStereo(validity=...): the calibrated confidence (default) or the NCC thresholds")
     parser.add_argument("--dense", action="store_true",
                         help="PrismStereo(dense=True): coverage and errors of every pixel with a depth")
+    parser.add_argument("--smoothing", type=int, default=None, metavar="N",
+                        help="PrismStereo(smoothing=N): the robust mean's window (0: off; default: the model's)")
     parser.add_argument("--z-range", type=float, nargs=2, default=Z_RANGE, metavar=("ZMIN", "ZMAX"),
                         help="searched depth range, mm (default: the thesis range with 10 %% margins)")
     parser.add_argument("--slanted", type=float, default=500.0, metavar="Z",
@@ -136,7 +138,8 @@ def main() -> None:
                                                    full_band=args.full_band, band_edges=args.band_edges,
                                                    coarse_factor=args.coarse_factor, band=args.band,
                                                    directions=args.directions, validity=args.validity,
-                                                   dense=args.dense)
+                                                   dense=args.dense,
+                                                   **({} if args.smoothing is None else {"smoothing": args.smoothing}))
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.summary()}; model built in "
                   f"{time.perf_counter() - t0:.1f} s")
         print(HEADER)

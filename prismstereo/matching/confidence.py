@@ -176,8 +176,13 @@ class ConfidenceModel(nn.Module):
         """(B, 1, H, W) probability from (B, len(names), H, W) features (:func:`confidence_features` or
         :func:`smoothed_features`)."""
         check_shape(features, ["B", len(self.names), "H", "W"], "features")
-        # one 1 x 1 convolution (one node in an exported graph, instead of a product and a sum)
-        return torch.sigmoid(F.conv2d(features, self.weight.to(features), self.bias.view(1).to(features)))
+        # one multiply-add per feature: in onnxruntime ~1/3 of a product with the (1, F, 1, 1) weights and a sum
+        # over channels, and ~1/15 of a 1 x 1 convolution (which it runs in a blocked layout with reorders)
+        weight, bias = self.weight.to(features), self.bias.to(features)
+        logit = bias + features[:, :1] * weight[:, :1]
+        for i in range(1, features.shape[1]):
+            logit = logit + features[:, i:i + 1] * weight[:, i:i + 1]
+        return torch.sigmoid(logit)
 
 
 def fit_confidence(features: torch.Tensor, correct: torch.Tensor, max_iter: int = 500) -> torch.Tensor:
