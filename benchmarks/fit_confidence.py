@@ -81,19 +81,23 @@ def training_scenes(rig: BiPrismRig, seed: int, count: int, z_range: tuple[float
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cache", type=Path, default=Path(".cache/fit_confidence"), help="renders kept here")
-    parser.add_argument("--scenes", type=int, default=10, help="training scenes per setup")
+    parser.add_argument("--scenes", type=int, default=10, help="training scenes per setup and sensor size")
+    parser.add_argument("--scales", type=int, nargs="+", default=(1, 2),
+                        help="sensor downscale factors (1: the 1024 x 768 pyramid; 2: 512 x 384, one level)")
     parser.add_argument("--z-range", type=float, nargs=2, default=(205.0, 1511.0), metavar=("ZMIN", "ZMAX"))
     args = parser.parse_args()
     torch.manual_seed(0)
     args.cache.mkdir(parents=True, exist_ok=True)
     xs, ys, per_capture = [], [], []
     xs2, ys2, per_capture2 = [], [], []
-    for key, make in SETUPS.items():
-        rig = make()
+    for key, make, scale in ((k, m, s) for k, m in SETUPS.items() for s in args.scales):
+        rig = make().downscaled(scale)
         model = PrismStereo(rig, tuple(args.z_range))
         w = rig.reference_width
-        for i, scene in enumerate(training_scenes(rig, int(key), args.scenes, tuple(args.z_range))):
-            path = args.cache / f"setup{key}_{i}_{scene.name}.pt"
+        prefix = f"setup{key}" if scale == 1 else f"setup{key}_x{scale}"
+        for i, scene in enumerate(training_scenes(rig, int(key) + 10 * (scale - 1), args.scenes,
+                                                  tuple(args.z_range))):
+            path = args.cache / f"{prefix}_{i}_{scene.name}.pt"
             if path.exists():
                 capture = torch.load(path)
             else:
@@ -111,14 +115,14 @@ def main() -> None:
             keep = torch.randperm(len(y))[:SAMPLES_PER_CAPTURE]
             xs.append(x[keep])
             ys.append(y[keep])
-            per_capture.append((f"setup {key} {scene.name}", inputs.features, inputs.sampled, covisible, correct))
+            per_capture.append((f"{prefix} {scene.name}", inputs.features, inputs.sampled, covisible, correct))
             correct2 = covisible & ((inputs.smoothed_depth.double() - gt).abs() <= 0.01 * gt)
             x2 = inputs.smoothed_features.permute(0, 2, 3, 1)[sel].double()
             xs2.append(x2[keep])
             ys2.append(correct2[:, 0][sel][keep])
-            per_capture2.append((f"setup {key} {scene.name}", inputs.smoothed_features, inputs.sampled, covisible,
+            per_capture2.append((f"{prefix} {scene.name}", inputs.smoothed_features, inputs.sampled, covisible,
                                  correct2))
-            print(f"setup {key} {scene.name}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct",
+            print(f"{prefix} {scene.name}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct",
                   flush=True)
     losses = []
     for names, label, xs_, ys_, captures in ((FEATURES, "DEFAULT_WEIGHTS", xs, ys, per_capture),

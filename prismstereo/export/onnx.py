@@ -22,6 +22,7 @@ once per rig and options into a cache directory and returns the cached runner.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -46,6 +47,7 @@ __all__ = [
     "describe",
     "export_onnx",
     "onnx_session",
+    "source_digest",
 ]
 
 DEFAULT_OPSET = 18
@@ -93,6 +95,24 @@ class DepthGraph(nn.Module):
         return result.depth, result.valid, result.confidence
 
 
+@functools.cache
+def source_digest() -> str:
+    """sha256 (16 hex digits) of the package's Python sources: which code built a graph (stored in its metadata
+    and part of :func:`onnx_session`'s cache key, so that a changed algorithm or fitted constant is exported
+    again instead of served from the cache under an unchanged version number).
+
+    Example:
+        >>> len(source_digest())
+        16
+    """
+    digest = hashlib.sha256()
+    root = Path(__file__).resolve().parents[1]
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def _metadata(model: nn.Module, channels: int, opset: int) -> dict[str, str]:
     from prismstereo import __version__
 
@@ -100,6 +120,7 @@ def _metadata(model: nn.Module, channels: int, opset: int) -> dict[str, str]:
     config = model.config()
     return {
         "prismstereo.version": __version__,
+        "prismstereo.source": source_digest(),
         "prismstereo.rig": json.dumps(rig.to_dict(), sort_keys=True),
         "prismstereo.config": json.dumps(config, sort_keys=True),
         "prismstereo.num_hypotheses": str(config["num_hypotheses"]),

@@ -46,13 +46,13 @@ FEATURES: tuple[str, ...] = ("ncc", "coarse", "roughness", "offset", "texture", 
 """The feature channels of :func:`confidence_features`, in order."""
 
 # fitted by benchmarks/fit_confidence.py (the last entry is the bias)
-DEFAULT_WEIGHTS: tuple[float, ...] = (3.461, 1.851, -2.042, -2.227, 0.009, -0.684, -0.187)
+DEFAULT_WEIGHTS: tuple[float, ...] = (4.045, 2.071, -2.178, -1.673, 0.051, -0.090, -1.167)
 
 SMOOTHED_FEATURES: tuple[str, ...] = ("confidence", "agreement", "support")
 """The feature channels of :func:`smoothed_features`, in order."""
 
 # fitted by benchmarks/fit_confidence.py (the last entry is the bias)
-SMOOTHED_WEIGHTS: tuple[float, ...] = (0.918, 23.335, 7.197, -26.024)
+SMOOTHED_WEIGHTS: tuple[float, ...] = (0.597, 15.508, 7.162, -18.231)
 
 # the thresholds of the coarse level (the binned model of a pyramid) whose validity the features "coarse" and
 # "rejected" describe: those of the renders DEFAULT_WEIGHTS were fitted on (the model's defaults), whatever the

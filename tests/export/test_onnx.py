@@ -11,7 +11,7 @@ import torch
 
 from prismstereo import __version__, thesis_setup1
 from prismstereo.errors import OptionError, ShapeError
-from prismstereo.export import DepthGraph, ExportError, OnnxDepth, describe, export_onnx, onnx_session
+from prismstereo.export import DepthGraph, ExportError, OnnxDepth, describe, export_onnx, onnx_session, source_digest
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, step_scene
 
@@ -54,6 +54,7 @@ def test_graph_passes_the_checker_and_has_static_sizes_dynamic_batch(exported):
 def test_metadata(exported, model):
     meta = {p.key: p.value for p in onnx.load(str(exported)).metadata_props}
     assert meta["prismstereo.version"] == __version__
+    assert meta["prismstereo.source"] == source_digest() and len(source_digest()) == 16  # which code built it
     assert json.loads(meta["prismstereo.rig"]) == model.rig.to_dict()
     config = json.loads(meta["prismstereo.config"])
     assert config["num_hypotheses"] == model.num_hypotheses == int(meta["prismstereo.num_hypotheses"])
