@@ -9,14 +9,14 @@ model of these features (:data:`FEATURES`) turns them into the probability that 
 
     p = sigmoid(w . f + b)                                                      (logistic regression)
 
-fitted on renders of this package with :func:`fit_confidence`. A model that smooths its estimate
-(:func:`~prismstereo.matching.postprocess.robust_mean`, weighted by p) re-scores every pixel with a second
-logistic model of the evidence around it (:data:`SMOOTHED_FEATURES`: p, the share of the window's
-confidence that agrees with its mean, the window's mean confidence):
+fitted on renders of this package with :func:`fit_confidence` (``benchmarks/fit_confidence.py`` regenerates
+:data:`DEFAULT_WEIGHTS` and :data:`SMOOTHED_WEIGHTS`; the renders it uses are disjoint from the held-out scenes
+of ``benchmarks/dense_depth.py``, which report the reliability curve: how often pixels with p >= c are wrong).
+A model that smooths its estimate (:func:`~prismstereo.matching.postprocess.robust_mean`, weighted by p)
+re-scores every pixel with a second logistic model of the evidence around it (:data:`SMOOTHED_FEATURES`: p,
+the share of the window's confidence that agrees with its mean, the window's mean confidence):
 
-    p' = sigmoid(w' . f' + b') (``benchmarks/fit_confidence.py`` regenerates
-:data:`DEFAULT_WEIGHTS`; the renders it uses are disjoint from the held-out scenes of
-``benchmarks/dense_depth.py``, which report the reliability curve: how often pixels with p >= c are wrong).
+    p' = sigmoid(w' . f' + b')
 """
 
 from __future__ import annotations

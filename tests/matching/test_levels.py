@@ -74,6 +74,14 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     # the band's match (interpolated between its samples) is the exact sweep's position at s
     exact = torch.cat(series_at(model.series, whole.s), 1)
     assert (whole.match - exact).abs().amax(1, keepdim=True)[whole.valid].max() < 1e-3
+    # without the match (a smoothing model computes it after moving s): the same estimate, whole or in strips
+    bare = FineBand(model.fine.options, model.fine.band, model.fine.step, model.fine.split, with_match=False)
+    assert PrismStereo(rig, (450.0, 900.0), coarse_factor=2).fine.with_match is False
+    with torch.no_grad():
+        for voxels in (10**9, 1):
+            monkeypatch.setattr(levels, "_STRIP_VOXELS", voxels)
+            res = bare(ref, other, s0, ok0, model.series, model.interval)
+            assert res.match is None and torch.equal(res.s, whole.s) and torch.equal(res.valid, whole.valid)
 
 
 def test_fine_band_edges_reject_or_clamp(plane):

@@ -195,3 +195,24 @@ def test_robust_mean_errors_and_gradcheck():
         robust_mean(noisy[0], weight[0], 5, 0.1)
     x = noisy.clone().requires_grad_(True)
     assert torch.autograd.gradcheck(lambda v: robust_mean(v, weight, 5, 0.1).values, (x,), eps=1e-6, atol=1e-5)
+
+
+def test_robust_mean_exported_graph_matches_eager(tmp_path):
+    """The exported form (AveragePool boxes) gives the eager numbers, outputs and features alike."""
+    ort = pytest.importorskip("onnxruntime")
+    _, noisy = _plane_with_noise(h=24, w=30)
+    x = noisy.float()
+    x[..., 10:, 12:] += 3.0  # a step
+    weight = torch.rand(1, 1, 24, 30, generator=torch.Generator().manual_seed(5))
+
+    class Graph(torch.nn.Module):
+        def forward(self, values: torch.Tensor, w: torch.Tensor):
+            return tuple(robust_mean(values, w, 7, 0.2))
+
+    path = tmp_path / "robust.onnx"
+    torch.onnx.export(Graph(), (x, weight), str(path), input_names=["values", "weight"], opset_version=18,
+                      dynamo=False)
+    outs = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(
+        None, {"values": x.numpy(), "weight": weight.numpy()})
+    for got, want in zip(outs, robust_mean(x, weight, 7, 0.2), strict=True):
+        torch.testing.assert_close(torch.from_numpy(got), want, rtol=1e-5, atol=1e-5)
