@@ -2,7 +2,8 @@
 
 The public API (conventions: :mod:`prismstereo.conventions`):
 
-* rig: :class:`BiPrismRig`, :class:`RigParameters`, :func:`thesis_setup1`, :func:`thesis_setup2`
+* rig: :class:`BiPrismRig`, :class:`RigParameters`, :func:`thesis_setup1`, :func:`thesis_setup2`,
+  :func:`load_rig` (a rig file, JSON text, dict or preset name, geometry checked), :func:`check_rig_images`
 * exact optics: :func:`trace_pixels`, :func:`project_points`, :func:`refract`, :func:`points_at_depth`
 * virtual cameras (thesis ch. 3): :func:`virtual_camera`, :func:`virtual_cameras`
 * depth: :class:`PrismStereo` (the model), :class:`DepthResult` (its output), :class:`DepthStream` (frames
@@ -18,6 +19,7 @@ from prismstereo.geometry.optics import (
     RayBundle,
     Refraction,
     apex_ray,
+    check_rig_images,
     half_of_pixels,
     pixel_directions,
     points_at_depth,
@@ -26,7 +28,7 @@ from prismstereo.geometry.optics import (
     trace_directions,
     trace_pixels,
 )
-from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
+from prismstereo.geometry.presets import load_rig, thesis_setup1, thesis_setup2
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import (
     VirtualCamera,
@@ -51,6 +53,8 @@ __all__ = [
     "RigParameters",
     "thesis_setup1",
     "thesis_setup2",
+    "load_rig",
+    "check_rig_images",
     "Projection",
     "RayBundle",
     "Refraction",

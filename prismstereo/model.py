@@ -65,7 +65,7 @@ from prismstereo.epipolar.table import (
     valid_interval,
 )
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
-from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_std
 from prismstereo.matching.build import build_search
@@ -133,6 +133,7 @@ def _learned_model(rig: BiPrismRig, z_range_mm: tuple[float, float] | None = Non
     if options:
         raise OptionError(f"matcher='learned' takes z_range_mm, num_hypotheses and weights, not "
                           f"{', '.join(sorted(options))}")
+    check_rig_images(rig)  # before default_z_range traces it
     z_range = default_z_range(rig) if z_range_mm is None else z_range_mm
     return LearnedStereo(rig, tuple(z_range), num_hypotheses=num_hypotheses or 48, weights=weights)
 
@@ -141,7 +142,8 @@ class PrismStereo(nn.Module):
     """Depth from one bi-prism capture: exact plane sweep, coarse-to-fine.
 
     Args:
-        rig: the rig.
+        rig: the rig; its geometry is checked first (:func:`~prismstereo.geometry.optics.check_rig_images`:
+            :class:`~prismstereo.errors.RigError` if a half-image sees nothing through the prism).
         z_range_mm: (z_min, z_max) depth range searched; default
             :func:`~prismstereo.depth.range.default_z_range` (from the rig's common field of view).
         num_hypotheses: D at full resolution, uniform in 1/Z; default: neighbours <= 1 px apart.
@@ -301,6 +303,7 @@ class PrismStereo(nn.Module):
         matcher: Matcher = "classical",
     ) -> None:
         super().__init__()
+        check_rig_images(rig)  # the rig's geometry, before anything traces it
         check_option(matcher, MATCHERS, "matcher")  # 'learned' never gets here: see __new__
         if validity is not None:
             check_option(validity, VALIDITIES, "validity")

@@ -51,7 +51,8 @@ def test_rig_preset_writes_json(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "content,message",
-    [(None, "rig file not found"), ("{oops", "not valid JSON"), ('{"alpha_deg": 6.4}', "missing required field")],
+    [(None, "rig file not found"), ("{oops", "not valid JSON"), ('{"alpha_deg": 6.4}', "missing required field"),
+     (thesis_setup1().replace(prism_offset_x_mm=40.0).to_json(), "no pixel of the right half-image sees through")],
 )
 def test_rig_show_bad_files(tmp_path, capsys, content, message):
     path = tmp_path / "rig.json"

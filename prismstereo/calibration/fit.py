@@ -31,6 +31,7 @@ from prismstereo.calibration.solver import levenberg_marquardt, normal_inverse
 from prismstereo.calibration.targets import Board, CornerMethod, ViewDetection, detect_board
 from prismstereo.calibration.uncertainty import DepthUncertainty, depth_uncertainty
 from prismstereo.errors import CalibrationError, RigError
+from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["CalibrationResult", "DEFAULT_FIXED", "SolvedProblem", "calibrate_board", "solve_rig_problem",
@@ -295,6 +296,7 @@ def solve_rig_problem(problem: RigProblem, *, max_iterations: int = 100, max_rms
     full = problem.full_vector(x)
     try:
         calibrated = vector_to_rig(full, problem.rig)
+        check_rig_images(calibrated)  # once, on the result: the steps build no rigs
     except RigError as exc:
         raise CalibrationError(f"the fit diverged to an invalid rig: {exc}") from exc
     j = problem.jacobian(x)

@@ -16,7 +16,7 @@ from prismstereo.geometry.optics import (
     trace_directions,
     trace_pixels,
 )
-from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
+from prismstereo.geometry.presets import load_rig, thesis_setup1, thesis_setup2
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import (
     VirtualCamera,
@@ -33,6 +33,7 @@ __all__ = [
     "RigParameters",
     "thesis_setup1",
     "thesis_setup2",
+    "load_rig",
     "Half",
     "Projection",
     "RayBundle",

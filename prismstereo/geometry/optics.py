@@ -539,12 +539,30 @@ def _initial_guess(p: RigParameters, points: torch.Tensor, half: str) -> torch.T
 def check_rig_images(rig: BiPrismRig, samples: int = 33) -> None:
     """Raise :class:`RigError` if a half-image sees nothing through the prism.
 
-    Traces a grid of ``samples`` x ``samples`` pixels over the sensor in float64; every half must have at
-    least one valid ray (rays that miss the prism or are totally internally reflected are invalid).
+    The geometric validation of a rig (:class:`BiPrismRig` itself checks its fields only): traces a grid of
+    ``samples`` x ``samples`` pixels over the sensor in float64; every half must have at least one valid ray
+    (rays that miss the prism or are totally internally reflected are invalid). About a millisecond; called by
+    :func:`~prismstereo.geometry.presets.load_rig`, the depth models and :class:`~prismstereo.nn.PrismCostVolume`.
+
+    Args:
+        rig: the rig.
+        samples: pixels per sensor side in the traced grid (>= 2).
+
+    Raises:
+        RigError: if ``rig`` is not a :class:`BiPrismRig`, ``samples`` is bad, or a half-image sees nothing
+            through the prism.
 
     Example:
         >>> check_rig_images(thesis_setup1())
+        >>> check_rig_images(thesis_setup1().replace(prism_offset_x_mm=40.0))
+        Traceback (most recent call last):
+        ...
+        prismstereo.errors.RigError: no pixel of the right half-image sees through the prism: ...
     """
+    if not isinstance(rig, BiPrismRig):
+        raise RigError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 2:
+        raise RigError(f"samples must be an int >= 2, got {samples!r}")
     u = torch.linspace(-0.5, rig.image_width - 0.5, samples, dtype=torch.float64)
     v = torch.linspace(-0.5, rig.image_height - 0.5, samples, dtype=torch.float64)
     uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1).reshape(-1, 2)

@@ -1,11 +1,17 @@
-"""The rigs this package ships (the thesis' two setups) and :func:`load_rig`, which reads a rig file or one of
-them by name (the CLI's ``--rig``)."""
+"""The rigs this package ships (the thesis' two setups) and :func:`load_rig`, which reads a rig file, JSON text,
+a dict or one of them by name (the CLI's ``--rig``) and checks its geometry.
+
+The presets are fixed rigs whose half-images both see through the prism (the tests check them with
+:func:`~prismstereo.geometry.optics.check_rig_images`); building one does no ray tracing.
+"""
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
+from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["PRESETS", "load_rig", "thesis_setup1", "thesis_setup2"]
@@ -60,16 +66,39 @@ def thesis_setup2() -> BiPrismRig:
 PRESETS = {"thesis_setup1": thesis_setup1, "thesis_setup2": thesis_setup2}
 
 
-def load_rig(source: str | Path) -> BiPrismRig:
-    """A rig from a JSON file path or a preset name (``thesis_setup1``, ``thesis_setup2``).
+def load_rig(source: str | Path | dict[str, Any]) -> BiPrismRig:
+    """A validated rig from a preset name (``thesis_setup1``, ``thesis_setup2``), a JSON file path, JSON text
+    (starting with ``{``) or a dict with the JSON field names.
+
+    The user-facing way to make a rig: :meth:`BiPrismRig.from_json` / :meth:`BiPrismRig.from_dict` check the
+    fields, then :func:`~prismstereo.geometry.optics.check_rig_images` checks that both half-images see through
+    the prism.
+
+    Args:
+        source: a preset name, a path, JSON text or a dict.
+
+    Returns:
+        The rig.
 
     Raises:
-        RigError: missing file, invalid JSON or an invalid rig.
+        RigError: missing file, invalid JSON, invalid fields, or a half-image that sees nothing through the
+            prism.
 
     Example:
         >>> load_rig("thesis_setup2").focal_length_mm
         8.0
+        >>> load_rig(thesis_setup1().to_json()) == thesis_setup1()
+        True
+        >>> load_rig(thesis_setup1().replace(prism_offset_x_mm=40.0).to_dict())
+        Traceback (most recent call last):
+        ...
+        prismstereo.errors.RigError: no pixel of the right half-image sees through the prism: ...
     """
-    if str(source) in PRESETS:
-        return PRESETS[str(source)]()
-    return BiPrismRig.from_json(source)
+    if isinstance(source, dict):
+        rig = BiPrismRig.from_dict(source)
+    elif isinstance(source, (str, Path)) and str(source) in PRESETS:
+        rig = PRESETS[str(source)]()
+    else:
+        rig = BiPrismRig.from_json(source)
+    check_rig_images(rig)
+    return rig

@@ -10,9 +10,14 @@ the back plane z = T_o + T (``prism_thickness_mm``) is parallel to the image pla
 T thick at the apex and ends where the faces meet the back plane, |x - d| = T / tan(alpha): its back plane is
 2 T / tan(alpha) wide. An optional tilt rotates the whole prism about the apex point (d, 0, T_o).
 
-:class:`BiPrismRig` holds the numbers (frozen, JSON round trip, validated); :class:`RigParameters` holds the
-same numbers as tensors, which is what the differentiable optics consume (so every rig parameter can be
-optimised, e.g. for self-calibration).
+:class:`BiPrismRig` holds the numbers (frozen, JSON round trip, every field validated); :class:`RigParameters`
+holds the same numbers as tensors, which is what the differentiable optics consume (so every rig parameter can
+be optimised, e.g. for self-calibration).
+
+Whether both half-images actually see through the prism needs the ray tracer, which builds on this module; that
+geometric check is :func:`~prismstereo.geometry.optics.check_rig_images`, called by the entry points that take a
+rig from users: :func:`~prismstereo.geometry.presets.load_rig` (rig files, JSON text, dicts, preset names), the
+depth models and :class:`~prismstereo.nn.PrismCostVolume`. This module does not import the optics.
 """
 
 from __future__ import annotations
@@ -116,8 +121,11 @@ class BiPrismRig:
     """A camera with a bi-prism in front of it (thesis Table 3.1 / Table 4.2 parameters).
 
     The JSON field names are a contract shared with other tools; see the module docstring for the
-    geometry. Construction validates every field and checks that both half-images actually see through
-    the prism (rays neither miss it nor are totally internally reflected over a whole half).
+    geometry. Construction validates every field (cheap: no ray tracing, so :meth:`replace`, :meth:`binned`
+    and :meth:`downscaled` stay cheap too). Whether both half-images actually see through the prism (rays
+    neither miss it nor are totally internally reflected over a whole half) is checked by
+    :func:`~prismstereo.geometry.optics.check_rig_images`, which :func:`~prismstereo.geometry.presets.load_rig`
+    and the depth models call.
 
     Args:
         alpha_deg: prism corner angle alpha in degrees, in (0, 90).
@@ -205,10 +213,6 @@ class BiPrismRig:
         object.__setattr__(self, "distortion", distortion)
         if any(distortion):
             _check_distortion(self)
-        # The geometric check needs the ray tracer; imported here to keep the module graph acyclic.
-        from prismstereo.geometry.optics import check_rig_images
-
-        check_rig_images(self)
 
     # ----------------------------------------------------------------------------- derived values
     @property
@@ -350,7 +354,7 @@ class BiPrismRig:
         return coarse.replace(principal_point=((cx - shift) / factor, (cy - shift) / factor))
 
     def replace(self, **changes: Any) -> BiPrismRig:
-        """Return a validated copy with some fields changed.
+        """Return a copy with some fields changed, its fields validated (as the constructor does; no ray tracing).
 
         Example:
             >>> thesis_setup1().replace(prism_offset_x_mm=2.0).prism_offset_x_mm
@@ -370,6 +374,9 @@ class BiPrismRig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> BiPrismRig:
         """Build a rig from a dict with the JSON field names.
+
+        Checks the fields only (as the constructor does); :func:`~prismstereo.geometry.presets.load_rig` also
+        checks that both half-images see through the prism, and is what user-facing code should call.
 
         Raises:
             RigError: on missing or unknown fields, or invalid values.
@@ -413,8 +420,11 @@ class BiPrismRig:
     def from_json(cls, source: str | Path) -> BiPrismRig:
         """Load a rig from a JSON file path (or a JSON string starting with ``{``).
 
+        Checks the fields only (as the constructor does); :func:`~prismstereo.geometry.presets.load_rig` also
+        checks that both half-images see through the prism, and is what user-facing code should call.
+
         Raises:
-            RigError: if the file is missing, is not valid JSON, or holds an invalid rig.
+            RigError: if the file is missing, is not valid JSON, or holds a rig with invalid fields.
 
         Example:
             >>> BiPrismRig.from_json(thesis_setup2().to_json()).alpha_deg

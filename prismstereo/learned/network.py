@@ -31,7 +31,7 @@ from torch import nn
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, evaluate_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_shape
-from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.nn import PrismCostVolume, depth_regression
 
@@ -177,7 +177,8 @@ class LearnedStereo(nn.Module):
     """Learned depth of the reference half on the exact prism sweep (see the module docstring).
 
     Args:
-        rig: the full-resolution rig; its sensor size must be divisible by ``scale``.
+        rig: the full-resolution rig; its sensor size must be divisible by ``scale``. Its geometry is checked
+            first (:func:`~prismstereo.geometry.optics.check_rig_images`), here and in :meth:`for_rig`.
         z_range_mm: (z_min, z_max) searched, beyond the prism's back plane.
         num_hypotheses: D >= 2, uniform in 1/Z.
         scale: feature stride (2, 4 or 8); part of the architecture.
@@ -216,6 +217,7 @@ class LearnedStereo(nn.Module):
         super().__init__()
         if not isinstance(rig, BiPrismRig):
             raise OptionError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
+        check_rig_images(rig)
         state = metadata = None
         if weights is not None:
             path = DEFAULT_WEIGHTS if isinstance(weights, str) and weights == "default" else Path(weights)
@@ -268,6 +270,9 @@ class LearnedStereo(nn.Module):
             >>> other.features is model.features, other.volume.depths.shape
             (True, torch.Size([8]))
         """
+        if not isinstance(rig, BiPrismRig):
+            raise OptionError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
+        check_rig_images(rig)
         twin = LearnedStereo.__new__(LearnedStereo)
         nn.Module.__init__(twin)
         twin.architecture, twin.metadata = self.architecture, self.metadata

@@ -28,7 +28,7 @@ from torch import nn
 from prismstereo.epipolar.grids import normalise_right_grid
 from prismstereo.epipolar.sweep import fit_sweep, sweep_positions, sweep_to_depth
 from prismstereo.errors import OptionError, RigError, ShapeError, check_option, check_shape
-from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.matching.sweep_cost import sample_slices, warp_slices
 
@@ -181,7 +181,9 @@ class PrismCostVolume(nn.Module):
         height, width, reference_width: h, W_b and w_ref of the binned sensor.
 
     Args:
-        rig: the full-resolution rig (:class:`~prismstereo.geometry.rig.BiPrismRig` or ``RigParameters``).
+        rig: the full-resolution rig (:class:`~prismstereo.geometry.rig.BiPrismRig` or ``RigParameters``). A
+            ``BiPrismRig``'s geometry is checked first (:func:`~prismstereo.geometry.optics.check_rig_images`);
+            ``RigParameters`` (tensors, e.g. being optimised) are taken as they are.
         z_range_mm: (z_min, z_max) mm, beyond the prism's back plane.
         num_hypotheses: D >= 2, uniform in 1/Z.
         scale: the features' downsampling relative to the sensor (>= 1).
@@ -213,6 +215,8 @@ class PrismCostVolume(nn.Module):
         mode: Mode = "correlation",
     ) -> None:
         super().__init__()
+        if isinstance(rig, BiPrismRig):
+            check_rig_images(rig)
         self.mode = check_option(mode, MODES, "mode")
         self.groups = _check_int(groups, "groups", 1)
         if mode == "concat" and groups != 1:

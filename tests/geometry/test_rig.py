@@ -1,11 +1,13 @@
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
 
-from prismstereo import BiPrismRig, RigError, RigParameters, thesis_setup1, thesis_setup2
+from prismstereo import BiPrismRig, RigError, RigParameters, check_rig_images, load_rig, thesis_setup1, thesis_setup2
 from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.presets import PRESETS
 
 CONTRACT_FIELDS = [
     "alpha_deg",
@@ -125,16 +127,82 @@ def test_invalid_values(changes, match):
         BiPrismRig.from_dict(setup1_dict(**changes))
 
 
+def _assert_geometry_rejected(rig, match):
+    """Construction checks fields only; the explicit check, the validating loader and the model reject the rig."""
+    from prismstereo.model import PrismStereo
+
+    with pytest.raises(RigError, match=match):
+        check_rig_images(rig)
+    with pytest.raises(RigError, match=match):
+        load_rig(rig.to_json())
+    with pytest.raises(RigError, match=match):
+        load_rig(rig.to_dict())
+    with pytest.raises(RigError, match=match):
+        PrismStereo(rig, (400.0, 900.0))
+
+
 def test_geometry_whole_half_misses_prism():
     # apex 40 mm to the right: every ray hits the left face, the right half-image sees nothing
-    with pytest.raises(RigError, match="no pixel of the right half-image sees through the prism"):
-        thesis_setup1().replace(prism_offset_x_mm=40.0)
+    rig = thesis_setup1().replace(prism_offset_x_mm=40.0)  # no ray tracing in the constructor
+    assert rig.prism_offset_x_mm == 40.0
+    _assert_geometry_rejected(rig, "no pixel of the right half-image sees through the prism")
 
 
 def test_geometry_whole_half_total_internal_reflection():
     # alpha 75 deg, n 2: inside the glass the rays meet the back plane beyond the critical angle
-    with pytest.raises(RigError, match="no pixel of the left half-image .* totally internally reflected"):
-        thesis_setup1().replace(alpha_deg=75.0, refractive_index=2.0)
+    rig = thesis_setup1().replace(alpha_deg=75.0, refractive_index=2.0)
+    assert (rig.alpha_deg, rig.refractive_index) == (75.0, 2.0)
+    _assert_geometry_rejected(rig, "no pixel of the left half-image .* totally internally reflected")
+
+
+def test_presets_pass_the_geometric_check():
+    for make in PRESETS.values():
+        check_rig_images(make())
+
+
+def test_check_rig_images_rejects_other_types():
+    with pytest.raises(RigError, match="rig must be a BiPrismRig"):
+        check_rig_images(thesis_setup1().parameters())  # type: ignore[arg-type]
+    with pytest.raises(RigError, match="samples must be an int >= 2"):
+        check_rig_images(thesis_setup1(), samples=1)
+
+
+def test_rig_module_does_not_import_optics():
+    """rig.py imports nothing of the ray tracer, not even inside a function (the optics build on it)."""
+    import ast
+
+    import prismstereo.geometry.rig as rig_module
+
+    tree = ast.parse(Path(rig_module.__file__).read_text())
+    imported = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imported.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            imported.add(node.module or "")
+            imported.update(f"{node.module}.{alias.name}" for alias in node.names)
+    assert not any(name.startswith("prismstereo.geometry.optics") for name in imported), imported
+    assert "prismstereo.geometry" not in imported  # the package re-exports the optics
+
+
+def test_load_rig_validates(tmp_path):
+    rig = thesis_setup1().replace(prism_offset_x_mm=1.5, principal_point=(500.0, 380.0))
+    path = tmp_path / "rig.json"
+    rig.to_json(path)
+    assert load_rig(path) == rig
+    assert load_rig(str(path)) == rig
+    assert load_rig(rig.to_json()) == rig
+    assert load_rig(rig.to_dict()) == rig
+    assert load_rig("thesis_setup1") == thesis_setup1()
+    bad = tmp_path / "bad.json"
+    rig.replace(prism_offset_x_mm=40.0).to_json(bad)
+    assert BiPrismRig.from_json(bad).prism_offset_x_mm == 40.0  # fields only
+    with pytest.raises(RigError, match="no pixel of the right half-image sees through the prism"):
+        load_rig(bad)
+    with pytest.raises(RigError, match="rig file not found"):
+        load_rig(tmp_path / "missing.json")
+    with pytest.raises(RigError, match=r"unknown rig field\(s\): colour"):
+        load_rig(setup1_dict(colour="red"))
 
 
 @pytest.mark.parametrize(
@@ -203,8 +271,6 @@ def test_apex_column_moves_with_offset():
 
 
 def test_load_rig_from_preset_name_or_json_path(tmp_path):
-    from prismstereo.geometry.presets import PRESETS, load_rig
-
     assert set(PRESETS) == {"thesis_setup1", "thesis_setup2"}
     assert load_rig("thesis_setup2") == thesis_setup2()
     path = tmp_path / "rig.json"

@@ -1,0 +1,135 @@
+"""Regenerate ``docs/benchmarks.md``: run the benchmark scripts and write their tables, with the command that
+produced each, the date and the machine.
+
+Each benchmark is one section of the file, between ``<!-- benchmark: NAME -->`` and ``<!-- end: NAME -->``
+markers; ``--only NAME ...`` re-runs those sections and keeps the others as they are, so a slow benchmark need
+not run again to refresh a fast one. ``--log NAME=FILE`` takes a section's output from a file written earlier by
+the same command (``python benchmarks/X.py ... > FILE``) instead of running it. Timings depend on what else the
+machine does: run the timing benchmarks (``onnx_speed``, ``video_speed``) on an otherwise idle machine.
+
+Run: .venv/bin/python benchmarks/report.py [--only NAME ...] [--log NAME=FILE ...] [--list] [--out docs/benchmarks.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class Benchmark(NamedTuple):
+    """One section: the script and its arguments, and what it measures."""
+
+    script: str
+    args: tuple[str, ...]
+    title: str
+    about: str
+
+
+BENCHMARKS: dict[str, Benchmark] = {
+    "depth_targets": Benchmark(
+        "depth_targets.py", (), "Depth on the thesis' planes, slanted plane and step (both setups)",
+        "Mean / median relative depth error, share off by > 2 %, coverage of the co-visible pixels and false matches "
+        "of the default model at 1024 x 768, searched 205-1511 mm; 8-bit renders with read noise 1/255."),
+    "dense_depth": Benchmark(
+        "dense_depth.py", (), "Dense depth on weak texture, photographs and defocus (1024 x 768)",
+        "Held-out captures (Middlebury photographs as height fields, a weakly textured surface, thin-lens defocus, "
+        "Fresnel, read noise 2/255): coverage, bad > 1 %, mean error per model, and the reliability of the "
+        "confidence."),
+    "dense_depth_512": Benchmark(
+        "dense_depth.py", ("--scale", "2"), "Dense depth on weak texture, photographs and defocus (512 x 384)",
+        "The same captures on a 512 x 384 sensor, where the default is one coarse-to-fine level."),
+    "onnx_speed": Benchmark(
+        "onnx_speed.py", (), "Speed against OpenCV (torch, onnxruntime, StereoSGBM, StereoBM)",
+        "Interleaved rounds on 2 threads, 1024 x 768; ratios are medians of same-round ratios to StereoSGBM."),
+    "video_speed": Benchmark(
+        "video_speed.py", (), "Video: frame times, accuracy and flicker",
+        "A moving slanted plane frame by frame in onnxruntime against OpenCV at 1024 x 768 and 640 x 480, and the "
+        "per-pixel depth flicker of a static plane over 30 noisy frames."),
+    "middlebury": Benchmark(
+        "middlebury.py", (), "The rectified matcher on the Middlebury pairs",
+        "bad > 1 px (missing output counts as bad) against OpenCV StereoSGBM / StereoBM."),
+    "thesis_tables": Benchmark(
+        "thesis_tables.py", (), "The thesis' tables: virtual cameras, calibration, depth",
+        "The thesis' published numbers beside the exact optics' and the calibration's."),
+}
+
+
+def _machine() -> str:
+    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else ""
+    return f"{os.cpu_count()} cores ({cpu}), Python {platform.python_version()}, {platform.system()}"
+
+
+def run(name: str, log: Path | None = None) -> str:
+    """The section of benchmark ``name``: its output (run now, or read from ``log``) under its command."""
+    bench = BENCHMARKS[name]
+    command = [".venv/bin/python", f"benchmarks/{bench.script}", *bench.args]
+    if log is not None:
+        output, how = log.read_text(), f"output read from {log.name}"
+    else:
+        t0 = time.perf_counter()
+        proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / bench.script), *bench.args], cwd=ROOT,
+                              capture_output=True, text=True, check=False)
+        if proc.returncode != 0:
+            raise SystemExit(f"{name} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+        output, how = proc.stdout, f"ran in {time.perf_counter() - t0:.0f} s"
+    lines = [line.rstrip() for line in output.splitlines() if "Warning" not in line and "warnings.warn" not in line]
+    day = datetime.date.today().isoformat()
+    return "\n".join([
+        f"<!-- benchmark: {name} -->", f"## {bench.title}", "", bench.about, "",
+        f"`{' '.join(command)}` ({day}, {how})", "", "```", *lines, "```", f"<!-- end: {name} -->"])
+
+
+def _sections(text: str) -> dict[str, str]:
+    pattern = re.compile(r"<!-- benchmark: (\w+) -->.*?<!-- end: \1 -->", re.S)
+    return {m.group(1): m.group(0) for m in pattern.finditer(text)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--only", nargs="+", choices=sorted(BENCHMARKS), help="re-run these sections only")
+    parser.add_argument("--log", nargs="+", default=[], metavar="NAME=FILE",
+                        help="a section's output from a file written earlier by its command")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks.md")
+    parser.add_argument("--list", action="store_true", help="list the benchmarks and exit")
+    args = parser.parse_args()
+    if args.list:
+        for name, bench in BENCHMARKS.items():
+            print(f"{name:16s} " + " ".join(["benchmarks/" + bench.script, *bench.args]) + f": {bench.title}")
+        return
+    logs: dict[str, Path] = {}
+    for item in args.log:
+        name, _, file = item.partition("=")
+        if name not in BENCHMARKS or not file or not Path(file).is_file():
+            parser.error(f"--log takes NAME=FILE with NAME one of {', '.join(BENCHMARKS)} and an existing file, "
+                         f"got {item!r}")
+        logs[name] = Path(file)
+    old = _sections(args.out.read_text()) if args.out.exists() else {}
+    todo = set(args.only or BENCHMARKS) | set(logs)
+    sections = {}
+    for name in BENCHMARKS:
+        if name in todo:
+            print(f"{name} ...", flush=True)
+            sections[name] = run(name, logs.get(name))
+        elif name in old:
+            sections[name] = old[name]
+    header = ("# Benchmarks\n\nThe current tables of the benchmark scripts, written by `benchmarks/report.py` (not by "
+              "hand): each section gives the command that printed it and when. What the numbers mean and which "
+              "defaults they chose: [design.md](design.md).\n\n"
+              f"Machine of the last run: {_machine()}.\n")
+    args.out.write_text(header + "\n" + "\n\n".join(sections.values()) + "\n")
+    print(f"wrote {args.out} ({', '.join(sections)})")
+
+
+if __name__ == "__main__":
+    main()
