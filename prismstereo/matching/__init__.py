@@ -1,11 +1,20 @@
-"""Matching layers: split the capture, build cost volumes, select hypotheses, post-process disparities."""
+"""Matching layers: split the capture, build cost volumes, select hypotheses, post-process estimates.
+
+The depth model's path: :class:`SplitImage`, the coarse level (:class:`RectifiedSearch` / :class:`SweepSearch`
+with :func:`sweep_cost` / :func:`shift_cost`, :func:`box_filter`, :func:`sgm_aggregate`), the fine bands
+(:class:`FineBand`), the smoothing (:func:`robust_mean`) and the calibrated confidence
+(:class:`ConfidenceModel`). The rectified-pair matcher (``prismstereo match``) uses the same building blocks
+with its own costs and post-processing (:mod:`~prismstereo.matching.rectified`, :mod:`~prismstereo.matching.cost`).
+"""
 
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate, sgm_aggregate_guided
 from prismstereo.matching.confidence import (
     FEATURES,
+    SMOOTHED_FEATURES,
     ConfidenceModel,
     confidence_features,
     fit_confidence,
+    smoothed_features,
 )
 from prismstereo.matching.cost import (
     COSTS,
@@ -17,7 +26,15 @@ from prismstereo.matching.cost import (
     cost_volume,
     shifted,
 )
-from prismstereo.matching.postprocess import fill_background, median_filter, weighted_median
+from prismstereo.matching.levels import (
+    FineBand,
+    LevelResult,
+    RectifiedSearch,
+    SearchOptions,
+    SweepSearch,
+    extend_estimate,
+)
+from prismstereo.matching.postprocess import RobustMean, fill_background, median_filter, robust_mean, weighted_median
 from prismstereo.matching.rectified import ad_gradient_volume, guided_filter
 from prismstereo.matching.select import (
     Subpixel,
@@ -29,11 +46,29 @@ from prismstereo.matching.select import (
     winner_take_all,
 )
 from prismstereo.matching.split import Halves, SplitImage
+from prismstereo.matching.sweep_cost import Warped, sample_slices, shift_cost, sweep_cost, warp_slices
 
 __all__ = [
+    "SplitImage",
+    "Halves",
+    "SearchOptions",
+    "SweepSearch",
+    "RectifiedSearch",
+    "FineBand",
+    "LevelResult",
+    "extend_estimate",
+    "Warped",
+    "sample_slices",
+    "warp_slices",
+    "sweep_cost",
+    "shift_cost",
+    "robust_mean",
+    "RobustMean",
     "FEATURES",
+    "SMOOTHED_FEATURES",
     "ConfidenceModel",
     "confidence_features",
+    "smoothed_features",
     "fit_confidence",
     "COSTS",
     "Cost",
@@ -59,6 +94,4 @@ __all__ = [
     "subpixel_refine_guarded",
     "uniqueness",
     "winner_take_all",
-    "Halves",
-    "SplitImage",
 ]
