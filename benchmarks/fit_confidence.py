@@ -82,6 +82,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cache", type=Path, default=Path(".cache/fit_confidence"), help="renders kept here")
     parser.add_argument("--scenes", type=int, default=10, help="training scenes per setup and sensor size")
+    parser.add_argument("--presets", nargs="+", default=("accurate",),
+                        help="model presets whose estimates are the samples (one confidence is fitted to them all)")
     parser.add_argument("--scales", type=int, nargs="+", default=(1, 2),
                         help="sensor downscale factors (1: the 1024 x 768 pyramid; 2: 512 x 384, one level)")
     parser.add_argument("--z-range", type=float, nargs=2, default=(205.0, 1511.0), metavar=("ZMIN", "ZMAX"))
@@ -92,7 +94,7 @@ def main() -> None:
     xs2, ys2, per_capture2 = [], [], []
     for key, make, scale in ((k, m, s) for k, m in SETUPS.items() for s in args.scales):
         rig = make().downscaled(scale)
-        model = PrismStereo(rig, tuple(args.z_range))
+        models = {name: PrismStereo.from_config(rig, tuple(args.z_range), name) for name in args.presets}
         w = rig.reference_width
         prefix = f"setup{key}" if scale == 1 else f"setup{key}_x{scale}"
         for i, scene in enumerate(training_scenes(rig, int(key) + 10 * (scale - 1), args.scenes,
@@ -105,25 +107,25 @@ def main() -> None:
                                            blur_sigma_px=(0.0, 0.0, 1.0, 2.0)[(i // 2) % 4], seed=i)
                 capture = render(rig, scene, formation)._asdict()
                 torch.save(capture, path)
-            with torch.inference_mode():
-                inputs = model.confidence_inputs(capture["image"])
-            gt, covisible = capture["depth"][..., :w], capture["covisible"][..., :w]
-            correct = covisible & ((inputs.depth.double() - gt).abs() <= 0.01 * gt)
-            sel = inputs.sampled[:, 0]
-            x = inputs.features.permute(0, 2, 3, 1)[sel].double()
-            y = correct[:, 0][sel]
-            keep = torch.randperm(len(y))[:SAMPLES_PER_CAPTURE]
-            xs.append(x[keep])
-            ys.append(y[keep])
-            per_capture.append((f"{prefix} {scene.name}", inputs.features, inputs.sampled, covisible, correct))
-            correct2 = covisible & ((inputs.smoothed_depth.double() - gt).abs() <= 0.01 * gt)
-            x2 = inputs.smoothed_features.permute(0, 2, 3, 1)[sel].double()
-            xs2.append(x2[keep])
-            ys2.append(correct2[:, 0][sel][keep])
-            per_capture2.append((f"{prefix} {scene.name}", inputs.smoothed_features, inputs.sampled, covisible,
-                                 correct2))
-            print(f"{prefix} {scene.name}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct",
-                  flush=True)
+            for preset_name, model in models.items():
+                label = f"{prefix} {preset_name} {scene.name}"
+                with torch.inference_mode():
+                    inputs = model.confidence_inputs(capture["image"])
+                gt, covisible = capture["depth"][..., :w], capture["covisible"][..., :w]
+                correct = covisible & ((inputs.depth.double() - gt).abs() <= 0.01 * gt)
+                sel = inputs.sampled[:, 0]
+                x = inputs.features.permute(0, 2, 3, 1)[sel].double()
+                y = correct[:, 0][sel]
+                keep = torch.randperm(len(y))[:SAMPLES_PER_CAPTURE]
+                xs.append(x[keep])
+                ys.append(y[keep])
+                per_capture.append((label, inputs.features, inputs.sampled, covisible, correct))
+                correct2 = covisible & ((inputs.smoothed_depth.double() - gt).abs() <= 0.01 * gt)
+                x2 = inputs.smoothed_features.permute(0, 2, 3, 1)[sel].double()
+                xs2.append(x2[keep])
+                ys2.append(correct2[:, 0][sel][keep])
+                per_capture2.append((label, inputs.smoothed_features, inputs.sampled, covisible, correct2))
+                print(f"{label}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct", flush=True)
     losses = []
     for names, label, xs_, ys_, captures in ((FEATURES, "DEFAULT_WEIGHTS", xs, ys, per_capture),
                                              (SMOOTHED_FEATURES, "SMOOTHED_WEIGHTS", xs2, ys2, per_capture2)):
