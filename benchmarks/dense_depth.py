@@ -19,7 +19,8 @@ with confidence >= c and how many of them are off by more than 1 %.
 
 Models: ``thresholds`` = ``PrismStereo(validity='thresholds', smoothing=0)`` (NCC >= 0.5 and a coarse uniqueness
 >= 0.3: the earlier default), ``unsmoothed`` = the calibrated confidence without the smoothing of the estimate
-(``smoothing=0``), ``default`` = the model's defaults (calibrated confidence >= 0.5, smoothing), ``dense`` = the
+(``smoothing=0``), ``default`` = the model's defaults (calibrated confidence >= 0.5, smoothing), ``fast`` = the
+``'fast'`` preset (a full-resolution band of 3 with clamped edges, its own confidence weights), ``dense`` = the
 ``'dense'`` preset (``dense=True``, ``coarse_factor=2``; coverage counts every pixel with a depth, and its
 ``valid`` mask is reported as ``dense valid``).
 
@@ -51,7 +52,7 @@ from prismstereo.synthetic import (  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
 MODELS = {"thresholds": {"validity": "thresholds", "smoothing": 0}, "unsmoothed": {"smoothing": 0}, "default": {},
-          "dense": preset("dense").to_kwargs()}
+          "fast": preset("fast").to_kwargs(), "dense": preset("dense").to_kwargs()}
 LEVELS = (0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95)
 
 

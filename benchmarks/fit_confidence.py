@@ -12,7 +12,8 @@ weights (paste them into ``DEFAULT_WEIGHTS``), the training log-loss and, per ca
 wrong share at p >= 0.5. Then the second stage, the re-scoring after the model's smoothing
 (``SMOOTHED_WEIGHTS``, on :data:`~prismstereo.matching.confidence.SMOOTHED_FEATURES` of the smoothed depth):
 it is fitted on the model's current first stage, so after pasting new ``DEFAULT_WEIGHTS`` run the script
-again for the second.
+again for the second. ``--presets fast`` fits the weights of models whose final band clamps its edges
+(``CLAMPED_WEIGHTS``: stage 1, then stage 2 the same way).
 
 Run: .venv/bin/python benchmarks/fit_confidence.py [--cache DIR] [--scenes N] [--z-range ZMIN ZMAX]
 """
@@ -127,8 +128,10 @@ def main() -> None:
                 per_capture2.append((label, inputs.smoothed_features, inputs.sampled, covisible, correct2))
                 print(f"{label}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct", flush=True)
     losses = []
-    for names, label, xs_, ys_, captures in ((FEATURES, "DEFAULT_WEIGHTS", xs, ys, per_capture),
-                                             (SMOOTHED_FEATURES, "SMOOTHED_WEIGHTS", xs2, ys2, per_capture2)):
+    clamped = all(m.band_edges == "clamp" and not m.dense for m in models.values())
+    labels = ("CLAMPED_WEIGHTS[0]", "CLAMPED_WEIGHTS[1]") if clamped else ("DEFAULT_WEIGHTS", "SMOOTHED_WEIGHTS")
+    for names, label, xs_, ys_, captures in ((FEATURES, labels[0], xs, ys, per_capture),
+                                             (SMOOTHED_FEATURES, labels[1], xs2, ys2, per_capture2)):
         x, y = torch.cat(xs_), torch.cat(ys_)
         weights = fit_confidence(x, y)
         logit = x @ weights[:-1] + weights[-1]

@@ -8,8 +8,8 @@ depth (:class:`ValidityConfig`) — with the model's defaults. Presets name the 
 * ``'accurate'``: the default (a 2 x 2-binned model places a full-resolution band on large sensors, calibrated
   confidence);
 * ``'fast'``: a 2 x 2-binned model, then a full-resolution band of 3 hypotheses with its edges clamped
-  (``downsample=2, full_band=1, band_edges='clamp'``); as accurate on textured surfaces, but its confidence
-  (fitted on the default chain) lets through more wrong depths in weak texture (docs/design.md);
+  (``downsample=2, full_band=1, band_edges='clamp'``), with confidence weights fitted to clamped bands
+  (:data:`~prismstereo.matching.confidence.CLAMPED_WEIGHTS`);
 * ``'dense'``: a depth for every pixel of the common field of view with its confidence (``dense=True``), and a
   finer coarse level (``coarse_factor=2``: the binned model's search at 1/4 of the sensor instead of 1/8, which
   finds more of the weakly textured regions, at ~1.4x the time);

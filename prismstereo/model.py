@@ -70,6 +70,7 @@ from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_std
 from prismstereo.matching.build import build_search
 from prismstereo.matching.confidence import (
+    CLAMPED_WEIGHTS,
     FITTED_PLACEMENT,
     SMOOTHED_FEATURES,
     ConfidenceModel,
@@ -426,9 +427,11 @@ class PrismStereo(nn.Module):
         self.validity, self.dense = validity, dense
         self.wide_box, self.weak_texture, self.dense_fill = wide_box, float(weak_texture), dense_fill
         self.smoothing, self.smoothing_tolerance = smoothing, float(smoothing_tolerance)
-        self.calibration = ConfidenceModel() if validity == "calibrated" else None
-        self.smoothed_calibration = (ConfidenceModel(names=SMOOTHED_FEATURES) if validity == "calibrated" and smoothing
-                                     else None)
+        # a final band that clamps its edges (not a dense model's, fitted with the default) has its own weights
+        stage1, stage2 = CLAMPED_WEIGHTS if band_edges == "clamp" and not dense else (None, None)
+        self.calibration = ConfidenceModel(stage1) if validity == "calibrated" else None
+        calibrated = validity == "calibrated"
+        self.smoothed_calibration = ConfidenceModel(stage2, SMOOTHED_FEATURES) if calibrated and smoothing else None
 
         w_o = rig.image_width - w_ref
         rays = trace_pixels(rig, uv.view(-1, 2))

@@ -34,6 +34,7 @@ __all__ = [
     "DEFAULT_WEIGHTS",
     "FEATURES",
     "FITTED_PLACEMENT",
+    "CLAMPED_WEIGHTS",
     "SMOOTHED_FEATURES",
     "SMOOTHED_WEIGHTS",
     "ConfidenceModel",
@@ -53,6 +54,14 @@ SMOOTHED_FEATURES: tuple[str, ...] = ("confidence", "agreement", "support")
 
 # fitted by benchmarks/fit_confidence.py (the last entry is the bias)
 SMOOTHED_WEIGHTS: tuple[float, ...] = (0.597, 15.508, 7.162, -18.231)
+
+CLAMPED_WEIGHTS: tuple[tuple[float, ...], tuple[float, ...]] = (
+    (2.528, 3.101, -5.274, -4.406, 0.156, 0.140, 0.464),
+    (-2.731, 8.155, 11.142, -12.317),
+)
+"""(stage 1, stage 2) weights of models whose final band clamps its edges instead of rejecting them
+(``band_edges='clamp'``, the ``'fast'`` preset; fitted by ``benchmarks/fit_confidence.py --presets fast``): their
+wrong estimates agree with their neighbours more often, and the default weights trusted them too much."""
 
 # the thresholds of the coarse level (the binned model of a pyramid) whose validity the features "coarse" and
 # "rejected" describe: those of the renders DEFAULT_WEIGHTS were fitted on (the model's defaults), whatever the

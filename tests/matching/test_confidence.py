@@ -3,6 +3,7 @@ import torch
 
 from prismstereo import OptionError, ShapeError
 from prismstereo.matching.confidence import (
+    CLAMPED_WEIGHTS,
     DEFAULT_WEIGHTS,
     FEATURES,
     SMOOTHED_FEATURES,
@@ -122,3 +123,23 @@ def test_smoothed_features_and_model():
         ConfidenceModel(names=("ncc",))
     with pytest.raises(OptionError, match="weights must be 4 finite numbers"):
         ConfidenceModel(DEFAULT_WEIGHTS, SMOOTHED_FEATURES)
+
+
+def test_clamped_band_models_have_their_own_weights():
+    """A final band that clamps its edges (the 'fast' preset) takes CLAMPED_WEIGHTS; the default, a dense model
+    and 'reject' bands the default weights."""
+    from prismstereo import thesis_setup1
+    from prismstereo.model import PrismStereo
+
+    rig = thesis_setup1().downscaled(4)
+    fast = PrismStereo(rig, (400.0, 800.0), coarse_factor=2, band_edges="clamp")
+    torch.testing.assert_close(fast.calibration.weight.flatten(), torch.tensor(CLAMPED_WEIGHTS[0][:-1]))
+    torch.testing.assert_close(fast.smoothed_calibration.weight.flatten(), torch.tensor(CLAMPED_WEIGHTS[1][:-1]))
+    for model in (PrismStereo(rig, (400.0, 800.0), coarse_factor=2),
+                  PrismStereo(rig, (400.0, 800.0), coarse_factor=2, band_edges="clamp", dense=True)):
+        torch.testing.assert_close(model.calibration.weight.flatten(), torch.tensor(DEFAULT_WEIGHTS[:-1]))
+        torch.testing.assert_close(model.smoothed_calibration.weight.flatten(), torch.tensor(SMOOTHED_WEIGHTS[:-1]))
+    stage1 = dict(zip(FEATURES, CLAMPED_WEIGHTS[0], strict=False))
+    assert stage1["coarse"] > 0 and stage1["roughness"] < 0 and stage1["offset"] < 0
+    stage2 = dict(zip(SMOOTHED_FEATURES, CLAMPED_WEIGHTS[1], strict=False))
+    assert stage2["agreement"] > 0 and stage2["support"] > 0
