@@ -101,8 +101,8 @@ def main() -> None:
                 res = model(cap["image"])
             ms = 1e3 * (time.perf_counter() - t0)
             rel = (res.depth.double() - gt).abs() / gt
-            for label, has in ((key, (res.confidence > 0) if key == "dense" else res.valid),
-                               *((("dense valid", res.valid),) if key == "dense" else ())):
+            rows = [(key, res.valid)] if key != "dense" else [(key, res.confidence > 0), ("dense valid", res.valid)]
+            for label, has in rows:
                 sel = has & covisible
                 cover = 100 * float(sel.sum() / covisible.sum())
                 bad = 100 * float((rel[sel] > 0.01).double().mean()) if sel.any() else float("nan")

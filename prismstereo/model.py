@@ -342,8 +342,8 @@ class PrismStereo(nn.Module):
             raise OptionError(f"weak_texture must be a finite number > 0, got {weak_texture!r}")
         if isinstance(dense_fill, bool) or not isinstance(dense_fill, int) or dense_fill < 0:
             raise OptionError(f"dense_fill must be an int >= 0, got {dense_fill!r}")
-        if isinstance(smoothing, bool) or not isinstance(smoothing, int) or smoothing < 0 or smoothing in (1, 2) or (
-                smoothing and smoothing % 2 == 0):
+        if isinstance(smoothing, bool) or not isinstance(smoothing, int) or smoothing < 0 or (
+                smoothing and (smoothing < 3 or smoothing % 2 == 0)):
             raise OptionError(f"smoothing must be 0 (off) or an odd int >= 3, got {smoothing!r}")
         if isinstance(smoothing_tolerance, bool) or not (isinstance(smoothing_tolerance, (int, float))
                                                          and 0 < smoothing_tolerance < math.inf):
@@ -428,9 +428,10 @@ class PrismStereo(nn.Module):
         self.wide_box, self.weak_texture, self.dense_fill = wide_box, float(weak_texture), dense_fill
         self.smoothing, self.smoothing_tolerance = smoothing, float(smoothing_tolerance)
         # a final band that clamps its edges (not a dense model's, fitted with the default) has its own weights
-        stage1, stage2 = CLAMPED_WEIGHTS if band_edges == "clamp" and not dense else (None, None)
-        self.calibration = ConfidenceModel(stage1) if validity == "calibrated" else None
+        self.clamped_band = band_edges == "clamp" and not dense
+        stage1, stage2 = CLAMPED_WEIGHTS if self.clamped_band else (None, None)
         calibrated = validity == "calibrated"
+        self.calibration = ConfidenceModel(stage1) if calibrated else None
         self.smoothed_calibration = ConfidenceModel(stage2, SMOOTHED_FEATURES) if calibrated and smoothing else None
 
         w_o = rig.image_width - w_ref
@@ -684,25 +685,24 @@ class PrismStereo(nn.Module):
         return _Estimate(s, ok, confidence, match, features, sampled)
 
     def _smooth(self, s: torch.Tensor, confidence: torch.Tensor, sampled: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """The confidence-weighted robust mean of the estimates around each pixel (``smoothing``; the confidence
-        a weight, not a path of gradients), the confidence re-scored from the evidence around the pixel
-        (calibrated models), and those features."""
+        a weight, not a path of gradients), and for calibrated models the confidence re-scored from the evidence
+        around the pixel with those features (None otherwise: the confidence stays as it is)."""
         step = 2.0 / (self.num_hypotheses - 1)
         weight = confidence.detach().clamp(0.0, 1.0) * (sampled & self.reference_valid).to(s.dtype)
         smoothed = robust_mean(s, weight, self.smoothing, self.smoothing_tolerance * step)
+        if self.smoothed_calibration is None:
+            return smoothed.values, confidence, None
         features = smoothed_features(weight, smoothed.agreement, smoothed.support)
-        if self.smoothed_calibration is not None:
-            confidence = self.smoothed_calibration(features)
-        return smoothed.values, confidence, features
+        return smoothed.values, self.smoothed_calibration(features), features
 
     def _depth(self, image: torch.Tensor) -> DepthResult:
         s, ok, confidence, match, _, sampled = self._estimate(image)
         step = 2.0 / (self.num_hypotheses - 1)
         s = s.clamp(-1.0, 1.0)
-        if self.smoothing:
+        if self.smoothing:  # its fine band returned no match (with_match=False): the series at the smoothed s
             s, confidence, _ = self._smooth(s, confidence, sampled)
-            match = None
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
         if match is None:  # the series at s (the search's own match unless the estimate was smoothed)

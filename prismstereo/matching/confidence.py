@@ -60,8 +60,9 @@ CLAMPED_WEIGHTS: tuple[tuple[float, ...], tuple[float, ...]] = (
     (-2.731, 8.155, 11.142, -12.317),
 )
 """(stage 1, stage 2) weights of models whose final band clamps its edges instead of rejecting them
-(``band_edges='clamp'``, the ``'fast'`` preset; fitted by ``benchmarks/fit_confidence.py --presets fast``): their
-wrong estimates agree with their neighbours more often, and the default weights trusted them too much."""
+(``band_edges='clamp'``, the ``'fast'`` preset: ``PrismStereo.clamped_band``; fitted by
+``benchmarks/fit_confidence.py --presets fast``): their wrong estimates agree with their neighbours more often,
+and the default weights trusted them too much."""
 
 # the thresholds of the coarse level (the binned model of a pyramid) whose validity the features "coarse" and
 # "rejected" describe: those of the renders DEFAULT_WEIGHTS were fitted on (the model's defaults), whatever the
