@@ -78,6 +78,16 @@ def captures(rig, cache: Path) -> dict[str, dict]:
     return out
 
 
+def scores(rel: torch.Tensor, has: torch.Tensor, covisible: torch.Tensor) -> tuple[float, float, float]:
+    """(coverage %, bad>1 % share %, mean relative error %) of the co-visible pixels in ``has``, from the
+    relative depth errors ``rel`` (NaN for bad and mean where none is covered)."""
+    sel = has & covisible
+    cover = 100 * float(sel.sum() / covisible.sum())
+    bad = 100 * float((rel[sel] > 0.01).double().mean()) if sel.any() else float("nan")
+    mean = 100 * float(rel[sel].mean()) if sel.any() else float("nan")
+    return cover, bad, mean
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--z-range", type=float, nargs=2, default=(205.0, 1511.0), metavar=("ZMIN", "ZMAX"))
@@ -103,10 +113,7 @@ def main() -> None:
             rel = (res.depth.double() - gt).abs() / gt
             rows = [(key, res.valid)] if key != "dense" else [(key, res.confidence > 0), ("dense valid", res.valid)]
             for label, has in rows:
-                sel = has & covisible
-                cover = 100 * float(sel.sum() / covisible.sum())
-                bad = 100 * float((rel[sel] > 0.01).double().mean()) if sel.any() else float("nan")
-                mean = 100 * float(rel[sel].mean()) if sel.any() else float("nan")
+                cover, bad, mean = scores(rel, has, covisible)
                 print(f"{name:26s} {label:11s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:6.0f}")
             if key == "dense":  # every co-visible pixel with a depth
                 sel = (res.confidence > 0) & covisible

@@ -34,6 +34,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import median_ms  # noqa: E402
 from dense_depth import captures as dense_captures  # noqa: E402
+from dense_depth import scores  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
 from prismstereo.export import OnnxDepth, export_onnx  # noqa: E402
@@ -106,10 +107,7 @@ def main() -> None:
             rel = (res.depth.double() - gt).abs() / gt
             rows = [(key, res.valid)] + ([("learned (all)", torch.ones_like(res.valid))] if key == "learned" else [])
             for label, has in rows:
-                sel = has & covisible
-                cover = 100 * float(sel.sum() / covisible.sum())
-                bad = 100 * float((rel[sel] > 0.01).double().mean()) if sel.any() else float("nan")
-                mean = 100 * float(rel[sel].mean()) if sel.any() else float("nan")
+                cover, bad, mean = scores(rel, has, covisible)
                 print(f"{name:26s} {label:15s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:7.0f}")
 
 
