@@ -1,0 +1,185 @@
+"""The captures and models whose outputs ``reference_outputs.json`` freezes (``tests/test_reference_outputs.py``).
+
+A refactoring that keeps the algorithms must keep every output bitwise: each case stores the SHA-256 of each
+:class:`~prismstereo.depth.result.DepthResult` field (float32 / bool bytes) with a few statistics that say how far
+a changed output moved. A change that is meant to alter the numbers regenerates the file in its own commit,
+stating the difference it measured:
+
+    .venv/bin/python tests/data/reference_cases.py          # rewrite tests/data/reference_outputs.json
+    .venv/bin/python tests/data/reference_cases.py --check  # compare, print the cases that differ
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from prismstereo import thesis_setup1, thesis_setup2
+from prismstereo.model import PrismStereo
+from prismstereo.synthetic import ImageFormation, render, slanted_plane, step_scene
+
+PATH = Path(__file__).with_name("reference_outputs.json")
+GRAPHS = Path(__file__).with_name("reference_graphs.json")
+FIELDS = ("depth", "valid", "confidence", "index", "match")
+
+
+def _capture(rig, scene) -> torch.Tensor:
+    return render(rig, scene, ImageFormation(supersample=2, noise_sigma=2 / 255, seed=11)).image
+
+
+def cases() -> Iterator[tuple[str, Callable[[], PrismStereo], Callable[[], torch.Tensor]]]:
+    """(name, model builder, capture builder) of every frozen case: each preset on the full sensor (a pyramid)
+    and on a half-size sensor (coarse-to-fine at full resolution), and single options that take other paths."""
+    full, half, half2 = thesis_setup1(), thesis_setup1().downscaled(2), thesis_setup2().downscaled(2)
+    z = (400.0, 800.0)
+    step = lambda rig: lambda: _capture(rig, step_scene(rig, 480.0, 700.0, seed=3))  # noqa: E731
+    slant = lambda rig: lambda: _capture(rig, slanted_plane(rig, 600.0, 20.0, seed=4))  # noqa: E731
+    for name in ("accurate", "fast", "dense"):
+        yield f"setup1 1024x768 {name}", lambda n=name: PrismStereo.from_config(full, z, n), step(full)
+    for name in ("accurate", "fast", "dense", "reference"):
+        yield f"setup1 512x384 {name}", lambda n=name: PrismStereo.from_config(half, z, n), step(half)
+    options = {
+        "thresholds": {"validity": "thresholds", "smoothing": 0},
+        "sweep sampling": {"sampling": "sweep"},
+        "census, soft-argmin": {"cost": "census", "refinement": "soft_argmin"},
+        "blocks": {"downsample": 2, "full_band": 0},
+        "lr check, 8 directions": {"lr_threshold": 1.0, "directions": 8},
+        "single rectified level": {"coarse_factor": 1, "sampling": "rectified"},
+    }
+    for name, kwargs in options.items():
+        yield f"setup1 512x384 {name}", lambda k=kwargs: _model(half, z, k), slant(half)
+    yield "setup2 512x384 accurate", lambda: PrismStereo(half2, z), step(half2)
+
+
+def _model(rig, z, options: dict) -> PrismStereo:
+    from prismstereo.config import StereoConfig
+
+    return PrismStereo.from_config(rig, z, StereoConfig.from_kwargs(**options))
+
+
+def describe(result) -> dict:
+    """SHA-256 and statistics of each output field."""
+    out = {}
+    for field in FIELDS:
+        a = getattr(result, field).detach().contiguous().numpy()
+        entry = {"sha256": hashlib.sha256(a.tobytes()).hexdigest(), "shape": list(a.shape), "dtype": str(a.dtype)}
+        if a.dtype == np.bool_:
+            entry["count"] = int(a.sum())
+        else:
+            finite = np.isfinite(a)
+            entry["sum"] = float(np.float64(a[finite]).sum())
+            entry["finite"] = int(finite.sum())
+        out[field] = entry
+    return out
+
+
+def graph_cases() -> Iterator[tuple[str, Callable[[], PrismStereo]]]:
+    """(name, model builder) of the exported graphs frozen node for node: a coarse-to-fine model and a pyramid,
+    each default and dense."""
+    small, pyramid = thesis_setup1().downscaled(8), {"downsample": 2, "full_band": 2}
+    yield "128x96 coarse factor 2", lambda: _model(small, (300.0, 900.0), {"coarse_factor": 2})
+    yield "128x96 coarse factor 2 dense", lambda: _model(small, (300.0, 900.0), {"coarse_factor": 2, "dense": True})
+    yield "256x192 pyramid", lambda: _model(thesis_setup1().downscaled(4), (400.0, 800.0), pyramid)
+
+
+def graph_digest(path: str | Path) -> dict:
+    """An exported graph, node for node, independent of tensor and node names (which follow module paths): each
+    node's op type, attributes and inputs / outputs numbered by first appearance, and the initializers' values."""
+    import onnx
+    from onnx import numpy_helper
+
+    graph = onnx.load(str(path)).graph
+    ids: dict[str, int] = {}
+
+    def tid(name: str) -> int | str:
+        if not name:
+            return ""
+        return ids.setdefault(name, len(ids))
+
+    for x in graph.input:
+        tid(x.name)
+    init = {t.name: t for t in graph.initializer}
+    nodes = hashlib.sha256()
+    values = hashlib.sha256()
+    ops: dict[str, int] = {}
+    for node in graph.node:
+        for name in node.input:
+            if name in init and name not in ids:
+                values.update(numpy_helper.to_array(init[name]).tobytes())
+        attrs = []
+        for a in node.attribute:
+            if a.type == onnx.AttributeProto.TENSOR:
+                values.update(numpy_helper.to_array(a.t).tobytes())
+                attrs.append((a.name, "tensor"))
+            elif a.type == onnx.AttributeProto.GRAPH:
+                attrs.append((a.name, "graph"))
+            else:
+                attrs.append((a.name, str(onnx.helper.get_attribute_value(a))))
+        record = (node.op_type, node.domain, tuple(attrs), tuple(tid(n) for n in node.input),
+                  tuple(tid(n) for n in node.output))
+        nodes.update(repr(record).encode())
+        ops[node.op_type] = ops.get(node.op_type, 0) + 1
+    outputs = [tid(o.name) for o in graph.output]
+    nodes.update(repr(outputs).encode())
+    return {"nodes": len(graph.node), "structure_sha256": nodes.hexdigest(), "values_sha256": values.hexdigest(),
+            "ops": dict(sorted(ops.items()))}
+
+
+def compute_graphs(tmp: Path) -> dict[str, dict]:
+    from prismstereo.export import export_onnx
+
+    out = {}
+    for i, (name, model) in enumerate(graph_cases()):
+        path = export_onnx(model().eval(), tmp / f"graph{i}.onnx")
+        out[name] = graph_digest(path)
+    return out
+
+
+def compute(only: str | None = None) -> dict[str, dict]:
+    torch.manual_seed(0)
+    out = {}
+    with torch.inference_mode():
+        for name, model, capture in cases():
+            if only is None or only == name:
+                out[name] = describe(model().eval()(capture()))
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--check", action="store_true", help="compare with the stored file instead of writing it")
+    args = parser.parse_args()
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        graphs = compute_graphs(Path(tmp))
+    now = compute()
+    if not args.check:
+        PATH.write_text(json.dumps(now, indent=1) + "\n")
+        GRAPHS.write_text(json.dumps(graphs, indent=1) + "\n")
+        print(f"wrote {PATH} ({len(now)} cases) and {GRAPHS} ({len(graphs)} graphs)")
+        return
+    bad = 0
+    for path, fresh in ((PATH, now), (GRAPHS, graphs)):
+        stored = json.loads(path.read_text())
+        for name in stored:
+            if stored[name] != fresh.get(name):
+                bad += 1
+                print(f"differs: {name}")
+                for key in stored[name]:
+                    if stored[name][key] != fresh[name][key]:
+                        print(f"  {key}: stored {stored[name][key]}\n  {' ' * len(key)}  now    {fresh[name][key]}")
+        print(f"{path.name}: {len(stored)} entries")
+    print(f"{bad} differ")
+    sys.exit(1 if bad else 0)
+
+
+if __name__ == "__main__":
+    main()
