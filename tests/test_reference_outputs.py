@@ -56,5 +56,4 @@ def test_graph_digest_ignores_names_but_not_values(tmp_path):
 
     a = reference_cases.graph_digest(graph(("c", "y"), 1.0))
     assert a == reference_cases.graph_digest(graph(("/binned/c", "out"), 1.0))
-    changed = reference_cases.graph_digest(graph(("c", "y"), 2.0))
-    assert changed["structure_sha256"] == a["structure_sha256"] and changed["values_sha256"] != a["values_sha256"]
+    assert reference_cases.graph_digest(graph(("c", "y"), 2.0))["sha256"] != a["sha256"]

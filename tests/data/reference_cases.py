@@ -90,46 +90,45 @@ def graph_cases() -> Iterator[tuple[str, Callable[[], PrismStereo]]]:
 
 
 def graph_digest(path: str | Path) -> dict:
-    """An exported graph, node for node, independent of tensor and node names (which follow module paths): each
-    node's op type, attributes and inputs / outputs numbered by first appearance, and the initializers' values."""
+    """An exported graph, node for node, independent of tensor and node names (which follow module paths) and of
+    the order of independent nodes: every tensor is named by a hash of the node that makes it (op type, domain,
+    attributes with their values) and of that node's input tensors, recursively (a Merkle DAG; initializers by
+    their values); the digest is the multiset of node hashes and the graph outputs' hashes."""
     import onnx
     from onnx import numpy_helper
 
     graph = onnx.load(str(path)).graph
-    ids: dict[str, int] = {}
+    known: dict[str, str] = {x.name: f"input:{i}" for i, x in enumerate(graph.input)}
+    for t in graph.initializer:
+        known[t.name] = "init:" + hashlib.sha256(numpy_helper.to_array(t).tobytes()).hexdigest()
+    known[""] = "none"
 
-    def tid(name: str) -> int | str:
-        if not name:
-            return ""
-        return ids.setdefault(name, len(ids))
+    def attribute(a) -> str:
+        if a.type == onnx.AttributeProto.TENSOR:
+            return a.name + "=" + hashlib.sha256(numpy_helper.to_array(a.t).tobytes()).hexdigest()
+        if a.type == onnx.AttributeProto.GRAPH:
+            return a.name + "=graph"
+        return a.name + "=" + repr(onnx.helper.get_attribute_value(a))
 
-    for x in graph.input:
-        tid(x.name)
-    init = {t.name: t for t in graph.initializer}
-    nodes = hashlib.sha256()
-    values = hashlib.sha256()
-    ops: dict[str, int] = {}
-    for node in graph.node:
-        for name in node.input:
-            if name in init and name not in ids:
-                values.update(numpy_helper.to_array(init[name]).tobytes())
-        attrs = []
-        for a in node.attribute:
-            if a.type == onnx.AttributeProto.TENSOR:
-                values.update(numpy_helper.to_array(a.t).tobytes())
-                attrs.append((a.name, "tensor"))
-            elif a.type == onnx.AttributeProto.GRAPH:
-                attrs.append((a.name, "graph"))
-            else:
-                attrs.append((a.name, str(onnx.helper.get_attribute_value(a))))
-        record = (node.op_type, node.domain, tuple(attrs), tuple(tid(n) for n in node.input),
-                  tuple(tid(n) for n in node.output))
-        nodes.update(repr(record).encode())
-        ops[node.op_type] = ops.get(node.op_type, 0) + 1
-    outputs = [tid(o.name) for o in graph.output]
-    nodes.update(repr(outputs).encode())
-    return {"nodes": len(graph.node), "structure_sha256": nodes.hexdigest(), "values_sha256": values.hexdigest(),
-            "ops": dict(sorted(ops.items()))}
+    pending, node_hashes, ops = list(graph.node), [], {}
+    while pending:  # exported graphs are topologically sorted; the loop tolerates any order
+        waiting = []
+        for node in pending:
+            if not all(n in known for n in node.input):
+                waiting.append(node)
+                continue
+            record = repr((node.op_type, node.domain, sorted(attribute(a) for a in node.attribute),
+                           [known[n] for n in node.input]))
+            digest = hashlib.sha256(record.encode()).hexdigest()
+            node_hashes.append(digest)
+            for i, name in enumerate(node.output):
+                known[name] = f"{digest}:{i}"
+            ops[node.op_type] = ops.get(node.op_type, 0) + 1
+        if len(waiting) == len(pending):
+            raise ValueError("the graph has a node whose inputs are never produced")
+        pending = waiting
+    whole = hashlib.sha256(repr((sorted(node_hashes), [known[o.name] for o in graph.output])).encode())
+    return {"nodes": len(graph.node), "sha256": whole.hexdigest(), "ops": dict(sorted(ops.items()))}
 
 
 def compute_graphs(tmp: Path) -> dict[str, dict]:
