@@ -17,7 +17,7 @@ depth), bad>1 % (share of those off by more than 1 %), mean relative error, time
 reliability of the confidence over all captures (dense output): for each c, the share of co-visible pixels
 with confidence >= c and how many of them are off by more than 1 %.
 
-Models: ``thresholds`` = ``PrismStereo(validity='thresholds', smoothing=0)`` (NCC >= 0.5 and a coarse uniqueness
+Models: ``thresholds`` = ``{'validity': 'thresholds', 'smoothing': 0}`` (NCC >= 0.5 and a coarse uniqueness
 >= 0.3: the earlier default), ``unsmoothed`` = the calibrated confidence without the smoothing of the estimate
 (``smoothing=0``), ``default`` = the model's defaults (calibrated confidence >= 0.5, smoothing), ``fast`` = the
 ``'fast'`` preset (a full-resolution band of 3 with clamped edges, its own confidence weights), ``dense`` = the
@@ -97,7 +97,7 @@ def main() -> None:
     torch.set_num_threads(2)
     rig = thesis_setup1() if args.scale == 1 else thesis_setup1().downscaled(args.scale)
     caps = captures(rig, args.cache)
-    models = {k: PrismStereo(rig, tuple(args.z_range), **v) for k, v in MODELS.items()}
+    models = {k: PrismStereo(rig, tuple(args.z_range), v) for k, v in MODELS.items()}
     print(f"thesis_setup1 {rig.image_width}x{rig.image_height}, searched {args.z_range[0]:g}-{args.z_range[1]:g} mm; "
           f"{models['default'].summary()}")
     print(f"{'capture':26s} {'model':11s} {'cover %':>8s} {'bad>1% %':>9s} {'mean %':>8s} {'ms':>6s}")

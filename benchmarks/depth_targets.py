@@ -25,7 +25,7 @@ captures (``--downsample 1``: the full-resolution coarse level, the default befo
 hypotheses.
 
 ``--band-edges clamp`` refines pixels whose best hypothesis is on the edge of their band from that edge's inner
-neighbour instead of rejecting them (``PrismStereo(band_edges='clamp')``; with ``--downsample 2 --full-band 1``
+neighbour instead of rejecting them (``band_edges='clamp'``; with ``--downsample 2 --full-band 1``
 the fast full-resolution setting).
 
 ``--coarse-factor F`` and ``--band R`` set the coarse level's factor and the half width of the band after it (the
@@ -70,7 +70,8 @@ def evaluate(model: PrismStereo, capture) -> dict[str, float]:
     ms = (time.perf_counter() - t0) * 1e3
     w = model.rig.reference_width
     gt, cov = capture.depth[..., :w], capture.covisible[..., :w]
-    has = (res.confidence > 0) if model.dense else res.valid  # a dense model: every pixel with a depth
+    dense = model.final.config.validity.dense
+    has = (res.confidence > 0) if dense else res.valid  # a dense model: every pixel with a depth
     ok = has & cov
     rel = ((res.depth.double() - gt).abs() / gt)[ok]
     return {
@@ -98,25 +99,25 @@ def main() -> None:
     parser.add_argument("--sampling", action="store_true", help="also the coarse level as the exact sweep")
     parser.add_argument("--compare", action="store_true", help="also single-level full searches (half res)")
     parser.add_argument("--downsample", type=int, default=None, metavar="K",
-                        help="the models match on KxK-binned captures (PrismStereo(downsample=K); default: the "
+                        help="the models match on KxK-binned captures (option downsample=K; default: the "
                              "model's)")
     parser.add_argument("--full-band", type=int, default=None, metavar="R",
                         help="with --downsample: a final full-resolution band of 2R+1 hypotheses (full_band=R)")
     parser.add_argument("--band-edges", choices=("reject", "clamp"), default="reject",
-                        help="PrismStereo(band_edges=...): pixels whose best hypothesis is on a band's edge")
+                        help="option band_edges=...: pixels whose best hypothesis is on a band's edge")
     parser.add_argument("--coarse-factor", type=int, default=None, metavar="F",
-                        help="PrismStereo(coarse_factor=F) (of the binned model with --downsample); default: the "
+                        help="option coarse_factor=F (of the binned model with --downsample); default: the "
                              "model's")
     parser.add_argument("--band", type=int, default=None, metavar="R",
-                        help="PrismStereo(band=R): the coarse level's fine band (the binned model's in a pyramid)")
+                        help="option band=R: the coarse level's fine band (the binned model's in a pyramid)")
     parser.add_argument("--directions", type=int, default=4, choices=(2, 4, 8),
-                        help="PrismStereo(directions=...): SGM scan directions of the coarse level")
+                        help="option directions=...: SGM scan directions of the coarse level")
     parser.add_argument("--validity", choices=("calibrated", "thresholds"), default=None,
-                        help="PrismStereo(validity=...): the calibrated confidence (default) or the NCC thresholds")
+                        help="option validity=...: the calibrated confidence (default) or the NCC thresholds")
     parser.add_argument("--dense", action="store_true",
-                        help="PrismStereo(dense=True): coverage and errors of every pixel with a depth")
+                        help="option dense=True: coverage and errors of every pixel with a depth")
     parser.add_argument("--smoothing", type=int, default=None, metavar="N",
-                        help="PrismStereo(smoothing=N): the robust mean's window (0: off; default: the model's)")
+                        help="option smoothing=N: the robust mean's window (0: off; default: the model's)")
     parser.add_argument("--z-range", type=float, nargs=2, default=Z_RANGE, metavar=("ZMIN", "ZMAX"),
                         help="searched depth range, mm (default: the thesis range with 10 %% margins)")
     parser.add_argument("--slanted", type=float, default=500.0, metavar="Z",
@@ -134,12 +135,12 @@ def main() -> None:
         models = {}
         for sampling in ("rectified", "sweep") if args.sampling else ("rectified",):
             t0 = time.perf_counter()
-            model = models[sampling] = PrismStereo(rig, z_range, sampling=sampling, downsample=args.downsample,
-                                                   full_band=args.full_band, band_edges=args.band_edges,
-                                                   coarse_factor=args.coarse_factor, band=args.band,
-                                                   directions=args.directions, validity=args.validity,
-                                                   dense=args.dense,
-                                                   **({} if args.smoothing is None else {"smoothing": args.smoothing}))
+            options = dict(sampling=sampling, downsample=args.downsample, full_band=args.full_band,
+                           band_edges=args.band_edges, coarse_factor=args.coarse_factor, band=args.band,
+                           directions=args.directions, validity=args.validity, dense=args.dense)
+            if args.smoothing is not None:
+                options["smoothing"] = args.smoothing
+            model = models[sampling] = PrismStereo(rig, z_range, options)
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.summary()}; model built in "
                   f"{time.perf_counter() - t0:.1f} s")
         print(HEADER)
@@ -172,8 +173,8 @@ def main() -> None:
             print(f"\nthesis_setup{key} at half resolution: coarse-to-fine (default) vs single-level full search")
             print(HEADER)
             models = {"coarse-to-fine": PrismStereo(half, z_range),
-                      "single sweep": PrismStereo(half, z_range, coarse_factor=1),
-                      "single rectified": PrismStereo(half, z_range, coarse_factor=1, sampling="rectified")}
+                      "single sweep": PrismStereo(half, z_range, dict(coarse_factor=1)),
+                      "single rectified": PrismStereo(half, z_range, dict(coarse_factor=1, sampling="rectified"))}
             for z in (z for z in (312.0, 625.0, 1192.0) if z_range[0] <= z <= z_range[1]):
                 cap = render(half, fronto_parallel_plane(half, z, seed=3), form)
                 for name, m in models.items():

@@ -128,7 +128,7 @@ def main() -> None:
                 per_capture2.append((label, inputs.smoothed_features, inputs.sampled, covisible, correct2))
                 print(f"{label}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct", flush=True)
     losses = []
-    clamped = all(m.clamped_band for m in models.values())
+    clamped = all(m.final.clamped_band for m in models.values())
     labels = ("CLAMPED_WEIGHTS[0]", "CLAMPED_WEIGHTS[1]") if clamped else ("DEFAULT_WEIGHTS", "SMOOTHED_WEIGHTS")
     for names, label, xs_, ys_, captures in ((FEATURES, labels[0], xs, ys, per_capture),
                                              (SMOOTHED_FEATURES, labels[1], xs2, ys2, per_capture2)):

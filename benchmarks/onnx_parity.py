@@ -44,7 +44,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="onnx_parity_") as tmp:
         for options in ({}, {"downsample": 1}, {"downsample": 2, "full_band": 0},
                         {"downsample": 2, "full_band": 1, "band_edges": "clamp"}):
-            model = PrismStereo(rig, (228.0, 1374.0), **options).eval()
+            model = PrismStereo(rig, (228.0, 1374.0), options).eval()
             runner = OnnxDepth(export_onnx(model, Path(tmp) / f"parity{len(options)}.onnx"))
             for batch in (1, 4):
                 x = images[:batch]

@@ -321,7 +321,7 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
     capture = render(rig, slanted_plane(rig, case.depth_mm, case.slant_deg), FORMATION)
     t_render = time.perf_counter() - t0
     t0 = time.perf_counter()
-    model = PrismStereo(rig, case.z_range, coarse_factor=coarse_factor).eval()
+    model = PrismStereo(rig, case.z_range, dict(coarse_factor=coarse_factor)).eval()
     t_build = time.perf_counter() - t0
     t0 = time.perf_counter()
     path = export_onnx(model, tmp / f"{case.name}.onnx")
@@ -345,22 +345,22 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
     image = capture.image
     variants = [("torch eager (default)", "onnxruntime (default, 2 threads)", model, runner)]
     if sweep_too:  # the same model with the other coarse sampling (default: rectified), built and exported first
-        sweep_model = PrismStereo(rig, case.z_range, coarse_factor=coarse_factor, sampling="sweep").eval()
+        sweep_model = PrismStereo(rig, case.z_range, dict(coarse_factor=coarse_factor, sampling="sweep")).eval()
         sweep_runner = OnnxDepth(export_onnx(sweep_model, tmp / f"{case.name}_sweep.onnx"), threads=2)
         variants.append(("torch eager, sweep coarse level", "onnxruntime, sweep coarse level", sweep_model,
                          sweep_runner))
     others = []
     if model.binned is not None:  # the fast full-resolution setting: a thinner band, its edge pixels kept
-        fast = PrismStereo(rig, case.z_range, coarse_factor=coarse_factor, downsample=model.downsample, full_band=1,
-                           band_edges="clamp")
+        fast = PrismStereo(rig, case.z_range, dict(coarse_factor=coarse_factor, downsample=model.downsample,
+                                                   full_band=1, band_edges="clamp"))
         others.append(("full_band 1, band edges clamped", fast))
     if model.downsample != 1:  # the full-resolution coarse level (the default on smaller sensors)
-        others.append(("downsample 1", PrismStereo(rig, case.z_range, downsample=1, coarse_factor=coarse_factor)))
+        others.append(("downsample 1", PrismStereo(rig, case.z_range, dict(downsample=1, coarse_factor=coarse_factor))))
     # the speed knob: matching on the 2 x 2-binned capture, each pixel its block's depth (its default coarse factor,
     # and for the narrow range, whose binned search gets f = 2 by default, also f = 4)
     for factor in (None, 4) if case.name == "narrow" else (None,):
-        blocks = PrismStereo(rig, case.z_range, downsample=2, full_band=0, coarse_factor=factor)
-        others.append((f"downsample 2 blocks (f = {blocks.factor})", blocks))
+        blocks = PrismStereo(rig, case.z_range, dict(downsample=2, full_band=0, coarse_factor=factor))
+        others.append((f"downsample 2 blocks (f = {blocks.final.factor})", blocks))
     for i, (label, other_model) in enumerate(others):
         other_runner = OnnxDepth(export_onnx(other_model.eval(), tmp / f"{case.name}_{i}.onnx"), threads=2)
         variants.append((f"torch eager, {label}", f"onnxruntime, {label}", other_model, other_runner))

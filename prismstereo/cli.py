@@ -117,7 +117,7 @@ def _demo_depth(rig: BiPrismRig, scale: int, out: Path) -> None:
     gt, cov = cap.depth[..., :w], cap.covisible[..., :w]
     ok = res.valid & cov
     rel = ((res.depth - gt).abs() / gt)[ok]
-    print(f"  {model.num_hypotheses} hypotheses (coarse factor {model.factor}); "
+    print(f"  {model.num_hypotheses} hypotheses (coarse factor {model.final.factor}); "
           f"{ok.float().sum() / cov.float().sum():.1%} of co-visible pixels valid; relative depth error mean "
           f"{rel.mean():.3%}, median {rel.median():.3%}")
     out.mkdir(parents=True, exist_ok=True)

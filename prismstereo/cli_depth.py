@@ -103,6 +103,12 @@ def _resolve_config(args: argparse.Namespace):
 
     if args.preset is not None and args.config is not None:
         raise PrismStereoError("--preset and --config exclude each other")
+    if args.hypotheses is not None and args.hypotheses < 2:
+        raise PrismStereoError(f"--hypotheses must be >= 2, got {args.hypotheses}")
+    if args.downsample is not None and args.downsample < 1:
+        raise PrismStereoError(f"--downsample must be >= 1, got {args.downsample}")
+    if args.full_band is not None and args.full_band < 0:
+        raise PrismStereoError(f"--full-band must be >= 0 and needs --downsample >= 2, got {args.full_band}")
     base = StereoConfig.from_json(args.config) if args.config is not None else preset(args.preset or "accurate")
     search = {k: v for k, v in (("num_hypotheses", args.hypotheses), ("downsample", args.downsample),
                                 ("full_band", args.full_band), ("band_edges", args.band_edges)) if v is not None}
@@ -144,12 +150,8 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig):
         return _learned_model(args, rig)
     config = _resolve_config(args)
     search = config.search
-    if search.num_hypotheses is not None and search.num_hypotheses < 2:
-        raise PrismStereoError(f"--hypotheses must be >= 2, got {search.num_hypotheses}")
-    if search.downsample is not None and search.downsample < 1:
-        raise PrismStereoError(f"--downsample must be >= 1, got {search.downsample}")
     downsample = PrismStereo.default_downsample(rig) if search.downsample is None else search.downsample
-    if search.full_band is not None and (search.full_band < 0 or (search.full_band and downsample == 1)):
+    if search.full_band and downsample == 1:
         raise PrismStereoError(f"--full-band must be >= 0 and needs --downsample >= 2 (here {downsample}), "
                                f"got {search.full_band}")
     z_range, how = _z_range(args, rig)

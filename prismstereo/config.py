@@ -24,20 +24,85 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import Any
 
-from prismstereo.errors import OptionError
+from prismstereo.errors import OptionError, check_option
+from prismstereo.matching.cost import COSTS
 
 __all__ = [
     "SearchConfig", "CostConfig", "AggregationConfig", "RefinementConfig", "ValidityConfig", "StereoConfig",
     "PRESETS", "preset",
 ]
 
+VALIDITIES: tuple[str, ...] = ("calibrated", "thresholds")
+BAND_EDGES: tuple[str, ...] = ("reject", "clamp")
+SAMPLINGS: tuple[str, ...] = ("sweep", "rectified")
+REFINEMENTS: tuple[str, ...] = ("equiangular", "parabola", "soft_argmin")
+AGGREGATIONS: tuple[str, ...] = ("sgm", "box")
+
+
+def _odd(name: str, value: object, zero: bool = False, least: int = 1) -> None:
+    """``value`` is a positive odd int >= ``least`` (or 0 with ``zero``)."""
+    ok = isinstance(value, int) and not isinstance(value, bool) and (
+        (zero and value == 0) or (value >= least and value % 2 == 1))
+    if not ok:
+        what = f"an odd int >= {least}" if least > 1 else "a positive odd int"
+        raise OptionError(f"{name} must be {'0 (off) or ' if zero else ''}{what}, got {value!r}")
+
+
+def _int(name: str, value: object, least: int, none: bool = False) -> None:
+    if value is None and none:
+        return
+    if isinstance(value, bool) or not isinstance(value, int) or value < least:
+        raise OptionError(f"{name} must be an int >= {least}{' or None' if none else ''}, got {value!r}")
+
+
+def _number(name: str, value: object, low: float, high: float, what: str, none: bool = False,
+            open_low: bool = False) -> None:
+    """``value`` is a number in [low, high] ((low, high] with ``open_low``; finite when ``high`` is inf), or None
+    with ``none``; else the error says it must be ``what``."""
+    if value is None and none:
+        return
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and (
+        low < value if open_low else low <= value) and (value < high if high == math.inf else value <= high)
+    if not ok:
+        raise OptionError(f"{name} must be {what}{' or None' if none else ''}, got {value!r}")
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class SearchConfig:
-    """Where the sweep is searched and at which resolution (see :class:`~prismstereo.model.PrismStereo`)."""
+    """Where the sweep is searched and at which resolution (the rules behind the None defaults:
+    :mod:`prismstereo.defaults`).
+
+    Attributes:
+        num_hypotheses: D at full resolution (of the binned image with ``downsample`` > 1), uniform in 1/Z;
+            None: neighbours <= 1 px apart.
+        downsample: k > 1 matches on the capture box-averaged over k x k pixel blocks (the rig seen through that
+            binning, :meth:`~prismstereo.geometry.rig.BiPrismRig.binned`) and returns the depth on the
+            full-resolution reference grid: re-estimated there by a band of 2 ``full_band`` + 1 hypotheses (the
+            pyramid), or with ``full_band`` 0 each pixel with its block's values. None: 2 with ``full_band`` 2
+            when the reference half is >= 384 px on its shorter side, else 1.
+        full_band: R > 0 with ``downsample`` k > 1: the binned level's estimate places a band of 2 R + 1
+            hypotheses (<= 1 px apart) at full resolution around every pixel; 0: block values; None: 2 with the
+            default ``downsample`` when that is > 1, else 0.
+        coarse_factor: f, the coarse level's box downsampling (1: one full-resolution level over the whole
+            range); None: the largest power of two <= 4 leaving >= 24 hypotheses (12 in a pyramid's binned
+            level) and >= 32 rows and columns.
+        band: R of the fine band after the coarse level, s0 + j step for j = -R..R; None: f + 1 (ceil(3 f / 4)
+            in a pyramid's binned level, whose estimate only places the full-resolution band).
+        band_edges: a fine band's pixel whose best hypothesis is on the band's edge (its match lies beyond the
+            band): 'reject' makes it invalid; 'clamp' refines at the edge's inner neighbour (faster with a band
+            of 3; more false matches on ``thesis_setup2``).
+        sampling: how the coarse (or single) level samples the other half: 'rectified' (a 1-D shift volume on
+            row-rectified halves) or 'sweep' (the exact per-pixel plane sweep); None: 'rectified' for a coarse
+            level, 'sweep' for a single level.
+        coarse_reach: invalid coarse pixels within this many coarse pixels of valid ones take their valid
+            neighbours' mean estimate before it places the fine band (0: off).
+        lr_threshold: left-right check of the rectified level: the other half's winners must agree with the
+            reference's to this many level pixels; None: no check.
+    """
 
     num_hypotheses: int | None = None
     downsample: int | None = None
@@ -49,20 +114,58 @@ class SearchConfig:
     coarse_reach: int = 1
     lr_threshold: float | None = None
 
+    def __post_init__(self) -> None:
+        check_option(self.band_edges, BAND_EDGES, "band_edges")
+        if self.sampling is not None:
+            check_option(self.sampling, SAMPLINGS, "sampling")
+        _int("num_hypotheses", self.num_hypotheses, 2, none=True)
+        _int("downsample", self.downsample, 1, none=True)
+        _int("full_band", self.full_band, 0, none=True)
+        _int("coarse_factor", self.coarse_factor, 1, none=True)
+        _int("band", self.band, 1, none=True)
+        _int("coarse_reach", self.coarse_reach, 0)
+        _number("lr_threshold", self.lr_threshold, 0.0, math.inf, "> 0", none=True, open_low=True)
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class CostConfig:
-    """The matching costs of the coarse level and of the final band."""
+    """The matching costs (:mod:`prismstereo.matching.sweep_cost`).
+
+    Attributes:
+        cost: the coarse (or single) level's cost: 'zncc' (invariant to gain and offset differences between the
+            halves), 'census' or 'sad'.
+        fine_cost: the fine band's cost ('zncc': sub-pixel accurate with the parabola fit).
+        window: census / ZNCC window (odd).
+        census_threshold: census bits count neighbours darker than the centre by more than this (the default
+            keeps torch and onnxruntime bitwise equal on 8-bit captures).
+    """
 
     cost: str = "zncc"
     fine_cost: str = "zncc"
     window: int = 5
     census_threshold: float = 0.4 / 255
 
+    def __post_init__(self) -> None:
+        check_option(self.cost, COSTS, "cost")
+        check_option(self.fine_cost, COSTS, "fine_cost")
+        _odd("window", self.window)
+        _number("census_threshold", self.census_threshold, 0.0, math.inf, "a number >= 0")
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class AggregationConfig:
-    """Box and semi-global aggregation of the costs, and the wide box blended in where texture is weak."""
+    """Box and semi-global aggregation of the costs (:mod:`prismstereo.matching.aggregate`).
+
+    Attributes:
+        aggregation: 'sgm' (semi-global after the box) or 'box'.
+        box: box window of the coarse (or single) level.
+        fine_box: box window of the fine band.
+        directions: SGM scan directions: 2, 4 (horizontal and vertical) or 8.
+        p1, p2: SGM penalties in units of the box-averaged cost (ZNCC: 1 - NCC in [0, 2]).
+        wide_box: where the reference has little texture, the final band's cost is blended with the cost over
+            this wider box (0: off; not in a pyramid's binned level, which only places the band).
+        weak_texture: the grey standard deviation over the cost window below which that blend starts.
+    """
 
     aggregation: str = "sgm"
     box: int = 5
@@ -73,20 +176,66 @@ class AggregationConfig:
     wide_box: int = 21
     weak_texture: float = 8.0 / 255
 
+    def __post_init__(self) -> None:
+        check_option(self.aggregation, AGGREGATIONS, "aggregation")
+        _odd("box", self.box)
+        _odd("fine_box", self.fine_box)
+        _odd("wide_box", self.wide_box, zero=True)
+        _number("weak_texture", self.weak_texture, 0.0, math.inf, "a finite number > 0", open_low=True)
+        if self.directions not in (2, 4, 8):
+            raise OptionError(f"directions must be 2, 4 or 8, got {self.directions!r}")
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class RefinementConfig:
-    """The sub-pixel refinement of the final level (None: the fit matching its cost) and the smoothing of the
-    estimate (a confidence-weighted robust mean over ``smoothing`` x ``smoothing`` pixels, 0: off)."""
+    """Sub-pixel refinement and smoothing of the final estimate.
+
+    Attributes:
+        refinement: None picks the fit matching each level's cost (equiangular for census / SAD, parabola for
+            ZNCC); 'equiangular', 'parabola' or 'soft_argmin' (a local soft-argmin, differentiable w.r.t. the
+            cost).
+        smoothing: the estimate becomes the confidence-weighted mean of the estimates within a ``smoothing`` x
+            ``smoothing`` window that agree with the window's mean to ``smoothing_tolerance`` hypothesis steps
+            (:func:`~prismstereo.matching.postprocess.robust_mean`; 0: off): depth steps stay, confident pixels
+            that disagree (thin structures) keep their own estimate.
+        smoothing_tolerance: see ``smoothing`` (hypothesis steps, > 0).
+    """
 
     refinement: str | None = None
     smoothing: int = 15
     smoothing_tolerance: float = 4.0
 
+    def __post_init__(self) -> None:
+        if self.refinement is not None:
+            check_option(self.refinement, REFINEMENTS, "refinement")
+        _odd("smoothing", self.smoothing, zero=True, least=3)
+        _number("smoothing_tolerance", self.smoothing_tolerance, 0.0, math.inf, "a finite number > 0",
+                open_low=True)
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class ValidityConfig:
-    """What makes a depth valid, and the dense output."""
+    """What makes a depth valid, and the dense output.
+
+    Attributes:
+        validity: 'calibrated' (None's choice for coarse-to-fine models): the confidence is the probability that
+            the depth is within 1 % of the truth (:mod:`prismstereo.matching.confidence`, fitted by
+            ``benchmarks/fit_confidence.py``); 'thresholds' (None's choice for single levels): the final NCC,
+            ``min_uniqueness`` and ``reach_confidence`` rules.
+        min_confidence: pixels with a lower confidence are invalid.
+        min_uniqueness: with 'thresholds': pixels whose coarse (or single) level winner has 1 - best / second
+            best aggregated cost (outside winner +- 1) below this are invalid.
+        reach_confidence: with 'thresholds': the final NCC a pixel needs when only its coarse neighbours were
+            valid.
+        occlusion_tolerance: relative depth margin of the z-buffer occlusion test in the other half; None: no test.
+        occluder_confidence: only valid pixels with at least this confidence occlude others (None: every valid
+            pixel).
+        dense: a depth and a confidence for every pixel of the common field of view the final band can sample
+            (``confidence`` > 0 exactly there); ``valid`` stays the mask of the confident pixels. Needs a
+            coarse-to-fine model.
+        dense_fill: with ``dense``, pixels that are not valid take the mean estimate of the valid pixels within
+            this many pixels (0: their own estimates).
+    """
 
     validity: str | None = None
     min_confidence: float = 0.5
@@ -96,6 +245,15 @@ class ValidityConfig:
     occluder_confidence: float | None = 0.8
     dense: bool = False
     dense_fill: int = 15
+
+    def __post_init__(self) -> None:
+        if self.validity is not None:
+            check_option(self.validity, VALIDITIES, "validity")
+        if not isinstance(self.dense, bool):
+            raise OptionError(f"dense must be a bool, got {self.dense!r}")
+        _int("dense_fill", self.dense_fill, 0)
+        _number("occluder_confidence", self.occluder_confidence, 0.0, 1.0, "in [0, 1]", none=True)
+        _number("reach_confidence", self.reach_confidence, 0.0, 1.0, "in [0, 1]")
 
 
 _GROUPS: dict[str, type] = {"search": SearchConfig, "cost": CostConfig, "aggregation": AggregationConfig,
@@ -134,7 +292,8 @@ class StereoConfig:
 
     @classmethod
     def from_kwargs(cls, **kwargs: Any) -> StereoConfig:
-        """A config from flat :class:`~prismstereo.model.PrismStereo` keyword arguments (e.g. ``model.config()``).
+        """A config from flat :class:`~prismstereo.model.PrismStereo` options (e.g. ``model.config()``; a
+        ``z_range_mm`` among them is ignored), the others at their defaults.
 
         Raises:
             OptionError: an unknown option name.
@@ -143,15 +302,27 @@ class StereoConfig:
             >>> StereoConfig.from_kwargs(dense=True, full_band=1).search.full_band
             1
         """
-        groups: dict[str, dict[str, Any]] = {name: {} for name in _GROUPS}
-        owner = {f.name: g for g, kind in _GROUPS.items() for f in dataclasses.fields(kind)}
-        for key, value in kwargs.items():
+        return cls().with_options(**kwargs)
+
+    def with_options(self, **options: Any) -> StereoConfig:
+        """A copy with some options changed by their flat names: ``preset("fast").with_options(smoothing=0)``.
+
+        Raises:
+            OptionError: an unknown option name.
+
+        Example:
+            >>> preset("fast").with_options(smoothing=0).refinement.smoothing
+            0
+        """
+        owner = _owners()
+        groups: dict[str, dict[str, Any]] = {}
+        for key, value in options.items():
             if key == "z_range_mm":
                 continue  # the model's range is not part of its config
             if key not in owner:
                 raise OptionError(f"unknown option {key!r}; valid: {', '.join(sorted(owner))}")
-            groups[owner[key]][key] = value
-        return cls(**{g: _GROUPS[g](**v) for g, v in groups.items()})
+            groups.setdefault(owner[key], {})[key] = value
+        return self.replace(**groups)
 
     def replace(self, **groups: dict[str, Any]) -> StereoConfig:
         """A copy with some options of some groups changed: ``replace(search={"full_band": 1})``.
@@ -201,6 +372,11 @@ class StereoConfig:
         except (OSError, ValueError) as exc:
             raise OptionError(f"cannot read the config {path}: {exc}") from exc
         return cls.from_dict(data)
+
+
+def _owners() -> dict[str, str]:
+    """Each option's group."""
+    return {f.name: g for g, kind in _GROUPS.items() for f in dataclasses.fields(kind)}
 
 
 def _not_a_group(name: str, value: Any) -> dict[str, Any]:

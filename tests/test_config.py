@@ -22,7 +22,7 @@ def test_default_config_is_the_models_default():
 @pytest.mark.parametrize("name", list(PRESETS))
 def test_presets_build_the_model_of_their_options_and_round_trip(name, tmp_path):
     model = PrismStereo.from_config(RIG, Z, name)
-    assert model.config() == PrismStereo(RIG, Z, **preset(name).to_kwargs()).config()
+    assert model.config() == PrismStereo(RIG, Z, preset(name)).config()
     rebuilt = PrismStereo.from_config(RIG, Z, StereoConfig.from_kwargs(**model.config()))
     assert rebuilt.config() == model.config()  # the resolved options are a config too
     preset(name).to_json(tmp_path / "c.json")
@@ -30,11 +30,12 @@ def test_presets_build_the_model_of_their_options_and_round_trip(name, tmp_path)
 
 
 def test_presets_differ_where_they_say():
-    assert PrismStereo.from_config(RIG, Z, "dense").dense
+    assert PrismStereo.from_config(RIG, Z, "dense").final.config.validity.dense
     fast = PrismStereo.from_config(RIG, Z, "fast")
-    assert fast.downsample == 2 and fast.binned is not None and fast.band == 1 and fast.band_edges == "clamp"
+    assert fast.downsample == 2 and fast.binned is not None and fast.final.band == 1
+    assert fast.final.config.search.band_edges == "clamp"
     reference = PrismStereo.from_config(RIG, Z, "reference")
-    assert reference.factor == 1 and reference.binned is None and reference.downsample == 1
+    assert reference.final.factor == 1 and reference.binned is None and reference.downsample == 1
     image = torch.rand(1, 1, 384, 512, generator=torch.Generator().manual_seed(0))
     assert fast(image).depth.shape == (1, 1, 384, RIG.reference_width)
 
@@ -89,3 +90,51 @@ def test_cli_preset_and_config(tmp_path, capsys):
     (tmp_path / "bad.json").write_text('{"search": {"zoom": 1}}')
     assert main([*base, "--out", str(tmp_path / "g.npy"), "--config", str(tmp_path / "bad.json")]) == 2
     assert "unexpected keyword argument 'zoom'" in capsys.readouterr().err
+
+
+def test_model_takes_a_config_a_preset_or_a_dict_and_warns_on_keyword_options():
+    small, z = thesis_setup1().downscaled(8), (400.0, 700.0)
+    by_dict = PrismStereo(small, z, {"coarse_factor": 2, "smoothing": 0})
+    by_config = PrismStereo(small, z, StereoConfig.from_kwargs(coarse_factor=2, smoothing=0))
+    assert by_dict.config() == by_config.config() and by_dict.final.factor == 2
+    assert PrismStereo(small, z, "fast").config() == PrismStereo.from_config(small, z, "fast").config()
+    assert preset("fast").with_options(smoothing=0).to_kwargs() == {**preset("fast").to_kwargs(), "smoothing": 0}
+    with pytest.warns(FutureWarning, match="keyword options are deprecated: pass config="):
+        old = PrismStereo(small, z, coarse_factor=2, smoothing=0)
+    assert old.config() == by_dict.config()
+    with pytest.warns(FutureWarning, match="deprecated"):  # the former positional num_hypotheses
+        assert PrismStereo(small, z, 20).num_hypotheses == 20
+    with pytest.raises(OptionError, match="config must be a StereoConfig, a preset name or a dict of options"):
+        PrismStereo(small, z, 2.5)
+    with pytest.raises(OptionError, match="unknown option 'zoom'"):
+        PrismStereo(small, z, {"zoom": 2})
+    with pytest.raises(OptionError, match="unknown preset 'quick'"):
+        PrismStereo(small, z, "quick")
+
+
+@pytest.mark.parametrize(("group", "options", "message"), [
+    ("cost", {"window": 4}, "window must be a positive odd int"),
+    ("cost", {"cost": "ssd"}, "cost"),
+    ("aggregation", {"wide_box": 2}, "wide_box must be 0 .off. or a positive odd int"),
+    ("aggregation", {"directions": 3}, "directions must be 2, 4 or 8"),
+    ("refinement", {"smoothing": 1}, "smoothing must be 0 .off. or an odd int >= 3"),
+    ("refinement", {"smoothing_tolerance": float("inf")}, "smoothing_tolerance must be a finite number > 0"),
+    ("validity", {"dense": 1}, "dense must be a bool"),
+    ("validity", {"reach_confidence": 1.5}, "reach_confidence must be in \\[0, 1\\]"),
+    ("search", {"num_hypotheses": 1}, "num_hypotheses must be an int >= 2 or None"),
+    ("search", {"lr_threshold": 0}, "lr_threshold must be > 0 or None"),
+])
+def test_config_groups_check_their_values(group, options, message):
+    with pytest.raises(OptionError, match=message):
+        StereoConfig().replace(**{group: options})
+
+
+def test_help_of_the_model_is_short():
+    """The model's own documentation fits a screen or two; the options are documented by the config groups."""
+    import pydoc
+
+    text = pydoc.render_doc(PrismStereo, renderer=pydoc.plaintext)
+    own = text.split("Methods inherited from")[0]
+    assert len(own.splitlines()) < 200, len(own.splitlines())
+    assert "smoothing_tolerance" in pydoc.render_doc(StereoConfig.__init__.__globals__["RefinementConfig"],
+                                                     renderer=pydoc.plaintext)

@@ -32,7 +32,7 @@ def test_pyramid_band_and_the_models_binned_band():
     assert [pyramid_band(f) for f in (2, 3, 4, 8)] == [2, 3, 3, 6]
     model = PrismStereo(thesis_setup1(), (228.0, 1374.0))  # the default pyramid
     assert model.binned is not None and model.binned.band == pyramid_band(model.binned.factor) == 3
-    own = PrismStereo(thesis_setup1(), (228.0, 1374.0), band=5)  # an explicit band is kept
+    own = PrismStereo(thesis_setup1(), (228.0, 1374.0), dict(band=5))  # an explicit band is kept
     assert own.binned.band == 5
 
 
@@ -45,5 +45,5 @@ def test_pyramid_coarse_factor_leaves_12_hypotheses():
     assert pyramid_coarse_factor(222, 127, 256) == 2  # >= 32 rows as before
     narrow = PrismStereo(thesis_setup1(), (600.0, 1450.0))
     assert narrow.binned.num_hypotheses == 52 and narrow.binned.factor == 4 and narrow.binned.band == 3
-    assert PrismStereo(thesis_setup1(), (600.0, 1450.0), coarse_factor=2).binned.factor == 2
-    assert PrismStereo(narrow.rig, **narrow.config()).binned.factor == 4  # the config round trip keeps it
+    assert PrismStereo(thesis_setup1(), (600.0, 1450.0), dict(coarse_factor=2)).binned.factor == 2
+    assert PrismStereo(narrow.rig, narrow.z_range, narrow.config()).binned.factor == 4  # the config round trip keeps it

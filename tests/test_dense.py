@@ -34,7 +34,7 @@ def weak():
     rig = scaled_rig(thesis_setup1(), 2)
     scene, band = _weak_patch_scene()
     cap = render(rig, scene, FORM)
-    models = {k: PrismStereo(rig, Z_RANGE, **v) for k, v in
+    models = {k: PrismStereo(rig, Z_RANGE, v) for k, v in
               {"calibrated": {}, "thresholds": {"validity": "thresholds", "wide_box": 0, "smoothing": 0},
                "dense": {"dense": True}, "narrow": {"wide_box": 0, "smoothing": 0}, "wide_only": {"smoothing": 0},
                "smooth_only": {"wide_box": 0}, "unfilled": {"dense": True, "dense_fill": 0}}.items()}
@@ -54,30 +54,30 @@ def _patch_mask(rig, cap):
 
 def test_defaults_and_option_errors():
     rig = scaled_rig(thesis_setup1(), 4)
-    assert PrismStereo(rig, Z_RANGE, coarse_factor=2).validity == "calibrated"
-    single = PrismStereo(rig, Z_RANGE, coarse_factor=1)
-    assert single.validity == "thresholds" and single.calibration is None
+    assert PrismStereo(rig, Z_RANGE, dict(coarse_factor=2)).final.config.validity.validity == "calibrated"
+    single = PrismStereo(rig, Z_RANGE, dict(coarse_factor=1))
+    assert single.final.config.validity.validity == "thresholds" and single.final.calibration is None
     with pytest.raises(OptionError, match="needs a coarse-to-fine model"):
-        PrismStereo(rig, Z_RANGE, coarse_factor=1, validity="calibrated")
+        PrismStereo(rig, Z_RANGE, dict(coarse_factor=1, validity="calibrated"))
     with pytest.raises(OptionError, match="Choose from: 'calibrated', 'thresholds'"):
-        PrismStereo(rig, Z_RANGE, validity="strict")
+        PrismStereo(rig, Z_RANGE, dict(validity="strict"))
     with pytest.raises(OptionError, match="dense must be a bool"):
-        PrismStereo(rig, Z_RANGE, dense=1)
+        PrismStereo(rig, Z_RANGE, dict(dense=1))
     with pytest.raises(OptionError, match="wide_box must be 0"):
-        PrismStereo(rig, Z_RANGE, wide_box=20)
+        PrismStereo(rig, Z_RANGE, dict(wide_box=20))
     with pytest.raises(OptionError, match="dense_fill must be an int >= 0"):
-        PrismStereo(rig, Z_RANGE, dense_fill=-1)
+        PrismStereo(rig, Z_RANGE, dict(dense_fill=-1))
     for bad in (0.0, float("inf"), True):
         with pytest.raises(OptionError, match="weak_texture must be a finite number > 0"):
-            PrismStereo(rig, Z_RANGE, weak_texture=bad)
+            PrismStereo(rig, Z_RANGE, dict(weak_texture=bad))
     with pytest.raises(OptionError, match="wide_box must be 0"):
-        PrismStereo(rig, Z_RANGE, wide_box=True)
+        PrismStereo(rig, Z_RANGE, dict(wide_box=True))
     with pytest.raises(OptionError, match="dense needs a coarse-to-fine model"):
-        PrismStereo(rig, Z_RANGE, coarse_factor=1, dense=True)
+        PrismStereo(rig, Z_RANGE, dict(coarse_factor=1, dense=True))
     with pytest.raises(OptionError, match="needs validity='calibrated'"):
         single.confidence_inputs(torch.rand(1, 1, rig.image_height, rig.image_width))
-    model = PrismStereo(rig, Z_RANGE, coarse_factor=2, dense=True)
-    assert PrismStereo(rig, **model.config()).config() == model.config()
+    model = PrismStereo(rig, Z_RANGE, dict(coarse_factor=2, dense=True))
+    assert PrismStereo(rig, model.z_range, model.config()).config() == model.config()
 
 
 def test_propagation_fills_a_weak_texture_patch_between_textured_regions(weak):
@@ -149,7 +149,7 @@ def test_confidence_inputs_reproduce_the_models_confidence(weak):
     model = models["calibrated"]
     with torch.no_grad():
         inputs = model.confidence_inputs(cap.image)
-        p = model.smoothed_calibration(inputs.smoothed_features)
+        p = model.final.smoothed_calibration(inputs.smoothed_features)
     res = results["calibrated"]
     assert inputs.features.shape == (1, 6, rig.image_height, rig.reference_width)
     assert inputs.smoothed_features.shape == (1, 3, rig.image_height, rig.reference_width)
@@ -157,10 +157,10 @@ def test_confidence_inputs_reproduce_the_models_confidence(weak):
     torch.testing.assert_close(res.confidence[res.valid], p[res.valid])
     # the first stage's confidence is the smoothing's weight, the first smoothed feature
     with torch.no_grad():
-        p1 = model.calibration(inputs.features) * inputs.sampled
+        p1 = model.final.calibration(inputs.features) * inputs.sampled
     torch.testing.assert_close(inputs.smoothed_features[:, :1], p1)
     assert bool((res.valid <= inputs.sampled).all())
-    plain = PrismStereo(rig, Z_RANGE, smoothing=0).confidence_inputs(cap.image)
+    plain = PrismStereo(rig, Z_RANGE, dict(smoothing=0)).confidence_inputs(cap.image)
     assert plain.smoothed_features is None and plain.smoothed_depth is None
 
 
@@ -173,7 +173,7 @@ def test_halves_differing_in_gain_and_offset_give_the_same_depth():
     from prismstereo.synthetic import fronto_parallel_plane
 
     cap = render(rig, fronto_parallel_plane(rig, 520.0, seed=9), ImageFormation(supersample=2, bits=None, seed=1))
-    model = PrismStereo(rig, Z_RANGE, coarse_factor=2)
+    model = PrismStereo(rig, Z_RANGE, dict(coarse_factor=2))
     darker = cap.image.clone()
     split = model.split.split
     darker[..., split:] = 0.8 * darker[..., split:] + 0.05
@@ -200,7 +200,7 @@ def test_dense_fill_gives_the_unconfident_pixels_their_valid_neighbours_depth(we
     wrong = [float((((r.depth.double() - gt).abs() / gt)[changed] > 0.01).double().mean()) for r in (filled, own)]
     assert wrong[0] < 0.7 * wrong[1], wrong
     model = weak[2]["dense"]
-    match = torch.cat(series_at(model.series, filled.index * (2.0 / (model.num_hypotheses - 1)) - 1.0), 1)
+    match = torch.cat(series_at(model.final.series, filled.index * (2.0 / (model.num_hypotheses - 1)) - 1.0), 1)
     torch.testing.assert_close(filled.match, match, atol=1e-3, rtol=0)  # the match follows the filled depth
 
 
@@ -214,7 +214,7 @@ def test_default_model_passes_finite_gradients_through_flat_regions():
     image = cap.image.clone()
     image[..., 40:80, 20:60] = 0.5
     image.requires_grad_(True)
-    model = PrismStereo(rig, Z_RANGE, coarse_factor=2, refinement="soft_argmin")
+    model = PrismStereo(rig, Z_RANGE, dict(coarse_factor=2, refinement="soft_argmin"))
     res = model(image)
     (res.depth * res.valid).sum().backward(retain_graph=True)
     assert bool(torch.isfinite(image.grad).all()) and float(image.grad.abs().sum()) > 0
@@ -227,7 +227,7 @@ def test_thresholds_dense_model_gives_every_sampled_pixel_a_depth(weak):
     """With validity 'thresholds' a dense model covers what a calibrated one does: the NCC / reach rules decide
     validity, not which pixels get a depth (an NCC of 0 is still a depth, confidence > 0)."""
     rig, cap, _, results = weak
-    model = PrismStereo(rig, Z_RANGE, validity="thresholds", dense=True)
+    model = PrismStereo(rig, Z_RANGE, dict(validity="thresholds", dense=True))
     with torch.no_grad():
         res = model(cap.image)
     w = rig.reference_width

@@ -81,9 +81,9 @@ def test_fronto_parallel_plane_depth(setup1_model, depth):
 def test_coarse_to_fine_matches_the_full_search():
     """The default two-level search and the single full-resolution level agree on a plane."""
     rig = scaled_rig(thesis_setup1(), 4)
-    coarse = PrismStereo(rig, (450.0, 900.0), coarse_factor=2)
-    full = PrismStereo(rig, (450.0, 900.0), coarse_factor=1)
-    assert coarse.factor == 2 and coarse.band == 3 and coarse.num_hypotheses == full.num_hypotheses
+    coarse = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2))
+    full = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=1))
+    assert coarse.final.factor == 2 and coarse.final.band == 3 and coarse.num_hypotheses == full.num_hypotheses
     cap = render(rig, fronto_parallel_plane(rig, 600.0, seed=6), FORM)
     with torch.no_grad():
         a, b = coarse(cap.image), full(cap.image)
@@ -104,16 +104,17 @@ def test_both_samplings_behind_one_interface(setup):
     rig = scaled_rig(setup(), 4)
     cap = render(rig, fronto_parallel_plane(rig, 600.0, seed=8), FORM)
     models = {
-        "rectified": PrismStereo(rig, (450.0, 900.0), coarse_factor=2),
-        "sweep": PrismStereo(rig, (450.0, 900.0), coarse_factor=2, sampling="sweep"),
-        "rectified single": PrismStereo(rig, (450.0, 900.0), coarse_factor=1, sampling="rectified"),
+        "rectified": PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2)),
+        "sweep": PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, sampling="sweep")),
+        "rectified single": PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=1, sampling="rectified")),
     }
-    assert models["rectified"].sampling == "rectified"
-    assert PrismStereo(rig, (450.0, 900.0), coarse_factor=1).sampling == "sweep"
+    assert models["rectified"].final.config.search.sampling == "rectified"
+    assert PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=1)).final.config.search.sampling == "sweep"
     buffers = set(dict(models["rectified"].named_buffers()))
-    assert {"search.index", "search.valid", "search.table", "search.back_grid"} <= buffers
-    assert isinstance(models["rectified"].search, RectifiedSearch) and isinstance(models["sweep"].search, SweepSearch)
-    assert models["rectified"].rectification_residual_px < (1e-3 if setup is thesis_setup1 else 0.05)
+    assert {f"levels.0.search.{name}" for name in ("index", "valid", "table", "back_grid")} <= buffers
+    assert isinstance(models["rectified"].final.search, RectifiedSearch)
+    assert isinstance(models["sweep"].final.search, SweepSearch)
+    assert models["rectified"].final.rectification_residual_px < (1e-3 if setup is thesis_setup1 else 0.05)
     results, coverages = {}, {}
     for name, model in models.items():
         with torch.no_grad():
@@ -140,7 +141,7 @@ def test_misaligned_prism(offset):
     rig = scaled_rig(thesis_setup1(), 4).replace(prism_offset_x_mm=offset)
     cap = render(rig, fronto_parallel_plane(rig, 600.0, seed=3), FORM)
     for sampling in ("rectified", "sweep"):
-        model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, sampling=sampling)
+        model = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, sampling=sampling))
         assert model.split.split == rig.reference_width != 128
         with torch.no_grad():
             res = model(cap.image)
@@ -170,8 +171,8 @@ def test_rolled_prism_and_distorting_lens_end_to_end():
 
 def test_rectified_single_level_soft_argmin_gradients():
     rig = scaled_rig(thesis_setup1(), 8)
-    model = PrismStereo(rig, (400.0, 800.0), coarse_factor=1, sampling="rectified", cost="sad",
-                        refinement="soft_argmin", occlusion_tolerance=None)
+    model = PrismStereo(rig, (400.0, 800.0), dict(coarse_factor=1, sampling="rectified", cost="sad",
+                                                  refinement="soft_argmin", occlusion_tolerance=None))
     cap = render(rig, fronto_parallel_plane(rig, 550.0, seed=7), FORM)
     image = cap.image.clone().requires_grad_(True)
     res = model(image)
@@ -191,8 +192,8 @@ def test_setup2_and_step_scene():
 
 def test_soft_argmin_refinement_passes_gradients_to_the_image():
     rig = scaled_rig(thesis_setup1(), 8)
-    model = PrismStereo(rig, (400.0, 800.0), cost="sad", fine_cost="sad", refinement="soft_argmin",
-                        occlusion_tolerance=None)
+    model = PrismStereo(rig, (400.0, 800.0), dict(cost="sad", fine_cost="sad", refinement="soft_argmin",
+                                                  occlusion_tolerance=None))
     cap = render(rig, fronto_parallel_plane(rig, 550.0, seed=7), FORM)
     image = cap.image.clone().requires_grad_(True)
     res = model(image)
@@ -203,9 +204,9 @@ def test_soft_argmin_refinement_passes_gradients_to_the_image():
 def test_model_buffers_batch_and_errors(setup1_model):
     rig, model = setup1_model
     buffers = dict(model.named_buffers())
-    assert {"series", "reference_valid", "other_valid", "depths"} <= set(buffers)
-    assert ("search.coefficients" in buffers) == (model.sampling == "sweep")
-    assert hasattr(model, "fine") == (model.factor > 1)
+    assert {f"levels.0.{name}" for name in ("series", "reference_valid", "other_valid", "depths")} <= set(buffers)
+    assert ("levels.0.search.coefficients" in buffers) == (model.final.config.search.sampling == "sweep")
+    assert (model.final.fine is not None) == (model.final.factor > 1)
     assert model.depths.shape == (model.num_hypotheses,)
     x = torch.rand(2, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():
@@ -256,21 +257,21 @@ def test_batch_on_worker_threads_equals_single_images_and_keeps_grad_mode(setup1
     with pytest.raises(ShapeError, match="but the rig's sensor is"):
         model(torch.rand(1, 1, 10, 10))
     with pytest.raises(OptionError, match="num_hypotheses must be an int >= 2"):
-        PrismStereo(rig, (400.0, 800.0), num_hypotheses=1)
+        PrismStereo(rig, (400.0, 800.0), dict(num_hypotheses=1))
     with pytest.raises(OptionError, match="'census'"):
-        PrismStereo(rig, (400.0, 800.0), cost="ssd")
+        PrismStereo(rig, (400.0, 800.0), dict(cost="ssd"))
     with pytest.raises(OptionError, match="'soft_argmin'"):
-        PrismStereo(rig, (400.0, 800.0), refinement="mean")
+        PrismStereo(rig, (400.0, 800.0), dict(refinement="mean"))
     with pytest.raises(OptionError, match="'rectified'"):
-        PrismStereo(rig, (400.0, 800.0), sampling="pinhole")
+        PrismStereo(rig, (400.0, 800.0), dict(sampling="pinhole"))
     with pytest.raises(OptionError, match="coarse_factor"):
-        PrismStereo(rig, (400.0, 800.0), coarse_factor=64)
+        PrismStereo(rig, (400.0, 800.0), dict(coarse_factor=64))
     with pytest.raises(OptionError, match="fine_box must be a positive odd int"):
-        PrismStereo(rig, (400.0, 800.0), fine_box=4)
+        PrismStereo(rig, (400.0, 800.0), dict(fine_box=4))
     with pytest.raises(OptionError, match="directions must be 2, 4 or 8"):
-        PrismStereo(rig, (400.0, 800.0), directions=6)
+        PrismStereo(rig, (400.0, 800.0), dict(directions=6))
     with pytest.raises(OptionError, match="census_threshold must be a number >= 0"):
-        PrismStereo(rig, (400.0, 800.0), census_threshold=-0.1)
+        PrismStereo(rig, (400.0, 800.0), dict(census_threshold=-0.1))
     with pytest.raises(RigError, match="beyond the prism's back plane"):
         PrismStereo(rig, (100.0, 800.0))
     assert PrismStereo.default_coarse_factor(382, 768, 512) == 4
@@ -286,11 +287,10 @@ def test_occlusion_test_rejects_pixels_hidden_from_the_right_half():
     hidden = cap.valid[..., :w] & ~cap.covisible[..., :w]
     cov = cap.covisible[..., :w]
     with torch.no_grad():
-        plain = PrismStereo(rig, (400.0, 700.0), occlusion_tolerance=None, min_confidence=0.0,
-                            min_uniqueness=0.0)(cap.image)
-        checked = PrismStereo(rig, (400.0, 700.0), min_confidence=0.0, min_uniqueness=0.0,
-                              occluder_confidence=None)(cap.image)
-        confident = PrismStereo(rig, (400.0, 700.0), min_confidence=0.0, min_uniqueness=0.0)(cap.image)
+        loose = dict(min_confidence=0.0, min_uniqueness=0.0)
+        plain = PrismStereo(rig, (400.0, 700.0), dict(occlusion_tolerance=None, **loose))(cap.image)
+        checked = PrismStereo(rig, (400.0, 700.0), dict(occluder_confidence=None, **loose))(cap.image)
+        confident = PrismStereo(rig, (400.0, 700.0), dict(min_confidence=0.0, min_uniqueness=0.0))(cap.image)
     assert checked.valid[hidden].float().mean() < 0.6 * plain.valid[hidden].float().mean()
     # only confident pixels occlude by default: fewer hidden pixels go, but a good part still does
     assert confident.valid[hidden].float().mean() < 0.8 * plain.valid[hidden].float().mean()
@@ -311,15 +311,15 @@ def test_left_right_check_rejects_occluded_pixels_of_a_step_scene():
     cov = cap.covisible[..., :w]
     options = dict(occlusion_tolerance=None, min_confidence=0.0, min_uniqueness=0.0, sampling="rectified")
     with torch.no_grad():
-        plain = PrismStereo(rig, (400.0, 700.0), lr_threshold=None, **options)(cap.image)
-        checked = PrismStereo(rig, (400.0, 700.0), lr_threshold=1.0, **options)(cap.image)
+        plain = PrismStereo(rig, (400.0, 700.0), {"lr_threshold": None, **options})(cap.image)
+        checked = PrismStereo(rig, (400.0, 700.0), {"lr_threshold": 1.0, **options})(cap.image)
     assert hidden.sum() > 100 and plain.valid[hidden].float().mean() > 0.5
     assert checked.valid[hidden].float().mean() < 0.6 * plain.valid[hidden].float().mean()
     assert checked.valid[cov].float().mean() > 0.8
     with pytest.raises(OptionError, match="occluder_confidence"):
-        PrismStereo(rig, (400.0, 700.0), occluder_confidence=1.5)
+        PrismStereo(rig, (400.0, 700.0), dict(occluder_confidence=1.5))
     with pytest.raises(OptionError, match="lr_threshold"):
-        PrismStereo(rig, (400.0, 700.0), lr_threshold=0.0)
+        PrismStereo(rig, (400.0, 700.0), dict(lr_threshold=0.0))
 
 
 def test_uniqueness_threshold_removes_false_matches_of_pixels_the_other_half_does_not_see():
@@ -329,8 +329,8 @@ def test_uniqueness_threshold_removes_false_matches_of_pixels_the_other_half_doe
     cov = cap.covisible[..., :w]
     with torch.no_grad():
         rules = dict(validity="thresholds")  # the coarse uniqueness rule (a calibrated model keeps its own)
-        loose = PrismStereo(rig, (205.0, 1511.0), min_uniqueness=0.0, **rules)(cap.image)
-        strict = PrismStereo(rig, (205.0, 1511.0), **rules)(cap.image)
+        loose = PrismStereo(rig, (205.0, 1511.0), {"min_uniqueness": 0.0, **rules})(cap.image)
+        strict = PrismStereo(rig, (205.0, 1511.0), rules)(cap.image)
     false = lambda r: (r.valid & ~cov).float().sum() / r.valid.float().sum()  # noqa: E731
     assert false(strict) < 0.8 * false(loose)
     assert (strict.valid & cov).float().sum() > 0.8 * (loose.valid & cov).float().sum()
@@ -340,7 +340,7 @@ def test_downsample_matches_the_binned_capture_on_the_full_grid():
     """downsample=2 is the model of the binned rig on the 2 x 2-averaged capture, each full-resolution pixel
     getting its block's values (match in full-sensor pixels), accurate on a plane."""
     rig = scaled_rig(thesis_setup1(), 2)  # 512 x 384 -> binned 256 x 192
-    model = PrismStereo(rig, (400.0, 800.0), downsample=2)
+    model = PrismStereo(rig, (400.0, 800.0), dict(downsample=2))
     small = PrismStereo(rig.binned(2), (400.0, 800.0))
     cap = render(rig, fronto_parallel_plane(rig, 560.0, seed=6), FORM)
     with torch.no_grad():
@@ -355,9 +355,9 @@ def test_downsample_matches_the_binned_capture_on_the_full_grid():
             assert torch.equal(res.match[block], ref.match * 2 + 0.5)
     rel, coverage = _errors(rig, res, cap)
     assert coverage > 0.9 and rel.median() < 0.002
-    assert PrismStereo(rig, **model.config()).downsample == 2
+    assert PrismStereo(rig, model.z_range, model.config()).downsample == 2
     with pytest.raises(OptionError, match="downsample must be an int >= 1"):
-        PrismStereo(rig, (400.0, 800.0), downsample=0)
+        PrismStereo(rig, (400.0, 800.0), dict(downsample=0))
     with pytest.raises(ShapeError, match="but the rig's sensor is"):
         model(torch.rand(1, 1, 192, 256))
 
@@ -368,20 +368,20 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
     depth varies inside the 2 x 2 blocks on a slanted plane and is more precise than the block values."""
     rig = scaled_rig(thesis_setup1(), 2)  # 512 x 384 -> binned 256 x 192
     z_range = (300.0, 900.0)
-    blocks = PrismStereo(rig, z_range, downsample=2, smoothing=0)  # the estimates themselves, not smoothed
-    model = PrismStereo(rig, z_range, downsample=2, full_band=2, smoothing=0)
-    assert model.binned is not None and model.binned.rig == rig.binned(2) and model.binned.binned is None
-    assert model.binned.num_hypotheses == blocks.num_hypotheses and model.coarse_hypotheses == blocks.num_hypotheses
-    assert model.num_hypotheses == PrismStereo(rig, z_range).num_hypotheses and model.band == 2
+    blocks = PrismStereo(rig, z_range, dict(downsample=2, smoothing=0))  # the estimates themselves, not smoothed
+    model = PrismStereo(rig, z_range, dict(downsample=2, full_band=2, smoothing=0))
+    assert model.binned is not None and model.binned.rig == rig.binned(2) and len(model.levels) == 2
+    assert model.binned.num_hypotheses == blocks.num_hypotheses
+    assert model.num_hypotheses == PrismStereo(rig, z_range).num_hypotheses and model.final.band == 2
     # the binned model's estimate only places the final band: its coarse factor leaves >= 12 hypotheses (4 here,
     # where the block model's own default, >= 24, is 2) and its band is ceil(3 f / 4) instead of f + 1, unless given
     f, size = model.binned.factor, (model.binned.rig.image_height, model.binned.rig.reference_width)
     assert f == pyramid_coarse_factor(model.binned.num_hypotheses, *size) == 4
-    assert blocks.factor == default_coarse_factor(blocks.num_hypotheses, *size) == 2 and blocks.band == 3
+    assert blocks.final.factor == default_coarse_factor(blocks.num_hypotheses, *size) == 2 and blocks.final.band == 3
     assert model.binned.band == model.binned.fine.band == math.ceil(3 * f / 4)
-    assert PrismStereo(rig, z_range, downsample=2, full_band=2, coarse_factor=2).binned.factor == 2  # as given
-    given = PrismStereo(rig, z_range, downsample=2, full_band=2, band=f + 2)
-    assert given.binned.band == given.binned.fine.band == f + 2 and given.band == 2
+    assert PrismStereo(rig, z_range, dict(downsample=2, full_band=2, coarse_factor=2)).binned.factor == 2  # as given
+    given = PrismStereo(rig, z_range, dict(downsample=2, full_band=2, band=f + 2))
+    assert given.binned.band == given.binned.fine.band == f + 2 and given.final.band == 2
     cap = render(rig, slanted_plane(rig, 560.0, 30.0, seed=4), FORM)
     with torch.no_grad():
         res, low = model(cap.image), blocks(cap.image)
@@ -400,24 +400,26 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
     assert torch.allclose(z, res.depth[res.valid], rtol=1e-4)
     config = model.config()
     assert config["full_band"] == 2 and config["num_hypotheses"] == blocks.num_hypotheses
-    assert PrismStereo(rig, **config).config() == config
+    assert PrismStereo(rig, config["z_range_mm"], config).config() == config
     assert blocks.config()["full_band"] == 0
     with pytest.raises(OptionError, match="full_band must be an int >= 0, and > 0 only with downsample > 1"):
-        PrismStereo(rig, z_range, full_band=2)  # this sensor's default downsample is 1
+        PrismStereo(rig, z_range, dict(full_band=2))  # this sensor's default downsample is 1
     with pytest.raises(OptionError, match="full_band must be"):
-        PrismStereo(rig, z_range, downsample=2, full_band=-1)
-    fast = PrismStereo(rig, z_range, downsample=2, full_band=1, band_edges="clamp")
-    assert fast.binned.fine.options.band_edges == "clamp" and fast.fine.options.band_edges == "clamp"
-    assert fast.config()["band_edges"] == "clamp" and PrismStereo(rig, **fast.config()).config() == fast.config()
+        PrismStereo(rig, z_range, dict(downsample=2, full_band=-1))
+    fast = PrismStereo(rig, z_range, dict(downsample=2, full_band=1, band_edges="clamp"))
+    assert fast.binned.fine.options.band_edges == "clamp" and fast.final.fine.options.band_edges == "clamp"
+    assert fast.config()["band_edges"] == "clamp"
+    assert PrismStereo(rig, fast.z_range, fast.config()).config() == fast.config()
     assert fast.summary() == (f"2x2-binned model ({model.binned.num_hypotheses} hypotheses, rectified coarse level "
-                              f"with factor {model.binned.factor} ({model.binned.coarse_hypotheses} hypotheses), band "
+                              f"with factor {model.binned.factor} ({model.binned.search.num_hypotheses} hypotheses), "
+                              f"band "
                               f"+-{model.binned.band}), then a full-resolution band +-1 of {model.num_hypotheses}, "
                               f"band edges clamped")
     assert model.summary().startswith("2x2-binned model (") and "band edges" not in model.summary()
-    single = PrismStereo(rig, z_range, coarse_factor=1, band_edges="clamp")  # no band: nothing to clamp
+    single = PrismStereo(rig, z_range, dict(coarse_factor=1, band_edges="clamp"))  # no band: nothing to clamp
     assert single.summary() == f"{single.num_hypotheses} hypotheses in one level"
     with pytest.raises(OptionError, match="band_edges.*'reject'.*'clamp'"):
-        PrismStereo(rig, z_range, band_edges="widen")
+        PrismStereo(rig, z_range, dict(band_edges="widen"))
 
 
 def test_default_is_the_pyramid_on_large_sensors_only(monkeypatch):
@@ -430,11 +432,11 @@ def test_default_is_the_pyramid_on_large_sensors_only(monkeypatch):
     assert plain.binned is None and plain.config()["downsample"] == 1 and plain.config()["full_band"] == 0
     monkeypatch.setattr(PrismStereo, "default_downsample", staticmethod(lambda rig: 2))
     pyramid = PrismStereo(rig, (400.0, 800.0))
-    assert pyramid.binned is not None and pyramid.band == 2
+    assert pyramid.binned is not None and pyramid.final.band == 2
     assert pyramid.config()["downsample"] == 2 and pyramid.config()["full_band"] == 2
-    assert PrismStereo(rig, (400.0, 800.0), full_band=3).band == 3
-    assert PrismStereo(rig, (400.0, 800.0), downsample=2).binned is None  # explicit: block values
-    assert PrismStereo(rig, (400.0, 800.0), downsample=1).binned is None
+    assert PrismStereo(rig, (400.0, 800.0), dict(full_band=3)).final.band == 3
+    assert PrismStereo(rig, (400.0, 800.0), dict(downsample=2)).binned is None  # explicit: block values
+    assert PrismStereo(rig, (400.0, 800.0), dict(downsample=1)).binned is None
 
 
 def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
@@ -449,9 +451,9 @@ def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
     cap = render(rig, fronto_parallel_plane(rig, 240.0, seed=2), FORM)
     with torch.no_grad():
         rules = dict(validity="thresholds", wide_box=0, smoothing=0)  # the reach_confidence rule of the NCC thresholds
-        plain = PrismStereo(rig, (220.0, 900.0), coarse_reach=0, **rules)(cap.image)
-        reach = PrismStereo(rig, (220.0, 900.0), **rules)(cap.image)
-        unreached = PrismStereo(rig, (220.0, 900.0), reach_confidence=1.0, **rules)(cap.image)  # (1) only
+        plain = PrismStereo(rig, (220.0, 900.0), {"coarse_reach": 0, **rules})(cap.image)
+        reach = PrismStereo(rig, (220.0, 900.0), rules)(cap.image)
+        unreached = PrismStereo(rig, (220.0, 900.0), {"reach_confidence": 1.0, **rules})(cap.image)  # (1) only
     rel0, coverage0 = _errors(rig, plain, cap)
     rel1, coverage1 = _errors(rig, reach, cap)
     coverage_unreached = _errors(rig, unreached, cap)[1]
@@ -460,9 +462,9 @@ def test_coarse_reach_recovers_the_edge_of_the_common_field_of_view():
     assert reached.sum() > 50 and reach.confidence[reached].min() >= 0.9
     assert rel1.mean() <= rel0.mean() * 1.5 and rel1.mean() < 0.001
     with pytest.raises(OptionError, match="coarse_reach must be an int >= 0"):
-        PrismStereo(rig, (220.0, 900.0), coarse_reach=-1)
+        PrismStereo(rig, (220.0, 900.0), dict(coarse_reach=-1))
     with pytest.raises(OptionError, match="reach_confidence must be in"):
-        PrismStereo(rig, (220.0, 900.0), reach_confidence=1.5)
+        PrismStereo(rig, (220.0, 900.0), dict(reach_confidence=1.5))
 
 
 def test_rgb_capture_matches_its_grey_mean(setup1_model):
@@ -487,16 +489,17 @@ def test_smoothing_averages_the_estimate_over_agreeing_neighbours():
     rig = scaled_rig(thesis_setup1(), 4)
     cap = render(rig, slanted_plane(rig, 560.0, 30.0, seed=4), FORM)
     with torch.no_grad():
-        raw = PrismStereo(rig, (300.0, 900.0), coarse_factor=2, smoothing=0)(cap.image)
-        smooth = PrismStereo(rig, (300.0, 900.0), coarse_factor=2)(cap.image)
+        raw = PrismStereo(rig, (300.0, 900.0), dict(coarse_factor=2, smoothing=0))(cap.image)
+        smooth = PrismStereo(rig, (300.0, 900.0), dict(coarse_factor=2))(cap.image)
     rel_raw, cover_raw = _errors(rig, raw, cap)
     rel, cover = _errors(rig, smooth, cap)
     assert rel.mean() < 0.6 * rel_raw.mean() and cover > cover_raw - 0.03, (rel.mean(), rel_raw.mean(), cover)
-    model = PrismStereo(rig, (300.0, 900.0), coarse_factor=2, smoothing=9, smoothing_tolerance=2.5)
-    assert model.config()["smoothing"] == 9 and PrismStereo(rig, **model.config()).smoothing_tolerance == 2.5
+    model = PrismStereo(rig, (300.0, 900.0), dict(coarse_factor=2, smoothing=9, smoothing_tolerance=2.5))
+    rebuilt = PrismStereo(rig, model.z_range, model.config())
+    assert model.config()["smoothing"] == 9 and rebuilt.final.config.refinement.smoothing_tolerance == 2.5
     for bad in (1, 4, -3, True, 2.0):
         with pytest.raises(OptionError, match="smoothing must be 0 .off. or an odd int >= 3"):
-            PrismStereo(rig, (300.0, 900.0), smoothing=bad)
+            PrismStereo(rig, (300.0, 900.0), dict(smoothing=bad))
     for bad in (0.0, -1.0, float("inf"), True):
         with pytest.raises(OptionError, match="smoothing_tolerance must be a finite number > 0"):
-            PrismStereo(rig, (300.0, 900.0), smoothing_tolerance=bad)
+            PrismStereo(rig, (300.0, 900.0), dict(smoothing_tolerance=bad))

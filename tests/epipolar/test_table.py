@@ -182,16 +182,16 @@ def test_column_to_sweep_inverts_the_sweep(setup):
 @pytest.mark.parametrize("setup", [thesis_setup1, thesis_setup2])
 def test_valid_interval_agrees_with_the_sampled_mask(setup):
     rig = setup().downscaled(4)
-    model = PrismStereo(rig, (228.0, 1374.0), coarse_factor=1)
+    model = PrismStereo(rig, (228.0, 1374.0), dict(coarse_factor=1))
     table = tabulate_sweep(_coefficients(rig))
-    lo, hi = valid_interval(table, model.other_valid, model.split.split)
+    lo, hi = valid_interval(table, model.final.other_valid, model.split.split)
     gen = torch.Generator().manual_seed(2)
     s = torch.rand(1, 16, *table.shape[1:3], generator=gen, dtype=F64) * 2 - 1
     cubic = local_cubic(table, s.reshape(16, 1, *table.shape[1:3]))
     xy = cubic_at(cubic, cubic.u)[:, 0].unsqueeze(0)  # (1, 16, H, W, 2) full-sensor pixels
     h, w_o = rig.image_height, rig.image_width - model.split.split
     grid = torch.stack([(2 * (xy[..., 0] - model.split.split) + 1) / w_o - 1, (2 * xy[..., 1] + 1) / h - 1], -1)
-    sampled = warp_slices(torch.zeros(1, 1, h, w_o, dtype=F64), grid, model.other_valid).valid
+    sampled = warp_slices(torch.zeros(1, 1, h, w_o, dtype=F64), grid, model.final.other_valid).valid
     by_interval = (s >= lo) & (s <= hi)
     assert (by_interval == sampled).double().mean() > 0.999
     assert not (by_interval & ~sampled).any()  # the interval never admits a sample the mask rejects

@@ -21,7 +21,7 @@ DEPTHS = (320.0, 450.0, 610.0, 830.0)
 @pytest.fixture(scope="module")
 def model():
     rig = thesis_setup1().downscaled(8)
-    return PrismStereo(rig, (300.0, 900.0), coarse_factor=2).eval()
+    return PrismStereo(rig, (300.0, 900.0), dict(coarse_factor=2)).eval()
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def test_metadata(exported, model):
     config = json.loads(meta["prismstereo.config"])
     assert config["num_hypotheses"] == model.num_hypotheses == int(meta["prismstereo.num_hypotheses"])
     assert json.loads(meta["prismstereo.z_range_mm"]) == [300.0, 900.0] and config["coarse_factor"] == 2
-    rebuilt = PrismStereo(model.rig, **config)  # the metadata rebuilds the model
+    rebuilt = PrismStereo(model.rig, config["z_range_mm"], config)  # the metadata rebuilds the model
     assert torch.equal(rebuilt.depths, model.depths)
     assert "input (B, 1, 96, 128)" in describe(meta)
 
@@ -98,7 +98,7 @@ def test_other_graphs_match_torch(model, captures, options, tmp_path):
     """The coarse level's other forms export too: the exact-sweep sampling (one GridSample of every
     hypothesis), the rectified level's left-right check, matching on the 2 x 2-binned capture, and the pyramid
     (the binned model placing a full-resolution band), also with a band of 3 that keeps its edge pixels."""
-    variant = PrismStereo(model.rig, (300.0, 900.0), coarse_factor=2, **options).eval()
+    variant = PrismStereo(model.rig, (300.0, 900.0), {"coarse_factor": 2, **options}).eval()
     got = OnnxDepth(export_onnx(variant, tmp_path / "variant.onnx"))(captures[:2])
     with torch.no_grad():
         want = variant(captures[:2])
@@ -120,7 +120,7 @@ def test_band_of_three_clamped_needs_no_winner_search(model, tmp_path):
     slices (one ArgMin fewer than the pyramid's band of 5) and fills invalid samples without a Where on the band
     volume (onnxruntime runs Where on one thread)."""
     def ops(options: dict) -> list[onnx.NodeProto]:
-        variant = PrismStereo(model.rig, (300.0, 900.0), coarse_factor=2, downsample=2, **options).eval()
+        variant = PrismStereo(model.rig, (300.0, 900.0), {"coarse_factor": 2, "downsample": 2, **options}).eval()
         return list(onnx.load(str(export_onnx(variant, tmp_path / "variant.onnx"))).graph.node)
 
     fast = ops(dict(full_band=1, band_edges="clamp"))
@@ -143,9 +143,9 @@ def test_fine_band_strips_keep_the_batch_axis_dynamic(model, captures, tmp_path,
         return sum(len(t.raw_data) for t in onnx.load(str(path)).graph.initializer)
 
     whole = export_onnx(model, tmp_path / "whole.onnx")
-    monkeypatch.setattr(levels, "_EXPORT_STRIP_VOXELS", (2 * model.band + 1) * model.rig.reference_width * 20)
+    monkeypatch.setattr(levels, "_EXPORT_STRIP_VOXELS", (2 * model.final.band + 1) * model.rig.reference_width * 20)
     path = export_onnx(model, tmp_path / "strips.onnx")
-    series = model.series.numel() * 4
+    series = model.final.series.numel() * 4
     # the strips add their interval slices (2 planes in all, plus halos), not copies of the series
     assert stored(path) - stored(whole) < series / 2, (stored(path), stored(whole), series)
     got = OnnxDepth(path)(captures)
@@ -213,6 +213,6 @@ def test_session_cache(exported, model, tmp_path, monkeypatch):
     assert sleeping is not first and sleeping.path == first.path
     files = list((tmp_path / "onnx").glob("*.onnx"))
     assert len(files) == 1 and first.path == files[0]
-    other = PrismStereo(model.rig, (300.0, 900.0), coarse_factor=2, min_confidence=0.6)
+    other = PrismStereo(model.rig, (300.0, 900.0), dict(coarse_factor=2, min_confidence=0.6))
     assert onnx_session(other).path != first.path  # other options: another graph
     assert first.path.read_bytes()[:64] == exported.read_bytes()[:64]  # same model, same export

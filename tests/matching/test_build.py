@@ -23,15 +23,15 @@ def test_build_search_gives_the_level_the_model_uses(setup, sampling, factor, ki
     rig, fit, fine, other_valid = setup
     built = build_search(rig, fit, fine, SearchOptions(), sampling, factor, 30, other_valid)
     assert isinstance(built, BuiltSearch) and isinstance(built.search, kind)
-    model = PrismStereo(rig, (400.0, 900.0), 30, sampling=sampling, coarse_factor=factor)
-    assert type(model.search) is kind and model.search.num_hypotheses == built.search.num_hypotheses
+    model = PrismStereo(rig, (400.0, 900.0), dict(num_hypotheses=30, sampling=sampling, coarse_factor=factor))
+    assert type(model.final.search) is kind and model.final.search.num_hypotheses == built.search.num_hypotheses
     if factor == 1:
         assert built.search.num_hypotheses == 30  # a single level keeps the requested hypotheses
     else:  # the coarse level: hypotheses <= 1 level pixel apart, fewer than the full level's
         assert 2 <= built.search.num_hypotheses < 30
     if sampling == "rectified":  # setup 1's non-central rays leave ~1e-4 px (row_rectify's measurement)
         assert 0 <= built.rectification_residual_px < 1e-3
-        assert built.rectification_residual_px == model.rectification_residual_px
+        assert built.rectification_residual_px == model.final.rectification_residual_px
     else:
         assert built.rectification_residual_px is None
 

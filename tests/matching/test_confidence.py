@@ -132,13 +132,14 @@ def test_clamped_band_models_have_their_own_weights():
     from prismstereo.model import PrismStereo
 
     rig = thesis_setup1().downscaled(4)
-    fast = PrismStereo(rig, (400.0, 800.0), coarse_factor=2, band_edges="clamp")
-    torch.testing.assert_close(fast.calibration.weight.flatten(), torch.tensor(CLAMPED_WEIGHTS[0][:-1]))
-    torch.testing.assert_close(fast.smoothed_calibration.weight.flatten(), torch.tensor(CLAMPED_WEIGHTS[1][:-1]))
-    for model in (PrismStereo(rig, (400.0, 800.0), coarse_factor=2),
-                  PrismStereo(rig, (400.0, 800.0), coarse_factor=2, band_edges="clamp", dense=True)):
-        torch.testing.assert_close(model.calibration.weight.flatten(), torch.tensor(DEFAULT_WEIGHTS[:-1]))
-        torch.testing.assert_close(model.smoothed_calibration.weight.flatten(), torch.tensor(SMOOTHED_WEIGHTS[:-1]))
+    fast = PrismStereo(rig, (400.0, 800.0), dict(coarse_factor=2, band_edges="clamp"))
+    torch.testing.assert_close(fast.final.calibration.weight.flatten(), torch.tensor(CLAMPED_WEIGHTS[0][:-1]))
+    torch.testing.assert_close(fast.final.smoothed_calibration.weight.flatten(), torch.tensor(CLAMPED_WEIGHTS[1][:-1]))
+    for model in (PrismStereo(rig, (400.0, 800.0), dict(coarse_factor=2)),
+                  PrismStereo(rig, (400.0, 800.0), dict(coarse_factor=2, band_edges="clamp", dense=True))):
+        torch.testing.assert_close(model.final.calibration.weight.flatten(), torch.tensor(DEFAULT_WEIGHTS[:-1]))
+        weights = model.final.smoothed_calibration.weight.flatten()
+        torch.testing.assert_close(weights, torch.tensor(SMOOTHED_WEIGHTS[:-1]))
     stage1 = dict(zip(FEATURES, CLAMPED_WEIGHTS[0], strict=False))
     assert stage1["coarse"] > 0 and stage1["roughness"] < 0 and stage1["offset"] < 0
     stage2 = dict(zip(SMOOTHED_FEATURES, CLAMPED_WEIGHTS[1], strict=False))

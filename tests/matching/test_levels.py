@@ -33,14 +33,14 @@ def test_searches_share_one_interface_and_find_the_plane(plane, sampling, direct
     coordinate at most pixels the other half sees (the rectified volume stays transposed except with
     2-direction SGM, which scans rows only)."""
     rig, cap = plane
-    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, sampling=sampling, directions=directions)
-    search = model.search
+    model = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, sampling=sampling, directions=directions))
+    search = model.final.search
     assert isinstance(search, RectifiedSearch if sampling == "rectified" else SweepSearch)
     if sampling == "rectified":
         assert search.transposed == (directions != 2)
     ref, other = model.split(cap.image)
     with torch.no_grad():
-        res = search(model._downsample(ref), model._downsample(other), final=False)
+        res = search(model.final.coarse(ref), model.final.coarse(other), final=False)
     assert isinstance(res, LevelResult)
     assert res.s.shape == res.valid.shape == (1, 1, rig.image_height // 2, rig.reference_width // 2)
     truth = depth_to_sweep(torch.tensor(600.0), torch.tensor(model.z_range))
@@ -53,17 +53,17 @@ def test_searches_share_one_interface_and_find_the_plane(plane, sampling, direct
 
 def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     rig, cap = plane
-    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, smoothing=0)  # the band with its match
-    assert isinstance(model.fine, FineBand) and model.fine.band == 3
+    model = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, smoothing=0))  # the band with its match
+    assert isinstance(model.final.fine, FineBand) and model.final.fine.band == 3
     ref, other = model.split(cap.image)
     s0 = torch.full((1, 1, rig.image_height, rig.reference_width), float(depth_to_sweep(
         torch.tensor(600.0), torch.tensor(model.z_range)))) + 0.01
     ok0 = torch.ones_like(s0, dtype=torch.bool)
     with torch.no_grad():
         monkeypatch.setattr(levels, "_STRIP_VOXELS", 10**9)
-        whole = model.fine(ref, other, s0, ok0, model.series, model.interval)
+        whole = model.final.fine(ref, other, s0, ok0, model.final.series, model.final.interval)
         monkeypatch.setattr(levels, "_STRIP_VOXELS", 1)  # 16-row strips
-        strips = model.fine(ref, other, s0, ok0, model.series, model.interval)
+        strips = model.final.fine(ref, other, s0, ok0, model.final.series, model.final.interval)
     for a, b in zip(whole, strips, strict=True):
         assert torch.equal(a, b)
     # started 0.01 off (0.15 px; a hypothesis step is 0.069 here), the band finds the plane to ~0.04 px
@@ -72,15 +72,16 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     assert err.numel() > 0.95 * cap.covisible[..., :rig.reference_width].sum()
     assert err.median() < 0.005 and err.quantile(0.9) < 0.02
     # the band's match (interpolated between its samples) is the exact sweep's position at s
-    exact = torch.cat(series_at(model.series, whole.s), 1)
+    exact = torch.cat(series_at(model.final.series, whole.s), 1)
     assert (whole.match - exact).abs().amax(1, keepdim=True)[whole.valid].max() < 1e-3
     # without the match (a smoothing model computes it after moving s): the same estimate, whole or in strips
-    bare = FineBand(model.fine.options, model.fine.band, model.fine.step, model.fine.split, with_match=False)
-    assert PrismStereo(rig, (450.0, 900.0), coarse_factor=2).fine.with_match is False
+    fine = model.final.fine
+    bare = FineBand(fine.options, fine.band, fine.step, fine.split, with_match=False)
+    assert PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2)).final.fine.with_match is False
     with torch.no_grad():
         for voxels in (10**9, 1):
             monkeypatch.setattr(levels, "_STRIP_VOXELS", voxels)
-            res = bare(ref, other, s0, ok0, model.series, model.interval)
+            res = bare(ref, other, s0, ok0, model.final.series, model.final.interval)
             assert res.match is None and torch.equal(res.s, whole.s) and torch.equal(res.valid, whole.valid)
 
 
@@ -90,20 +91,20 @@ def test_fine_band_edges_reject_or_clamp(plane):
     half a step beyond that neighbour, with the exact sweep's match there and that hypothesis' (low) confidence.
     Pixels whose best hypothesis is inside the band are the same either way."""
     rig, cap = plane
-    reject = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, smoothing=0)
-    clamp = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, band_edges="clamp", smoothing=0)
-    assert reject.fine.options.band_edges == "reject" and clamp.fine.options.band_edges == "clamp"
+    reject = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, smoothing=0))
+    clamp = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, band_edges="clamp", smoothing=0))
+    assert reject.final.fine.options.band_edges == "reject" and clamp.final.fine.options.band_edges == "clamp"
     ref, other = reject.split(cap.image)
     truth = float(depth_to_sweep(torch.tensor(600.0), torch.tensor(reject.z_range)))
     h, w = rig.image_height, rig.reference_width
-    step, band = reject.fine.step, reject.fine.band
+    step, band = reject.final.fine.step, reject.final.fine.band
     beyond = torch.zeros(1, 1, h, w, dtype=torch.bool)
     beyond[..., w // 2:] = True  # the right half starts band + 1.5 steps off: the truth lies outside the band
     s0 = torch.where(beyond, torch.tensor(truth - (band + 1.5) * step), torch.tensor(truth + 0.01))
     ok0 = torch.ones_like(s0, dtype=torch.bool)
     with torch.no_grad():
-        r = reject.fine(ref, other, s0, ok0, reject.series, reject.interval)
-        c = clamp.fine(ref, other, s0, ok0, clamp.series, clamp.interval)
+        r = reject.final.fine(ref, other, s0, ok0, reject.final.series, reject.final.interval)
+        c = clamp.final.fine(ref, other, s0, ok0, clamp.final.series, clamp.final.interval)
     cov = cap.covisible[..., :w]
     assert r.valid[~beyond & cov].float().mean() > 0.95 and r.valid[beyond & cov].float().mean() < 0.02
     for a, b in zip(r, c, strict=True):  # valid under 'reject': the same numbers
@@ -113,7 +114,7 @@ def test_fine_band_edges_reject_or_clamp(plane):
     moved = (c.s - s0)[clamped] / step  # from the inner neighbour (band - 1 steps up) at most half a step on
     assert float(moved.abs().min()) >= band - 1 - 1e-4 and float(moved.abs().max()) <= band - 0.5 + 1e-4
     assert float((moved > band - 1 + 1e-3).float().mean()) > 0.9, moved.unique(return_counts=True)  # towards truth
-    exact = torch.cat(series_at(clamp.series, c.s), 1)
+    exact = torch.cat(series_at(clamp.final.series, c.s), 1)
     assert (c.match - exact).abs().amax(1, keepdim=True)[clamped].max() < 1e-3
     # that hypothesis is still 1-1.5 steps from the truth: it matches worse than the true match (measured
     # median NCC 0.70 against ~0.99), so min_confidence / reach_confidence can still reject it
@@ -129,23 +130,23 @@ def test_fine_band_of_three_clamped_is_the_centre_refined(plane, refinement):
     at s."""
     rig, cap = plane
     options = dict(coarse_factor=2, band=1, refinement=refinement, wide_box=0, smoothing=0)  # the band's own box only
-    reject = PrismStereo(rig, (450.0, 900.0), **options)
-    clamp = PrismStereo(rig, (450.0, 900.0), band_edges="clamp", **options)
+    reject = PrismStereo(rig, (450.0, 900.0), options)
+    clamp = PrismStereo(rig, (450.0, 900.0), {"band_edges": "clamp", **options})
     ref, other = reject.split(cap.image)
     truth = float(depth_to_sweep(torch.tensor(600.0), torch.tensor(reject.z_range)))
-    s0 = torch.full((1, 1, rig.image_height, rig.reference_width), truth + 0.45 * reject.fine.step)
+    s0 = torch.full((1, 1, rig.image_height, rig.reference_width), truth + 0.45 * reject.final.fine.step)
     ok0 = torch.ones_like(s0, dtype=torch.bool)
     with torch.no_grad():
-        r = reject.fine(ref, other, s0, ok0, reject.series, reject.interval)
-        c = clamp.fine(ref, other, s0, ok0, clamp.series, clamp.interval)
+        r = reject.final.fine(ref, other, s0, ok0, reject.final.series, reject.final.interval)
+        c = clamp.final.fine(ref, other, s0, ok0, clamp.final.series, clamp.final.interval)
     assert 0.1 < float(r.valid.float().mean()) < 0.9  # the truth 0.45 steps off: some pixels' best is an edge
     for a, b in zip(r, c, strict=True):
         assert torch.equal(a[r.valid.expand_as(a)], b[r.valid.expand_as(b)])
     kept = c.valid & ~r.valid
     assert kept.sum() > 0.1 * kept.numel()
     reach = 0.5 if refinement is None else 1.0  # the parabola moves <= half a step, a soft-argmin within the band
-    assert float(((c.s - s0).abs() / reject.fine.step)[kept].max()) <= reach + 1e-5
-    exact = torch.cat(series_at(clamp.series, c.s), 1)
+    assert float(((c.s - s0).abs() / reject.final.fine.step)[kept].max()) <= reach + 1e-5
+    exact = torch.cat(series_at(clamp.final.series, c.s), 1)
     assert (c.match - exact).abs().amax(1, keepdim=True)[c.valid].max() < 1e-3
 
 
@@ -189,17 +190,18 @@ def test_fine_band_wide_box_blends_only_in_weak_texture(plane):
     """The wide box's weight is 1 - sigma / weak_texture: a vanishing threshold leaves the band as without it,
     a huge one replaces the box by the wide box everywhere (the same numbers as a band with that box)."""
     rig, cap = plane
-    model = PrismStereo(rig, (450.0, 900.0), coarse_factor=2, smoothing=0)
+    model = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, smoothing=0))
     ref, other = model.split(cap.image)
     s0 = torch.full((1, 1, rig.image_height, rig.reference_width), float(depth_to_sweep(
         torch.tensor(600.0), torch.tensor(model.z_range)))) + 0.01
     ok0 = torch.ones_like(s0, dtype=torch.bool)
 
     def band(**changes):
-        fine = FineBand(dataclasses.replace(model.fine.options, **changes), model.fine.band, model.fine.step,
-                        model.fine.split)
+        band = model.final.fine
+        fine = FineBand(dataclasses.replace(band.options, **changes), band.band, band.step,
+                        model.final.fine.split)
         with torch.no_grad():
-            return fine(ref, other, s0, ok0, model.series, model.interval)
+            return fine(ref, other, s0, ok0, model.final.series, model.final.interval)
 
     plain = band(wide_box=0)
     for a, b in zip(band(wide_box=21, weak_texture=1e-12), plain, strict=True):
@@ -207,4 +209,4 @@ def test_fine_band_wide_box_blends_only_in_weak_texture(plane):
     wide, boxed = band(wide_box=21, weak_texture=1e9), band(wide_box=0, box=21)
     torch.testing.assert_close(wide.s, boxed.s, atol=1e-5, rtol=0)
     assert torch.equal(wide.valid, boxed.valid)
-    assert model.fine.options.wide_box == 21  # the model's default
+    assert model.final.fine.options.wide_box == 21  # the model's default

@@ -1,0 +1,341 @@
+"""One resolution of :class:`~prismstereo.model.PrismStereo`: a rig's sweep searched, refined and judged.
+
+A :class:`DepthLevel` holds everything the model computes for one rig (the full sensor, or the sensor seen
+through k x k binning): the exact sweep m(u, v, s) and its power series, the prism masks, the placement of the
+final band and the final band itself, the confidence, the smoothing of the estimate and the validity rules.
+Its band is placed in one of two ways:
+
+* by its own coarse level (``coarse_factor`` f > 1): both halves box-downsampled by f and searched over the whole
+  range (:func:`~prismstereo.matching.build.build_search`), the estimate extended by ``coarse_reach`` coarse
+  pixels and upsampled; with f = 1 that search is the only (full-resolution) level;
+* by a coarser level's estimate (a pyramid's full-resolution level, ``placed_by`` = k): the model passes the
+  binned level's :meth:`~DepthLevel.placement` to :meth:`DepthLevel.depth`.
+
+Then a band of 2 R + 1 hypotheses around every pixel on the exact sweep
+(:class:`~prismstereo.matching.levels.FineBand`), depth from the sweep coordinate (s is linear in 1/Z), the
+calibrated confidence (:mod:`prismstereo.matching.confidence`), validity and a z-buffer occlusion test in the
+other half. :class:`~prismstereo.model.PrismStereo` composes one level, or a binned level and a
+full-resolution level (the pyramid).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from prismstereo.config import StereoConfig
+from prismstereo.defaults import default_coarse_factor, pyramid_band, pyramid_coarse_factor
+from prismstereo.depth.occlusion import zbuffer_visible
+from prismstereo.depth.result import DepthResult
+from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
+from prismstereo.epipolar.table import series_at, sweep_hypotheses, sweep_series, tabulate_sweep, valid_interval
+from prismstereo.errors import OptionError
+from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.matching.aggregate import box_std
+from prismstereo.matching.build import build_search
+from prismstereo.matching.confidence import (
+    CLAMPED_WEIGHTS,
+    FITTED_PLACEMENT,
+    SMOOTHED_FEATURES,
+    ConfidenceModel,
+    confidence_features,
+    smoothed_features,
+)
+from prismstereo.matching.levels import FineBand, SearchOptions, extend_estimate
+from prismstereo.matching.postprocess import robust_mean
+from prismstereo.matching.split import SplitImage
+
+__all__ = ["DepthLevel", "LevelEstimate", "Placement"]
+
+
+class Placement(NamedTuple):
+    """A coarser level's estimate that places a level's band (:meth:`DepthLevel.placement`), at the coarser
+    level's resolution.
+
+    Attributes:
+        s: (B, 1, h, w) sweep coordinate.
+        valid: (B, 1, h, w) bool.
+        similarity: (B, 1, h, w) its confidence (a feature of the calibrated confidence).
+        reach: how many of its pixels the estimate is extended into invalid neighbours.
+    """
+
+    s: torch.Tensor
+    valid: torch.Tensor
+    similarity: torch.Tensor
+    reach: int
+
+
+class LevelEstimate(NamedTuple):
+    """:meth:`DepthLevel.estimate`'s result, (B, *, H, W_ref) at the level's resolution.
+
+    Attributes:
+        s: (B, 1, H, W_ref) sweep coordinate (not yet clamped to [-1, 1]).
+        ok: (B, 1, H, W_ref) bool, the search's own validity (before the confidence and occlusion rules).
+        confidence: (B, 1, H, W_ref) the final NCC, or with ``validity='calibrated'`` the calibrated confidence.
+        match: (B, 2, H, W_ref) full-sensor (u, v) of the match, or None (the smoothing recomputes it).
+        features: (B, 6, H, W_ref) the calibrated confidence's features, else None.
+        sampled: (B, 1, H, W_ref) bool, pixels whose band had a real sample.
+    """
+
+    s: torch.Tensor
+    ok: torch.Tensor
+    confidence: torch.Tensor
+    match: torch.Tensor | None
+    features: torch.Tensor | None
+    sampled: torch.Tensor
+
+
+def _resolved_search(config: StereoConfig, num_hypotheses: int, factor: int, band: int, sampling: str,
+                     validity: str) -> StereoConfig:
+    return config.replace(search={"num_hypotheses": num_hypotheses, "coarse_factor": factor, "band": band,
+                                  "sampling": sampling}, validity={"validity": validity})
+
+
+class DepthLevel(nn.Module):
+    """The depth of one rig's reference half: placement of the final band, the band, confidence, validity.
+
+    Args:
+        rig: the level's rig (the sensor, or the sensor binned by the model's ``downsample``).
+        z_range_mm: (z_min, z_max) searched.
+        config: the options (:class:`~prismstereo.config.StereoConfig`); the level resolves the None ones
+            (:mod:`prismstereo.defaults`) and keeps the result as :attr:`config`.
+        placed_by: k > 1: the band is placed by the estimate of a level binned by k (the pyramid's
+            full-resolution level: f = k, R = ``full_band``, no search of its own); 0: its own coarse search.
+        places_band: the level only places a pyramid's full-resolution band: its coarse factor and band take the
+            pyramid's rules (:func:`~prismstereo.defaults.pyramid_coarse_factor`,
+            :func:`~prismstereo.defaults.pyramid_band`).
+
+    Raises:
+        OptionError: options that do not fit the rig (a coarse factor leaving < 8 rows, a calibrated or dense
+            single level).
+
+    Example:
+        >>> level = DepthLevel(thesis_setup1().downscaled(8), (400.0, 700.0), StereoConfig())
+        >>> level.depth(torch.rand(1, 1, 96, 128)).depth.shape, level.config.validity.validity
+        (torch.Size([1, 1, 96, 64]), 'thresholds')
+    """
+
+    def __init__(self, rig: BiPrismRig, z_range_mm: tuple[float, float], config: StereoConfig, *,
+                 placed_by: int = 0, places_band: bool = False) -> None:
+        super().__init__()
+        search, validity = config.search, config.validity
+        self.rig, self.split = rig, SplitImage(rig)
+        fit = fit_sweep(rig, z_range_mm)
+        h, w_ref = rig.image_height, rig.reference_width
+        self.z_range = tuple(float(z) for z in z_range_mm)
+        f64 = torch.float64
+        uv = torch.stack(torch.meshgrid(torch.arange(w_ref, dtype=f64), torch.arange(h, dtype=f64),
+                                        indexing="xy"), -1)  # (H, W_ref, 2)
+        fine = sweep_coefficients(fit, uv).permute(2, 0, 1, 3).contiguous()  # (N, H, W_ref, 2) pixels
+        num_hypotheses = search.num_hypotheses or sweep_hypotheses(fine)
+        if placed_by:
+            factor, band = placed_by, search.full_band
+        else:
+            rule = pyramid_coarse_factor if places_band else default_coarse_factor
+            factor = search.coarse_factor or rule(num_hypotheses, h, w_ref)
+            band = search.band or (pyramid_band(factor) if places_band and factor > 1 else factor + 1)
+        if h // factor < 8:
+            raise OptionError(f"coarse_factor must be an int >= 1 leaving >= 8 rows, got {factor!r}")
+        level_validity = validity.validity or ("calibrated" if factor > 1 else "thresholds")
+        if level_validity == "calibrated" and factor == 1:
+            raise OptionError("validity 'calibrated' needs a coarse-to-fine model (coarse_factor > 1 or a pyramid); "
+                              "a single level has 'thresholds'")
+        if validity.dense and factor == 1:
+            raise OptionError("dense needs a coarse-to-fine model (coarse_factor > 1 or a pyramid): a single level "
+                              "has no band to place everywhere")
+        sampling = search.sampling or ("rectified" if factor > 1 else "sweep")
+        self.config = _resolved_search(config, num_hypotheses, factor, band, sampling, level_validity)
+        self.num_hypotheses, self.factor, self.band, self.placed_by = num_hypotheses, factor, band, placed_by
+        calibrated = level_validity == "calibrated"
+        smoothing = config.refinement.smoothing
+        # a final band that clamps its edges (not a dense model's, fitted with the default) has its own weights
+        self.clamped_band = search.band_edges == "clamp" and not validity.dense
+        stage1, stage2 = CLAMPED_WEIGHTS if self.clamped_band else (None, None)
+        self.calibration = ConfidenceModel(stage1) if calibrated else None
+        self.smoothed_calibration = ConfidenceModel(stage2, SMOOTHED_FEATURES) if calibrated and smoothing else None
+
+        w_o = rig.image_width - w_ref
+        rays = trace_pixels(rig, uv.view(-1, 2))
+        self.register_buffer("reference_valid", (rays.valid & rays.left).view(h, w_ref))
+        uv_o = torch.stack(torch.meshgrid(torch.arange(w_ref, rig.image_width, dtype=f64),
+                                          torch.arange(h, dtype=f64), indexing="xy"), -1)
+        rays_o = trace_pixels(rig, uv_o.view(-1, 2))
+        other_valid = (rays_o.valid & ~rays_o.left).view(h, w_o)
+        self.register_buffer("other_valid", other_valid)
+        self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, num_hypotheses, dtype=f64),
+                                                      fit.z_range).float())
+        # the final band and the match output evaluate the sweep as truncated power series in s (Horner's rule,
+        # ~2e-4 px from the polynomials) and the band's validity from each pixel's interval of real samples
+        # (found on a table of positions, at build time only); a single-level search keeps the polynomials
+        self.register_buffer("series", sweep_series(fine).float())
+        self.register_buffer("interval", valid_interval(tabulate_sweep(fine).float(), other_valid, self.split.split))
+        cost, aggregation = config.cost, config.aggregation
+        options = SearchOptions(cost=cost.cost, window=cost.window, census_threshold=float(cost.census_threshold),
+                                box=aggregation.box, aggregation=aggregation.aggregation,
+                                directions=aggregation.directions, p1=aggregation.p1, p2=aggregation.p2,
+                                refinement=config.refinement.refinement,
+                                min_uniqueness=FITTED_PLACEMENT["min_uniqueness"] if calibrated
+                                else validity.min_uniqueness)
+        self.search = None
+        self.rectification_residual_px: float | None = None
+        if not placed_by:
+            built = build_search(rig, fit, fine, options, sampling, factor, num_hypotheses, other_valid,
+                                 search.lr_threshold)
+            self.search, self.rectification_residual_px = built.search, built.rectification_residual_px
+        self.fine = None
+        if factor > 1:
+            fine_options = dataclasses.replace(
+                options, cost=cost.fine_cost, box=aggregation.fine_box,
+                band_edges="clamp" if validity.dense else search.band_edges, wide_box=aggregation.wide_box,
+                weak_texture=float(aggregation.weak_texture))
+            self.fine = FineBand(fine_options, band, 2.0 / (num_hypotheses - 1), self.split.split,
+                                 with_match=not smoothing)  # a smoothed s gets its match afterwards
+
+    @property
+    def step(self) -> float:
+        """The hypotheses' spacing in s (2 / (D - 1))."""
+        return 2.0 / (self.num_hypotheses - 1)
+
+    def coarse(self, image: torch.Tensor) -> torch.Tensor:
+        """``image`` (B, C, H, W) box-averaged over f x f blocks (the last ones padded by replication): the coarse
+        level's input, (B, C, ceil(H / f), ceil(W / f))."""
+        f = self.factor
+        h, w = image.shape[-2:]
+        padded = F.pad(image, (0, math.ceil(w / f) * f - w, 0, math.ceil(h / f) * f - h), mode="replicate")
+        return F.avg_pool2d(padded, f)
+
+    def placement(self, image: torch.Tensor) -> Placement:
+        """This level's estimate of ``image`` (B, C, h, w) as the placement of a finer level's band: its depth,
+        extended twice as far as its own coarse level reached."""
+        low = self.depth(image)
+        return Placement(low.index * self.step - 1.0, low.valid, low.confidence,
+                         2 * self.config.search.coarse_reach * self.factor)
+
+    def estimate(self, image: torch.Tensor, placement: Placement | None = None) -> LevelEstimate:
+        """The final band's estimate of ``image`` (B, C, H, W) at this level's resolution.
+
+        Args:
+            image: (B, C, H, W) the level's capture.
+            placement: with ``placed_by`` k: the k-binned level's :meth:`placement`, (B, 1, H / k, W_ref / k).
+
+        Returns:
+            LevelEstimate.
+        """
+        if (placement is None) != (not self.placed_by):
+            raise OptionError("a placed level needs the coarser level's result, a level with its own search none")
+        ref, other = self.split(image)
+        h, w_ref = ref.shape[-2:]
+        features = None
+        if self.factor == 1:
+            s, ok, confidence, match = self.search(ref, other, final=True)
+            return LevelEstimate(s, ok, confidence, match, None, ok)
+        f, config = self.factor, self.config
+        with torch.no_grad():  # the coarse level only places the fine band (its s0 is detached)
+            if placement is None:
+                coarse = self.search(self.coarse(ref), self.coarse(other), final=False)
+                s_c, valid_c, radius = coarse.s, coarse.valid, config.search.coarse_reach
+                similar_c = coarse.confidence * valid_c.to(coarse.confidence.dtype)
+            else:  # the binned level's final estimate
+                s_c, valid_c, similar_c, radius = placement
+            s_c, reach = extend_estimate(s_c, valid_c, radius)
+
+        def up(t: torch.Tensor, mode: str = "nearest") -> torch.Tensor:
+            # level pixel i covers full pixels f i ... f i + f - 1; a binned level may end short of the
+            # reference half (its width rounded down): replicate its last row / column
+            corners = {} if mode == "nearest" else {"align_corners": False}
+            t = F.interpolate(t.to(ref.dtype), scale_factor=f, mode=mode, **corners)
+            if t.shape[-2] < h or t.shape[-1] < w_ref:
+                t = F.pad(t, (0, max(0, w_ref - t.shape[-1]), 0, max(0, h - t.shape[-2])), mode="replicate")
+            return t[..., :h, :w_ref]
+
+        s0 = up(s_c, "bilinear").detach().clamp(-1.0, 1.0)
+        # the reference's texture (grey std over the cost window): the wide box's weight and a feature
+        calibrated = config.validity.validity == "calibrated"
+        texture = None
+        if calibrated or config.aggregation.wide_box > config.aggregation.fine_box:
+            texture = box_std(ref if ref.shape[1] == 1 else ref.mean(1, keepdim=True), config.cost.window).detach()
+        if calibrated or config.validity.dense:  # beyond the reach: the coarse level's own estimate
+            ok0 = torch.ones_like(s0, dtype=torch.bool)
+        else:
+            ok0 = up(reach) > 0.5
+        s, ok, confidence, match = self.fine(ref, other, s0, ok0, self.series, self.interval, texture)
+        rejected = up(valid_c) < 0.5
+        sampled = ok  # the band had a real sample (a dense model's depths), before the validity rules
+        if calibrated:  # the probability of a depth within 1 % (matching.confidence)
+            features = confidence_features(confidence, up(similar_c, "bilinear"), s.detach(), s0, texture, self.step,
+                                           rejected)
+            confidence = self.calibration(features)
+        elif config.search.coarse_reach:  # pixels the coarse level only reached from a neighbour: a stricter match
+            ok = ok & (~rejected | (confidence >= config.validity.reach_confidence))
+        return LevelEstimate(s, ok, confidence, match, features, sampled)
+
+    def smooth(self, s: torch.Tensor, confidence: torch.Tensor, sampled: torch.Tensor
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """The confidence-weighted robust mean of the estimates around each pixel (``smoothing``; the confidence
+        a weight, not a path of gradients), and for calibrated levels the confidence re-scored from the evidence
+        around the pixel with those features (None otherwise: the confidence stays as it is). All (B, *, H, W_ref).
+        """
+        weight = confidence.detach().clamp(0.0, 1.0) * (sampled & self.reference_valid).to(s.dtype)
+        refinement = self.config.refinement
+        smoothed = robust_mean(s, weight, refinement.smoothing, refinement.smoothing_tolerance * self.step)
+        if self.smoothed_calibration is None:
+            return smoothed.values, confidence, None
+        features = smoothed_features(weight, smoothed.agreement, smoothed.support)
+        return smoothed.values, self.smoothed_calibration(features), features
+
+    def depth(self, image: torch.Tensor, placement: Placement | None = None) -> DepthResult:
+        """Depth, validity, confidence, hypothesis index and match of the level's reference half.
+
+        Args:
+            image: (B, C, H, W) the level's capture in [0, 1].
+            placement: see :meth:`estimate`.
+
+        Returns:
+            DepthResult, (B, *, H, W_ref).
+        """
+        s, ok, confidence, match, _, sampled = self.estimate(image, placement)
+        validity = self.config.validity
+        s = s.clamp(-1.0, 1.0)
+        if self.config.refinement.smoothing:  # its band returned no match: the series at the smoothed s
+            s, confidence, _ = self.smooth(s, confidence, sampled)
+        z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
+        depth = sweep_to_depth(s, z_range)
+        if match is None:  # the series at s (the search's own match unless the estimate was smoothed)
+            match = torch.cat(series_at(self.series, s), 1)
+        valid = ok & self.reference_valid & (confidence >= validity.min_confidence)
+        covered = sampled & self.reference_valid  # dense: a depth wherever the band had a real sample
+        if validity.occlusion_tolerance is not None:
+            occluders = None if validity.occluder_confidence is None else valid & (
+                confidence >= validity.occluder_confidence)
+            valid = valid & self.visible(match, depth, valid, occluders)
+        if validity.dense and validity.dense_fill:  # the depths that are not valid: the mean of the valid around
+            s = torch.where(covered, extend_estimate(s, valid, validity.dense_fill).s, s)
+            depth, match = sweep_to_depth(s, z_range), torch.cat(series_at(self.series, s), 1)
+        # confidence in [0, 1] times the mask: 0 where invalid, or in a dense model where there is no depth
+        # (onnxruntime runs a Where on one thread, ~0.26 ms on a 768 x 512 plane; the product ~0.05 ms)
+        if validity.dense:  # > 0 exactly where there is a depth (an NCC of 0 too)
+            confidence = confidence.clamp_min(torch.finfo(confidence.dtype).tiny) * covered.to(confidence.dtype)
+        else:
+            confidence = confidence * valid.to(confidence.dtype)
+        return DepthResult(depth, valid, confidence, (s + 1.0) / self.step, match)
+
+    def visible(self, match: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor,
+                occluders: torch.Tensor | None = None) -> torch.Tensor:
+        """Z-buffer occlusion test in the other half (:func:`~prismstereo.depth.occlusion.zbuffer_visible` with
+        this level's split and ``occlusion_tolerance``). ``match`` (B, 2, H, W_ref), ``depth`` and ``valid``
+        (B, 1, H, W_ref); returns (B, 1, H, W_ref) bool."""
+        return zbuffer_visible(match, depth, valid, self.split.split, self.split.width - self.split.split,
+                               self.config.validity.occlusion_tolerance or 0.0, occluders)
+
+    def summary(self) -> str:
+        """The level in a few words (:meth:`PrismStereo.summary`)."""
+        if self.factor == 1:
+            return f"{self.num_hypotheses} hypotheses in one level"
+        return (f"{self.num_hypotheses} hypotheses, {self.config.search.sampling} coarse level with factor "
+                f"{self.factor} ({self.search.num_hypotheses} hypotheses), band +-{self.band}")
