@@ -19,7 +19,7 @@ import torch.nn.functional as F
 
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter, sgm_aggregate, sgm_aggregate_guided
-from prismstereo.matching.cost import COSTS, CostVolume, census_volume, cost_volume, shifted
+from prismstereo.matching.cost import COSTS, CostVolume, cost_volume, shifted
 from prismstereo.matching.postprocess import fill_background, median_filter, weighted_median
 from prismstereo.matching.select import (
     left_right_check,
@@ -386,13 +386,11 @@ def match_rectified(
         raise OptionError(f"num_disparities must be an int in [2, W), got {num_disparities!r}")
     ref, other = (left.mean(1, keepdim=True), right.mean(1, keepdim=True)) if options.grey else (left, right)
     offsets = -torch.arange(num_disparities, dtype=left.dtype, device=left.device)
-    if options.cost == "census":
-        volume = census_volume(ref, other, offsets, options.window, options.census_threshold)
-    elif options.cost == "ad_gradient":
+    if options.cost == "ad_gradient":
         volume = ad_gradient_volume(left, right, offsets, options.ad_threshold, options.gradient_threshold,
                                     options.gradient_weight)
     else:
-        volume = cost_volume(ref, other, offsets, options.cost, options.window)
+        volume = cost_volume(ref, other, offsets, options.cost, options.window, options.census_threshold)
     cost = volume.cost
     if options.out_of_range == "replicate":
         cost = _replicate_out_of_range(cost, volume.valid)
