@@ -21,6 +21,7 @@ from prismstereo.matching.cost import (
     Cost,
     CostVolume,
     Warped,
+    ad_gradient_volume,
     census_transform,
     cost_volume,
     shifted,
@@ -36,7 +37,7 @@ from prismstereo.matching.levels import (
     extend_estimate,
 )
 from prismstereo.matching.postprocess import RobustMean, fill_background, median_filter, robust_mean, weighted_median
-from prismstereo.matching.rectified import ad_gradient_volume, guided_filter
+from prismstereo.matching.rectified import guided_filter
 from prismstereo.matching.select import (
     Subpixel,
     left_right_check,
