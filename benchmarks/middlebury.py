@@ -18,7 +18,7 @@ longer):
     Venus    OpenCV StereoBM                  21.14     2.17        4
 
 (the previous defaults, census 7x7 + 8-direction SGM + medians + background fill, MatchOptions(cost='census',
-aggregation='sgm', subpixel_cost='local', subpixel_window=3, weighted_median=0): 5.35 % / 2.05 % in 170 / 370
+aggregation='sgm', subpixel_cost='local', subpixel_window=3, weighted_median=0): 5.25 % / 2.05 % in 170 / 370
 ms on the same machine; before those, census 5x5, box 7, constant P2, no fill: 11.20 % / 8.26 %.)
 
 Run: .venv/bin/python benchmarks/middlebury.py

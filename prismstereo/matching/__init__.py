@@ -3,8 +3,8 @@
 The depth model's path: :class:`SplitImage`, the coarse level (:class:`RectifiedSearch` / :class:`SweepSearch`
 with :func:`sweep_cost` / :func:`shift_cost`, :func:`box_filter`, :func:`sgm_aggregate`), the fine bands
 (:class:`FineBand`), the smoothing (:func:`robust_mean`) and the calibrated confidence
-(:class:`ConfidenceModel`). The rectified-pair matcher (``prismstereo match``) uses the same building blocks
-with its own costs and post-processing (:mod:`~prismstereo.matching.rectified`, :mod:`~prismstereo.matching.cost`).
+(:class:`ConfidenceModel`). The rectified-pair matcher (``prismstereo match``) uses the same costs on column
+shifts (:func:`cost_volume`) with its own post-processing (:mod:`~prismstereo.matching.rectified`).
 """
 
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate, sgm_aggregate_guided
@@ -20,11 +20,13 @@ from prismstereo.matching.cost import (
     COSTS,
     Cost,
     CostVolume,
-    census_codes,
+    Warped,
+    ad_gradient_volume,
     census_transform,
-    census_volume,
     cost_volume,
     shifted,
+    sweep_cost,
+    worst_cost,
 )
 from prismstereo.matching.levels import (
     FineBand,
@@ -35,7 +37,7 @@ from prismstereo.matching.levels import (
     extend_estimate,
 )
 from prismstereo.matching.postprocess import RobustMean, fill_background, median_filter, robust_mean, weighted_median
-from prismstereo.matching.rectified import ad_gradient_volume, guided_filter
+from prismstereo.matching.rectified import guided_filter
 from prismstereo.matching.select import (
     Subpixel,
     left_right_check,
@@ -46,7 +48,7 @@ from prismstereo.matching.select import (
     winner_take_all,
 )
 from prismstereo.matching.split import Halves, SplitImage
-from prismstereo.matching.sweep_cost import Warped, sample_slices, shift_cost, sweep_cost, warp_slices
+from prismstereo.matching.sweep_cost import sample_slices, shift_cost, warp_slices
 
 __all__ = [
     "SplitImage",
@@ -61,6 +63,7 @@ __all__ = [
     "sample_slices",
     "warp_slices",
     "sweep_cost",
+    "worst_cost",
     "shift_cost",
     "robust_mean",
     "RobustMean",
@@ -77,9 +80,7 @@ __all__ = [
     "box_std",
     "sgm_aggregate",
     "sgm_aggregate_guided",
-    "census_codes",
     "census_transform",
-    "census_volume",
     "cost_volume",
     "shifted",
     "fill_background",

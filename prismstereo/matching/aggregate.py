@@ -11,9 +11,9 @@ P2), where depth discontinuities usually are.
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 
 from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.matching._graph import box_mean, in_place, scan_eager, scan_traced
 
 __all__ = ["box_filter", "box_std", "sgm_aggregate", "sgm_aggregate_guided"]
 
@@ -31,11 +31,8 @@ def box_filter(volume: torch.Tensor, window: int) -> torch.Tensor:
     """Mean over a ``window`` x ``window`` box of every slice of a (B, D, H, W) volume, over the whole volume at
     once (borders average the pixels inside the image only).
 
-    Two implementations of the same mean, by runtime (each the fastest measured there; numbers in
-    ``docs/design.md``, *Implementation measurements*). Torch eager adds, in place, each slice's neighbours 1..r
-    rows away on both sides (no padding), then the same along W, and multiplies by the reciprocal pixel count, a
-    separable (row count x column count) map; an ONNX export gets one AveragePool (count_include_pad=0). The
-    forms agree to float rounding.
+    Torch eager and an ONNX export compute it in different forms that agree to float rounding
+    (:func:`~prismstereo.matching._graph.box_mean`: in-place shifted sums vs one AveragePool).
 
     Example:
         >>> box_filter(torch.ones(1, 3, 8, 8), 5).shape
@@ -48,19 +45,7 @@ def box_filter(volume: torch.Tensor, window: int) -> torch.Tensor:
         raise OptionError(f"window must be a positive odd int, got {window!r}")
     if window == 1:
         return volume
-    r = window // 2
-    if torch.onnx.is_in_onnx_export():
-        return F.avg_pool2d(volume, window, stride=1, padding=r, count_include_pad=False)
-    h, w = volume.shape[-2:]
-    rows = volume.clone()
-    for i in range(1, min(r, h - 1) + 1):  # each row gains its neighbours i rows below and above
-        rows[..., i:, :].add_(volume[..., :h - i, :])
-        rows[..., :h - i, :].add_(volume[..., i:, :])
-    sums = rows.clone()
-    for i in range(1, min(r, w - 1) + 1):
-        sums[..., i:].add_(rows[..., :w - i])
-        sums[..., :w - i].add_(rows[..., i:])
-    return sums.mul_(1.0 / (_counts(h, r, volume).view(-1, 1) * _counts(w, r, volume)))
+    return box_mean(volume, window)
 
 
 def box_std(image: torch.Tensor, window: int) -> torch.Tensor:
@@ -76,93 +61,6 @@ def box_std(image: torch.Tensor, window: int) -> torch.Tensor:
     mean, square = box_filter(torch.cat([image, image * image], 1), window).split(1, 1)
     # floored at 1e-12 before the root: a flat window's std is 1e-6 and its gradient 0, not infinite
     return (square - mean * mean).clamp_min(1e-12).sqrt()
-
-
-def _counts(n: int, r: int, like: torch.Tensor) -> torch.Tensor:
-    """Pixels of a 2 r + 1 window centred on each of n positions that lie inside [0, n)."""
-    i = torch.arange(n, device=like.device)
-    return (i.clamp(max=r) + (n - 1 - i).clamp(max=r) + 1).to(like.dtype)
-
-
-def _neighbour_max(q: torch.Tensor) -> torch.Tensor:
-    """max(q(d - 1), q(d + 1)) over the hypothesis axis 2 of (N, 1, D, X) (one neighbour at the ends); in an
-    ONNX export max(q(d - 1), q(d), q(d + 1)), the same inside :func:`_scan`."""
-    if torch.onnx.is_in_onnx_export():
-        return F.max_pool2d(q, (3, 1), stride=1, padding=(1, 0))
-    return torch.cat([q[:, :, 1:2], torch.maximum(q[:, :, :-2], q[:, :, 2:]), q[:, :, -2:-1]], 2)
-
-
-def _scan(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
-          p2s: torch.Tensor | None = None) -> torch.Tensor:
-    """One forward scan along axis 0 of ``volume`` = -C (S, N, D, X) in negated form; returns -L_r, same shape.
-    ``p2s``: optional (S, N, 1, X) jump penalties (into each slice).
-
-    Negated, the recursion is Q(p) = -C(p) + max(Q_n, N(Q_n) - P1, -P2) with Q_n = Q(p - r) - max_d Q(p - r)
-    the predecessor normalised to a maximum of 0 and N the neighbours' maximum max(Q_n(d - 1), Q_n(d + 1)) (the
-    same numbers as max(Q', N(Q') - P1, M - P2) - M up to rounding; normalised first, the P2 term is a Clip at
-    -P2, one graph node less). In an ONNX export N is one MaxPool over 3 hypotheses (it also covers d itself,
-    which cannot win there since P1 >= 0): 7 graph nodes per scan step (ReduceMax, Sub, MaxPool, Sub, Max,
-    Clip, Add; ONNX has a MaxPool, no MinPool). The slices are taken along axis 0 with one Split and the steps
-    concatenated back along it (no Reshape, Squeeze or Unsqueeze per step); the alternatives measured are in
-    ``docs/design.md`` (*Implementation measurements*). Differentiable torch eager keeps the Slice / Maximum /
-    Concat form (its max_pool2d also computes indices, ~5x slower per step); without autograd
-    :func:`_scan_eager` computes the same values faster (the same operations in the same order: bitwise). A
-    ``shift`` of 1 makes the scan diagonal: the predecessor of position x in a slice is x - 1 in the previous
-    slice.
-    """
-    s, n, d, x = volume.shape
-    # rank-changing Reshapes (to 5-D and back) before the Split: onnxruntime's transpose optimizer cannot push the
-    # orienting Transposes through them (it folded them into a strided Split along the last axis: 5 ms instead of
-    # ~0.5), and the Split yields the 4-D slices directly (a Reshape per slice before: one graph node per scan step
-    # more; without them the scans of the narrow range's coarse volume, (1, 28, 192, 128), took 0.95x the time)
-    slices = volume.reshape(s, 1, n, d, x).reshape(s, n, d, x).split(1, dim=0)
-    floors = None if p2s is None else (-p2s).reshape(s, 1, n, 1, x).reshape(s, n, 1, x).split(1, dim=0)
-    starts = _starts(volume, shift)
-    out = [slices[0]]
-    for i in range(1, len(slices)):
-        prev = out[-1]
-        if shift:  # diagonal: position x continues the path of x - 1 in the previous slice
-            prev = torch.roll(prev, shifts=shift, dims=-1)  # positions without a predecessor are reset below
-        prev = prev - prev.amax(dim=2, keepdim=True)  # amax: max(dim) also computes indices, ~1000x slower here
-        best = torch.maximum(prev, _neighbour_max(prev) - p1)
-        best = best.clamp_min(-p2) if floors is None else torch.maximum(best, floors[i])
-        cur = slices[i] + best
-        if shift:
-            cur = torch.where(starts, cur, slices[i])
-        out.append(cur)
-    return torch.cat(out, dim=0)
-
-
-def _scan_eager(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
-                p2s: torch.Tensor | None = None) -> torch.Tensor:
-    """:func:`_scan` (same arguments) without autograd, same values bitwise: (S, N, D, X), a view of one
-    preallocated (S, N, D + 2, X) buffer whose rows 0 and D + 1 are -inf. Each step writes into its slice of the
-    buffer, and the neighbours' maximum of the previous step is one ``maximum`` of its rows shifted by +-1 (no
-    Concat per step, no concatenation of the steps at the end)."""
-    s, n, d, x = volume.shape
-    out = volume.new_empty(s, n, d + 2, x)
-    out[:, :, 0].fill_(float("-inf"))
-    out[:, :, d + 1].fill_(float("-inf"))
-    out[0, :, 1:d + 1].copy_(volume[0])
-    starts = _starts(volume, shift)
-    floors = None if p2s is None else -p2s
-    for i in range(1, s):
-        c, cur, padded = volume[i], out[i, :, 1:d + 1], out[i - 1]
-        if shift:  # diagonal: position x continues the path of x - 1 in the previous slice
-            padded = torch.roll(padded, shifts=shift, dims=-1)  # positions without a predecessor: reset below
-        padded = padded - padded[:, 1:d + 1].amax(dim=1, keepdim=True)  # the -inf rows stay -inf
-        prev = padded[:, 1:d + 1]
-        best = torch.maximum(prev, torch.maximum(padded[:, :d], padded[:, 2:]).sub_(p1))
-        best = best.clamp_min_(-p2) if floors is None else torch.maximum(best, floors[i], out=best)
-        torch.add(c, best, out=cur)
-        if shift:
-            cur.copy_(torch.where(starts, cur, c))
-    return out[:, :, 1:d + 1]
-
-
-def _starts(like: torch.Tensor, shift: int) -> torch.Tensor:
-    """(X,) positions of a slice that have a predecessor in a scan with this ``shift`` (0 or 1)."""
-    return torch.arange(like.shape[-1], device=like.device) >= shift
 
 
 def _flips(reverse: bool, shift: int) -> list[int]:
@@ -189,7 +87,7 @@ def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
     one scan computes both horizontal paths, one both vertical ones, and one the four diagonal ones (8
     directions; those with a shift of -1 flipped to +1). The paths along one axis are summed in their oriented
     layout (the W-axis ones in ``_DIRECTIONS`` order), the two sums transposed back and added. Without autograd
-    in torch eager the scans are :func:`_scan_eager` and the sums are taken in place.
+    in torch eager the scans are :func:`~prismstereo.matching._graph.scan_eager` and the sums are taken in place.
 
     Measured on the 1/8-resolution coarse volume of a 1024 x 768 frame ((1, 49, 64, 97), 4 directions,
     2 threads, medians of 20 alternating runs): onnxruntime 13.0-14.3 -> 10.4-10.9 ms (half the graph nodes:
@@ -198,8 +96,8 @@ def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
     elements per step outweighed the fewer nodes (~2 us each); on the narrow range's coarse volume
     (1, 28, 192, 128): 192 steps instead of 320, 1.17x the time.
     """
-    fast = not torch.onnx.is_in_onnx_export() and not (torch.is_grad_enabled() and negated.requires_grad)
-    scan = _scan_eager if fast else _scan
+    fast = in_place(negated)
+    scan = scan_eager if fast else scan_traced
     chosen = _DIRECTIONS[directions]
     b = negated.shape[0]
     sums: dict[int, torch.Tensor] = {}  # per scanned axis, in its oriented (S, B, D, X) layout

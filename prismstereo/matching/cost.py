@@ -1,39 +1,59 @@
-"""Matching costs on shift-based cost volumes: SAD, ZNCC and census (Hamming).
+"""Matching costs of a reference image against views of the other image: SAD, ZNCC and census (Hamming).
 
-A cost volume compares each reference pixel (v, u) with the other image at column u + offset_i for D
-hypotheses (fractional offsets interpolate linearly between columns). For a conventional rectified pair
-with disparity d (right column = u - d) the offsets are -d; for the bi-prism's shift-band form
-(:mod:`prismstereo.epipolar.grids`) they are the band shifts. Slices are built by slicing, never by one
-``grid_sample`` per hypothesis.
+A *view* is the other image resampled onto the reference pixels for one hypothesis; :class:`Warped` holds the
+views of all D hypotheses and their validity. The depth model builds them by a plane-sweep warp
+(:func:`~prismstereo.matching.sweep_cost.warp_slices`) or a gather of columns
+(:func:`~prismstereo.matching.sweep_cost.shift_cost`), the rectified-pair matcher (``prismstereo match``) by
+column shifts (:func:`shifted`, :func:`cost_volume`); every cost is computed here, once, by :func:`sweep_cost`.
+The rectified matcher's default cost, :func:`ad_gradient_volume` (truncated colour + gradient difference), is a
+per-pixel cost of its own on the same column shifts.
 
 Costs (lower is better), all (B, D, H, W):
 
-* ``'sad'``: mean over channels of |I_ref - I_other| per pixel (aggregate with a box afterwards).
-* ``'census'``: Hamming distance between census codes (``window`` x ``window`` neighbourhood, one bit per
-  neighbour and channel: darker than the centre), per pixel, in [0, bits]. Integer offsets (a rectified
-  pair's disparities) compare bit-packed codes (:func:`census_codes`, :func:`census_volume`): the same
-  values, ~20x faster than one float channel per bit.
-* ``'zncc'``: 1 - zero-normalised cross-correlation over a ``window`` x ``window`` window, in [0, 2].
+* ``'sad'``: mean over channels of |I_ref - I_view| per pixel (aggregate with a box afterwards);
+  differentiable w.r.t. both images.
+* ``'census'``: Hamming distance between the census bits (:func:`census_transform`: ``window`` x ``window``,
+  one bit per neighbour and channel, set where the neighbour is darker than the centre by more than a
+  threshold) of the reference and of each view, in [0, bits].
+* ``'zncc'``: 1 - zero-normalised cross-correlation of the grey windows, in [0, 2], each window's variance
+  floored at ~ the variance of 8-bit read noise (:func:`ncc_cost`); differentiable.
 
-Out-of-range samples get the cost's worst value and ``valid`` False.
+Views that are not valid get the cost's worst value (:func:`worst_cost`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import Literal, NamedTuple
 
 import torch
 import torch.nn.functional as F
 
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.matching._graph import fill_invalid
 from prismstereo.matching.aggregate import box_filter
 
-__all__ = ["Cost", "COSTS", "CostVolume", "census_transform", "census_codes", "shifted", "cost_volume",
-           "census_volume"]
+__all__ = ["Cost", "COSTS", "CostVolume", "Warped", "ad_gradient_volume", "census_transform", "cost_volume", "grey",
+           "ncc_cost", "shifted", "sweep_cost", "window_moments", "worst_cost", "zncc_cost"]
 
 Cost = Literal["sad", "zncc", "census"]
 COSTS: tuple[str, ...] = ("sad", "zncc", "census")
+
+_VAR_FLOOR = 1e-5  # (0.8 / 255)^2: below the variance of 8-bit read noise of 1 level
+
+
+class Warped(NamedTuple):
+    """Views of the other image at every hypothesis.
+
+    Attributes:
+        image: (B, C, D, H, W) samples.
+        valid: (B, D, H, W) bool (or broadcastable to it): the sample is real (for a plane-sweep warp: every
+            bilinear tap lies inside the other half on a pixel that sees through the prism).
+    """
+
+    image: torch.Tensor
+    valid: torch.Tensor
 
 
 class CostVolume(NamedTuple):
@@ -53,16 +73,34 @@ def _check_window(window: int) -> None:
         raise OptionError(f"window must be a positive odd int, got {window!r}")
 
 
-def census_transform(image: torch.Tensor, window: int = 5) -> torch.Tensor:
+def _darker(padded: torch.Tensor, centre: torch.Tensor, window: int) -> Iterator[torch.Tensor]:
+    """Census bits of ``centre`` (..., H, W) against each neighbour of the replicate-padded ``padded``
+    (..., H + 2 r, W + 2 r), in raster order without the centre: bool, neighbour < centre."""
+    r = window // 2
+    h, w = centre.shape[-2:]
+    for dy in range(window):
+        for dx in range(window):
+            if (dy, dx) != (r, r):
+                yield padded[..., dy:dy + h, dx:dx + w] < centre
+
+
+def census_transform(image: torch.Tensor, window: int = 5, threshold: float = 0.0) -> torch.Tensor:
     """Census bits: for every neighbour of a ``window`` x ``window`` window and every channel, 1 where the
-    neighbour is darker than the centre. Borders replicate the edge.
+    neighbour is darker than the centre by more than ``threshold``. Borders replicate the edge.
+
+    A small threshold (a few grey levels) keeps the bits of flat, noisy regions at 0 in both images instead of
+    flipping at random with the noise; 0 is the classic census.
 
     Args:
         image: (B, C, H, W).
         window: odd window size (>= 3).
+        threshold: >= 0, in image units (2 / 255 is two grey levels of an 8-bit image in [0, 1]).
 
     Returns:
-        (B, C * (window^2 - 1), H, W) float tensor of 0/1 bits.
+        (B, C * (window^2 - 1), H, W) tensor of 0/1 bits, dtype of ``image``.
+
+    Raises:
+        ShapeError: ``image`` is not (B, C, H, W). OptionError: bad window or negative threshold.
 
     Example:
         >>> census_transform(torch.rand(1, 1, 6, 7), 3).shape
@@ -72,63 +110,123 @@ def census_transform(image: torch.Tensor, window: int = 5) -> torch.Tensor:
     _check_window(window)
     if window < 3:
         raise OptionError(f"census window must be >= 3, got {window}")
-    return _census_bits(image, window, 0.0).to(image.dtype)
-
-
-def _census_bits(image: torch.Tensor, window: int, threshold: float) -> torch.Tensor:
-    """(B, C * (window^2 - 1), H, W) bool: neighbour < centre - threshold (borders replicate the edge)."""
-    r = window // 2
-    padded = F.pad(image, (r, r, r, r), mode="replicate")
-    h, w = image.shape[-2:]
-    centre = image - threshold
-    return torch.cat([padded[..., dy:dy + h, dx:dx + w] < centre
-                      for dy in range(window) for dx in range(window) if (dy, dx) != (r, r)], dim=1)
-
-
-def census_codes(image: torch.Tensor, window: int = 5, threshold: float = 0.0) -> torch.Tensor:
-    """Bit-packed census codes: the bits of :func:`census_transform`, eight to a byte.
-
-    A bit is set where the neighbour is darker than the centre by more than ``threshold`` (0: the classic
-    census, identical bits to :func:`census_transform`). A small threshold (a few grey levels) keeps the
-    bits of flat, noisy regions at 0 in both images instead of flipping at random with the noise.
-
-    Args:
-        image: (B, C, H, W), floating point.
-        window: odd window size (>= 3).
-        threshold: >= 0, in image units (2 / 255 is two grey levels of an 8-bit image in [0, 1]).
-
-    Returns:
-        (B, ceil(C * (window^2 - 1) / 8), H, W) uint8 codes; :func:`census_volume` compares them.
-
-    Raises:
-        ShapeError: ``image`` is not (B, C, H, W). OptionError: bad window or negative threshold.
-
-    Example:
-        >>> census_codes(torch.rand(1, 1, 6, 7), 5).shape  # 24 bits: 3 bytes
-        torch.Size([1, 3, 6, 7])
-    """
-    check_shape(image, ["B", "C", "H", "W"], "image")
-    _check_window(window)
-    if window < 3:
-        raise OptionError(f"census window must be >= 3, got {window}")
     if not threshold >= 0:
         raise OptionError(f"census threshold must be >= 0, got {threshold}")
-    bits = _census_bits(image, window, threshold)
-    b, k, h, w = bits.shape
-    bits = F.pad(bits.to(torch.uint8), (0, 0, 0, 0, 0, -k % 8)).view(b, -1, 8, h, w)
-    weights = torch.tensor([1, 2, 4, 8, 16, 32, 64, 128], dtype=torch.uint8, device=image.device)
-    return (bits * weights.view(1, 1, 8, 1, 1)).sum(2).to(torch.uint8)
+    r = window // 2
+    padded = F.pad(image, (r, r, r, r), mode="replicate")
+    return torch.cat(list(_darker(padded, image - threshold, window)), dim=1).to(image.dtype)
 
 
-def _popcount(codes: torch.Tensor) -> torch.Tensor:
-    """Set bits per byte of a uint8 tensor (SWAR: shifts, masks and adds, no lookup)."""
-    x = codes - ((codes >> 1) & 0x55)
-    x = (x & 0x33) + ((x >> 2) & 0x33)
-    return (x + (x >> 4)) & 0x0F
+def worst_cost(cost: Cost, channels: int, window: int) -> float:
+    """The largest value of a cost: the fill for invalid samples.
+
+    Example:
+        >>> worst_cost("census", 1, 5)
+        24.0
+    """
+    check_option(cost, COSTS, "cost")
+    return {"sad": 1.0, "zncc": 2.0, "census": float(channels * (window * window - 1))}[cost]
+
+
+def census_cost(reference: torch.Tensor, views: torch.Tensor, window: int, threshold: float) -> torch.Tensor:
+    """Hamming distance (B, D, H, W) between the census bits of ``reference`` (B, C, H, W) and of each view
+    (B, C, D, H, W), counted neighbour by neighbour (no (B, C * bits, D, H, W) tensor of bits)."""
+    r = window // 2
+    centre_r = reference.unsqueeze(2) - threshold  # (B, C, 1, H, W)
+    centre_v = views - threshold
+    pad_ref = F.pad(reference, (r, r, r, r), mode="replicate").unsqueeze(2)
+    pad_v = F.pad(views, (r, r, r, r, 0, 0), mode="replicate")
+    count = None
+    for bits_r, bits_v in zip(_darker(pad_ref, centre_r, window), _darker(pad_v, centre_v, window), strict=True):
+        differ = torch.logical_xor(bits_r, bits_v).to(views.dtype)
+        count = differ if count is None else count + differ
+    return count.sum(1) if count.shape[1] > 1 else count.squeeze(1)  # over channels once, at the end
+
+
+def grey(x: torch.Tensor) -> torch.Tensor:
+    """Channel mean of (B, C, ...), keeping the channel axis (no ReduceMean, a copy in onnxruntime, for one
+    channel)."""
+    return x if x.shape[1] == 1 else x.mean(1, keepdim=True)
+
+
+def window_moments(x: torch.Tensor, window: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Window mean and variance (clamped at 0) of every plane of (B, K, H, W), each (B, K, H, W)."""
+    if x.shape[1] == 1:  # one plane: x and x^2 in one box (onnxruntime pools a channel on one thread: 2 for 1)
+        mean, square = box_filter(torch.cat([x, x * x], 1), window).split(1, 1)
+    else:
+        mean, square = box_filter(x, window), box_filter(x * x, window)
+    return mean, (square - mean * mean).clamp_min(0)
+
+
+def ncc_cost(cross: torch.Tensor, var_r: torch.Tensor, var_v: torch.Tensor) -> torch.Tensor:
+    """1 - NCC in [0, 2] from the window covariance and the two variances, each variance floored at ~ the
+    variance of 8-bit noise: windows without texture (e.g. the black pixels outside the prism's view) get
+    NCC ~ 0 instead of a ratio of rounding errors (torch and onnxruntime differed by 0.02 without)."""
+    ncc = cross / torch.sqrt((var_r + _VAR_FLOOR) * (var_v + _VAR_FLOOR))
+    return 1.0 - ncc.clamp(-1, 1)
+
+
+def zncc_cost(reference: torch.Tensor, views: torch.Tensor, window: int) -> torch.Tensor:
+    """1 - ZNCC (B, D, H, W) of the grey ``reference`` (B, C, H, W) against each grey view (B, C, D, H, W)."""
+    # centred on 0.5 (ZNCC is offset-invariant): E[x^2] - E[x]^2 then cancels far less in float32, which keeps
+    # torch and onnxruntime within ~1e-6 of each other on low-contrast windows
+    ref = grey(reference) - 0.5  # (B, 1, H, W)
+    view = grey(views).squeeze(1) - 0.5  # (B, D, H, W)
+    mean_r, var_r = window_moments(ref, window)
+    mean_v, var_v = window_moments(view, window)
+    cross = box_filter(view * ref, window) - mean_v * mean_r
+    return ncc_cost(cross, var_r, var_v)
+
+
+def sweep_cost(
+    reference: torch.Tensor, warped: Warped, cost: Cost = "census", window: int = 5, census_threshold: float = 0.0
+) -> torch.Tensor:
+    """Per-pixel matching cost of the reference against each view.
+
+    Args:
+        reference: (B, C, H, W) reference in [0, 1].
+        warped: the views, image (B, C, D, H, W) (e.g.
+            :func:`~prismstereo.matching.sweep_cost.warp_slices` of the other half).
+        cost: 'sad', 'zncc' or 'census'.
+        window: census / ZNCC window (odd; census >= 3).
+        census_threshold: a census bit is set where the neighbour is darker than the centre by more than this
+            (>= 0). A threshold that is not a multiple of 1/255 keeps 8-bit ties (equal neighbours) from
+            flipping bits on rounding differences between runtimes (torch vs onnxruntime).
+
+    Returns:
+        (B, D, H, W) cost, the worst value (:func:`worst_cost`) where the view is not valid.
+
+    Raises:
+        OptionError: unknown cost, bad window or negative threshold. ShapeError: reference and views disagree.
+
+    Example:
+        >>> ref = torch.rand(1, 1, 12, 16)
+        >>> slices = Warped(ref.unsqueeze(2).repeat(1, 1, 3, 1, 1), torch.ones(1, 3, 12, 16, dtype=torch.bool))
+        >>> float(sweep_cost(ref, slices, "census").abs().max())
+        0.0
+    """
+    check_option(cost, COSTS, "cost")
+    check_shape(reference, ["B", "C", "H", "W"], "reference")
+    check_shape(warped.image, ["B", "C", "D", "H", "W"], "warped.image")
+    if not isinstance(window, int) or window < 1 or window % 2 == 0 or (cost == "census" and window < 3):
+        raise OptionError(f"window must be an odd int (>= 3 for census), got {window!r}")
+    if warped.image.shape[:2] != reference.shape[:2] or warped.image.shape[-2:] != reference.shape[-2:]:
+        raise ShapeError(f"reference {tuple(reference.shape)} does not match slices {tuple(warped.image.shape)}")
+    if not census_threshold >= 0:
+        raise OptionError(f"census_threshold must be >= 0, got {census_threshold}")
+    if cost == "census":
+        volume = census_cost(reference, warped.image, window, census_threshold)
+    elif cost == "sad":
+        volume = (reference.unsqueeze(2) - warped.image).abs().mean(1)
+    else:
+        volume = zncc_cost(reference, warped.image, window)
+    # ZNCC (1 - a clamped NCC) and census counts lie in [0, worst]; SAD only for images in [0, 1]
+    return fill_invalid(volume, warped.valid, worst_cost(cost, reference.shape[1], window), bounded=cost != "sad")
 
 
 def shifted(other: torch.Tensor, offset: float, width: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Columns u + offset (u = 0..width-1) of ``other`` (B, C, H, W_o), linearly interpolated.
+    """Columns u + offset (u = 0..width-1) of ``other`` (B, C, H, W_o), linearly interpolated; columns outside
+    take the edge column's values (``grid_sample``'s border padding, as the depth model's views do).
 
     Returns:
         (view (B, C, H, width), valid (width,) bool: 0 <= u + offset <= W_o - 1).
@@ -136,18 +234,17 @@ def shifted(other: torch.Tensor, offset: float, width: int) -> tuple[torch.Tenso
     Example:
         >>> view, ok = shifted(torch.arange(5.0).view(1, 1, 1, 5), 1.5, 4)
         >>> view.flatten(), ok
-        (tensor([1.5000, 2.5000, 3.5000, 0.0000]), tensor([ True,  True,  True, False]))
+        (tensor([1.5000, 2.5000, 3.5000, 4.0000]), tensor([ True,  True,  True, False]))
     """
     w_o = other.shape[-1]
     base = math.floor(offset)
     frac = offset - base
     x = torch.arange(width, device=other.device) + base
     valid = (x >= 0) & ((x + (1 if frac > 0 else 0)) <= w_o - 1)
-    i0 = x.clamp(0, w_o - 1)
-    out = other.index_select(-1, i0)
+    out = other.index_select(-1, x.clamp(0, w_o - 1))
     if frac > 0:
         out = (1 - frac) * out + frac * other.index_select(-1, (x + 1).clamp(0, w_o - 1))
-    return out * valid.to(other.dtype), valid
+    return out, valid
 
 
 def cost_volume(
@@ -156,21 +253,25 @@ def cost_volume(
     offsets: torch.Tensor,
     cost: Cost = "census",
     window: int = 5,
+    census_threshold: float = 0.0,
 ) -> CostVolume:
-    """Compare reference pixels with the other image at columns u + offset_i.
+    """Compare reference pixels with the other image at columns u + offset_i: :func:`sweep_cost` of the
+    :func:`shifted` views.
 
     Args:
         reference: (B, C, H, W) reference image in [0, 1].
         other: (B, C, H, W_o) the other image, row-aligned with the reference.
-        offsets: (D,) column offsets (px, fractional allowed).
+        offsets: (D,) column offsets (px, fractional allowed), e.g. ``-torch.arange(D)`` for the disparities
+            of a rectified pair.
         cost: 'sad', 'zncc' or 'census'.
-        window: census / ZNCC window (odd).
+        window: census / ZNCC window (odd; census >= 3).
+        census_threshold: see :func:`sweep_cost`.
 
     Returns:
-        CostVolume with cost (B, D, H, W).
+        CostVolume with cost (B, D, H, W), dtype of ``reference``.
 
     Raises:
-        OptionError: unknown cost or bad window. ShapeError: mismatching batch, channels or rows.
+        OptionError: unknown cost, bad window or threshold. ShapeError: mismatching batch, channels or rows.
 
     Example:
         >>> ref = torch.rand(1, 1, 20, 30); other = torch.roll(ref, -3, dims=-1)
@@ -185,101 +286,81 @@ def cost_volume(
     _check_window(window)
     if reference.shape[:3] != other.shape[:3]:
         raise ShapeError(f"reference {tuple(reference.shape)} and other {tuple(other.shape)} must share B, C, H")
+    if cost == "zncc":  # ZNCC compares grey windows: shift the grey image (linear)
+        reference, other = grey(reference), grey(other)
     width = reference.shape[-1]
-    valid = []
-    if cost == "census" and bool((offsets == offsets.round()).all()):
-        return census_volume(reference, other, offsets, window)
-    if cost == "census":
-        ref_bits, other_bits = census_transform(reference, window), census_transform(other, window)
-        slices = []
-        for off in offsets.tolist():
-            view, ok = shifted(other_bits, off, width)
-            worst = torch.full_like(view[:, 0], ref_bits.shape[1])
-            slices.append(torch.where(ok, (ref_bits - view).abs().sum(1), worst))
-            valid.append(ok)
-        volume = torch.stack(slices, dim=1)
-    elif cost == "sad":
-        slices = []
-        for off in offsets.tolist():
-            view, ok = shifted(other, off, width)
-            slices.append(torch.where(ok, (reference - view).abs().mean(1), torch.ones_like(view[:, 0])))
-            valid.append(ok)
-        volume = torch.stack(slices, dim=1)
-    else:
-        volume, valid = _zncc(reference, other, offsets, window)
+    views, valid = zip(*(shifted(other, off, width) for off in offsets.tolist()), strict=True)
     mask = torch.stack(valid).view(1, len(valid), 1, width)
+    volume = sweep_cost(reference, Warped(torch.stack(views, 2), mask), cost, window, census_threshold)
     return CostVolume(volume, mask)
 
 
-def census_volume(
-    reference: torch.Tensor, other: torch.Tensor, offsets: torch.Tensor, window: int = 5, threshold: float = 0.0
-) -> CostVolume:
-    """Census cost volume at integer column offsets from bit-packed codes (XOR and popcount per byte).
+def _x_gradient(image: torch.Tensor) -> torch.Tensor:
+    """(B, 1, H, W) central difference along W of the channel mean (edges replicated: one-sided halves)."""
+    grey = F.pad(image.mean(1, keepdim=True), (1, 1, 0, 0), mode="replicate")
+    return 0.5 * (grey[..., 2:] - grey[..., :-2])
 
-    With ``threshold`` 0 the values equal :func:`cost_volume`'s ``'census'`` cost (which calls this for
-    integer offsets); see :func:`census_codes` for the threshold.
+
+def ad_gradient_volume(
+    reference: torch.Tensor,
+    other: torch.Tensor,
+    offsets: torch.Tensor,
+    ad_threshold: float = 7.0 / 255.0,
+    gradient_threshold: float = 2.0 / 255.0,
+    gradient_weight: float = 0.95,
+) -> CostVolume:
+    """Truncated colour + gradient difference cost (Rhemann et al. 2011, "Fast cost-volume filtering").
+
+    C(u, i) = ((1 - a) min(mean_c |I_c(u) - I'_c(u + o_i)|, t_ad) + a min(|gx(u) - gx'(u + o_i)|, t_g))
+    / ((1 - a) t_ad + a t_g), in [0, 1], with gx the central difference along W of the channel mean and a the
+    gradient weight; the gradient term ignores brightness offsets between the views, the truncations limit
+    the weight of occluded and mismatched pixels. Cheap per pixel and sharp at object borders: meant to be
+    aggregated with an edge-aware filter (:func:`guided_filter`).
 
     Args:
-        reference: (B, C, H, W) reference image, floating point.
+        reference: (B, C, H, W) reference image in [0, 1].
         other: (B, C, H, W_o) the other image, row-aligned with the reference.
-        offsets: (D,) integer-valued column offsets (any dtype), e.g. ``-torch.arange(D)`` for disparities.
-        window: census window (odd, >= 3).
-        threshold: census threshold (>= 0, image units).
+        offsets: (D,) column offsets (px, fractional ones interpolate linearly), e.g. ``-torch.arange(D)``
+            for the disparities of a rectified pair.
+        ad_threshold: truncation of the colour difference (image units, > 0).
+        gradient_threshold: truncation of the gradient difference (image units per px, > 0).
+        gradient_weight: a, in [0, 1].
 
     Returns:
-        CostVolume: cost (B, D, H, W) Hamming distances in [0, C * (window^2 - 1)], dtype of ``reference``
-        (out-of-range samples get the maximum), valid (1, D, 1, W).
+        CostVolume: cost (B, D, H, W) in [0, 1], dtype of ``reference`` (1 where the sample is outside the
+        other image), valid (1, D, 1, W).
 
     Raises:
-        ShapeError: bad shapes. OptionError: fractional offsets, bad window or threshold.
+        ShapeError: bad shapes. OptionError: non-positive thresholds or a weight outside [0, 1].
 
     Example:
-        >>> left = torch.rand(1, 1, 12, 20, generator=torch.Generator().manual_seed(0))
+        >>> left = torch.rand(1, 3, 12, 20, generator=torch.Generator().manual_seed(0))
         >>> right = torch.roll(left, -3, dims=-1)
-        >>> vol = census_volume(left, right, -torch.arange(6), 5)
-        >>> int(vol.cost[0, :, 6, 10].argmin()), float(vol.cost[0, 3, 6, 10])
-        (3, 0.0)
+        >>> vol = ad_gradient_volume(left, right, -torch.arange(6))
+        >>> vol.cost.shape, int(vol.cost[0, :, 6, 10].argmin()), float(vol.cost[0, 3, 6, 10])
+        (torch.Size([1, 6, 12, 20]), 3, 0.0)
     """
     check_shape(reference, ["B", "C", "H", "W"], "reference")
     check_shape(other, ["B", "C", "H", "W"], "other")
     check_shape(offsets, ["D"], "offsets")
     if reference.shape[:3] != other.shape[:3]:
         raise ShapeError(f"reference {tuple(reference.shape)} and other {tuple(other.shape)} must share B, C, H")
-    if not bool((offsets == offsets.round()).all()):
-        raise OptionError("census_volume needs integer offsets (use cost_volume for fractional ones)")
-    ref_codes = census_codes(reference, window, threshold)
-    other_codes = census_codes(other, window, threshold)
-    bits = float(reference.shape[1] * (window * window - 1))
-    width, w_o = reference.shape[-1], other.shape[-1]
+    if not (ad_threshold > 0 and gradient_threshold > 0):
+        raise OptionError(f"ad_threshold and gradient_threshold must be > 0, got {ad_threshold}, "
+                          f"{gradient_threshold}")
+    if not 0 <= gradient_weight <= 1:
+        raise OptionError(f"gradient_weight must be in [0, 1], got {gradient_weight}")
+    width = reference.shape[-1]
+    scale = 1.0 / ((1 - gradient_weight) * ad_threshold + gradient_weight * gradient_threshold)
+    stack = torch.cat([other, _x_gradient(other)], dim=1)  # one shifted view per offset serves both terms
+    grad_ref = _x_gradient(reference)
+    channels = reference.shape[1]
     slices, valid = [], []
-    for off in offsets.round().long().tolist():
-        x = torch.arange(width, device=reference.device) + off
-        ok = (x >= 0) & (x <= w_o - 1)
-        view = other_codes.index_select(-1, x.clamp(0, w_o - 1))
-        hamming = _popcount(torch.bitwise_xor(ref_codes, view)).sum(1).to(reference.dtype)
-        slices.append(torch.where(ok, hamming, torch.full_like(hamming, bits)))
+    for off in offsets.tolist():
+        view, ok = shifted(stack, off, width)
+        ad = (reference - view[:, :channels]).abs().mean(1).clamp_max(ad_threshold)
+        gd = (grad_ref[:, 0] - view[:, channels]).abs().clamp_max(gradient_threshold)
+        cost = ((1 - gradient_weight) * ad + gradient_weight * gd) * scale
+        slices.append(torch.where(ok, cost, torch.ones_like(cost)))
         valid.append(ok)
     return CostVolume(torch.stack(slices, dim=1), torch.stack(valid).view(1, len(valid), 1, width))
-
-
-def _zncc(reference: torch.Tensor, other: torch.Tensor, offsets: torch.Tensor, window: int):
-    """1 - ZNCC over the window; products are box-filtered over the whole volume at once."""
-    width = reference.shape[-1]
-    gray_r, gray_o = reference.mean(1, keepdim=True), other.mean(1, keepdim=True)
-    mean_r = box_filter(gray_r, window)
-    var_r = (box_filter(gray_r * gray_r, window) - mean_r * mean_r).clamp_min(0)
-    mean_o = box_filter(gray_o, window)
-    var_o = (box_filter(gray_o * gray_o, window) - mean_o * mean_o).clamp_min(0)
-    stats_o = torch.cat([gray_o, mean_o, var_o], dim=1)  # one shifted view per offset serves all three
-    prods, m_o, v_o, valid = [], [], [], []
-    for off in offsets.tolist():
-        view, ok = shifted(stats_o, off, width)
-        prods.append(gray_r[:, 0] * view[:, 0])
-        m_o.append(view[:, 1])
-        v_o.append(view[:, 2])
-        valid.append(ok)
-    cross = box_filter(torch.stack(prods, 1), window)
-    mo, vo = torch.stack(m_o, 1), torch.stack(v_o, 1)
-    ncc = (cross - mean_r * mo) / torch.sqrt(var_r * vo + 1e-12)
-    ok = torch.stack(valid).view(1, len(valid), 1, width)
-    return torch.where(ok, 1.0 - ncc.clamp(-1, 1), torch.full_like(ncc, 2.0)), valid

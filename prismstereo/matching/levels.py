@@ -28,7 +28,9 @@ from torch import nn
 from prismstereo.epipolar.row_rectify import RectifiedLevel
 from prismstereo.epipolar.table import column_to_sweep, positions_at, series_at, series_band
 from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.matching._graph import fill_invalid, tracing
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
+from prismstereo.matching.cost import Warped, grey, sweep_cost, worst_cost
 from prismstereo.matching.select import (
     left_right_check,
     soft_argmin_local,
@@ -36,17 +38,7 @@ from prismstereo.matching.select import (
     uniqueness,
     winner_take_all,
 )
-from prismstereo.matching.sweep_cost import (
-    Warped,
-    _fill,
-    _grey,
-    sample_points,
-    sample_slices,
-    shift_cost,
-    sweep_cost,
-    warp_slices,
-    worst_cost,
-)
+from prismstereo.matching.sweep_cost import sample_points, sample_slices, shift_cost, warp_slices
 
 __all__ = ["Extended", "FineBand", "LevelResult", "RectifiedSearch", "SearchOptions", "SweepSearch", "extend_estimate"]
 
@@ -251,7 +243,7 @@ class RectifiedSearch(_Search):
             # no winner at invalid entries: the largest finite value, so that the fill is bounded (total >= 0): a
             # Max in an exported graph instead of a Where, which onnxruntime runs on one thread (0.8 ms in a profile
             # of the narrow-range frame, 600-1450 mm; the frame time did not change measurably); winners unchanged
-            right = _fill(right, self.right_valid, torch.finfo(right.dtype).max, bounded=True)
+            right = fill_invalid(right, self.right_valid, torch.finfo(right.dtype).max, bounded=True)
             k_right = winner_take_all(right)[0].transpose(-1, -2).to(reference.dtype)  # (B, 1, H_r, W_ol)
             # disparity in left_right_check's convention (other column = reference column - d): d = -shift
             ok = ok & left_right_check(-(first + refined.detach()), -(first + k_right), self.lr_threshold)
@@ -327,7 +319,7 @@ class FineBand(nn.Module):
         (2, H, W) each pixel's valid s (:func:`~prismstereo.epipolar.table.valid_interval`); ``texture`` optionally
         (B, 1, H, W) the reference's grey :func:`~prismstereo.matching.aggregate.box_std` over the cost window
         (the wide box's weight; computed here when None)."""
-        exporting = torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()
+        exporting = tracing()
         h = reference.shape[-2]
         halo = self.options.window // 2 + max(self.options.box, self.options.wide_box) // 2
         # per image when exporting: the graph's batch axis is dynamic, and a traced batch size in this
@@ -356,7 +348,7 @@ class FineBand(nn.Module):
         x, y = series_band(series, s0, offsets, top, origin=(self.split, 0.0))
         channels = reference.shape[1]
         if o.cost == "zncc":  # ZNCC compares grey windows: sample the grey image (linear)
-            reference, other = _grey(reference), _grey(other)
+            reference, other = grey(reference), grey(other)
         lo, hi = interval.to(reference).unbind(0)
         t = offsets.view(1, -1, 1, 1)  # s0 + t_j within the pixel's interval (beyond [-1, 1]: outside it)
         warped = Warped(sample_points(other, x, y), (t >= lo - s0) & (t <= hi - s0))
@@ -364,7 +356,7 @@ class FineBand(nn.Module):
         local = box_filter(volume, o.box)
         if o.wide_box > o.box:  # weak texture: the cost averaged over a wider box (see FineBand)
             if texture is None:
-                texture = box_std(_grey(reference), o.window)
+                texture = box_std(grey(reference), o.window)
             weight = (1.0 - texture.detach() / o.weak_texture).clamp(0.0, 1.0)  # a weight, not a path of gradients
             local = local + weight * (box_filter(volume, o.wide_box) - local)
         if o.band_edges == "clamp" and self.band == 1:  # the winner is always the centre: static slices

@@ -5,8 +5,8 @@ aggregation and selection layers the bi-prism model uses, on an already rectifie
 Convention: disparity d >= 0 with right column = left column - d (the usual rectified convention).
 
 Besides the shared layers it has the pieces of cost-volume filtering (Rhemann et al. 2011) used by the
-defaults of :class:`MatchOptions`: :func:`ad_gradient_volume` (truncated colour + gradient difference) and
-:func:`guided_filter` (edge-aware aggregation of a cost volume).
+defaults of :class:`MatchOptions`: :func:`~prismstereo.matching.cost.ad_gradient_volume` (truncated colour +
+gradient difference) and :func:`guided_filter` (edge-aware aggregation of a cost volume).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import torch.nn.functional as F
 
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter, sgm_aggregate, sgm_aggregate_guided
-from prismstereo.matching.cost import COSTS, CostVolume, census_volume, cost_volume, shifted
+from prismstereo.matching.cost import COSTS, ad_gradient_volume, cost_volume
 from prismstereo.matching.postprocess import fill_background, median_filter, weighted_median
 from prismstereo.matching.select import (
     left_right_check,
@@ -29,8 +29,7 @@ from prismstereo.matching.select import (
     winner_take_all,
 )
 
-__all__ = ["MatchOptions", "MatchResult", "match_rectified", "right_view_volume", "ad_gradient_volume",
-           "guided_filter"]
+__all__ = ["MatchOptions", "MatchResult", "match_rectified", "right_view_volume", "guided_filter"]
 
 RectifiedCost = Literal["census", "sad", "zncc", "ad_gradient"]
 RECTIFIED_COSTS: tuple[str, ...] = (*COSTS, "ad_gradient")
@@ -60,7 +59,7 @@ class MatchOptions:
     integer ground truth rewards and Venus's sub-pixel one does not.
 
     The previous defaults (census 7x7 with a 2-grey-level threshold, 8-direction SGM with P1 32 / P2 384 and
-    ``p2_edge`` 0.013, 5x5 medians: 5.4 % / 2.1 %) are ``cost='census'``, ``aggregation='sgm'``,
+    ``p2_edge`` 0.013, 5x5 medians: 5.2 % / 2.1 %) are ``cost='census'``, ``aggregation='sgm'``,
     ``subpixel_cost='local'``, ``subpixel_window=3``, ``weighted_median=0``.
 
     Args:
@@ -207,77 +206,6 @@ def right_view_volume(volume: torch.Tensor) -> torch.Tensor:
     return torch.stack(slices, dim=1)
 
 
-def _x_gradient(image: torch.Tensor) -> torch.Tensor:
-    """(B, 1, H, W) central difference along W of the channel mean (edges replicated: one-sided halves)."""
-    grey = F.pad(image.mean(1, keepdim=True), (1, 1, 0, 0), mode="replicate")
-    return 0.5 * (grey[..., 2:] - grey[..., :-2])
-
-
-def ad_gradient_volume(
-    reference: torch.Tensor,
-    other: torch.Tensor,
-    offsets: torch.Tensor,
-    ad_threshold: float = 7.0 / 255.0,
-    gradient_threshold: float = 2.0 / 255.0,
-    gradient_weight: float = 0.95,
-) -> CostVolume:
-    """Truncated colour + gradient difference cost (Rhemann et al. 2011, "Fast cost-volume filtering").
-
-    C(u, i) = ((1 - a) min(mean_c |I_c(u) - I'_c(u + o_i)|, t_ad) + a min(|gx(u) - gx'(u + o_i)|, t_g))
-    / ((1 - a) t_ad + a t_g), in [0, 1], with gx the central difference along W of the channel mean and a the
-    gradient weight; the gradient term ignores brightness offsets between the views, the truncations limit
-    the weight of occluded and mismatched pixels. Cheap per pixel and sharp at object borders: meant to be
-    aggregated with an edge-aware filter (:func:`guided_filter`).
-
-    Args:
-        reference: (B, C, H, W) reference image in [0, 1].
-        other: (B, C, H, W_o) the other image, row-aligned with the reference.
-        offsets: (D,) column offsets (px, fractional ones interpolate linearly), e.g. ``-torch.arange(D)``
-            for the disparities of a rectified pair.
-        ad_threshold: truncation of the colour difference (image units, > 0).
-        gradient_threshold: truncation of the gradient difference (image units per px, > 0).
-        gradient_weight: a, in [0, 1].
-
-    Returns:
-        CostVolume: cost (B, D, H, W) in [0, 1], dtype of ``reference`` (1 where the sample is outside the
-        other image), valid (1, D, 1, W).
-
-    Raises:
-        ShapeError: bad shapes. OptionError: non-positive thresholds or a weight outside [0, 1].
-
-    Example:
-        >>> left = torch.rand(1, 3, 12, 20, generator=torch.Generator().manual_seed(0))
-        >>> right = torch.roll(left, -3, dims=-1)
-        >>> vol = ad_gradient_volume(left, right, -torch.arange(6))
-        >>> vol.cost.shape, int(vol.cost[0, :, 6, 10].argmin()), float(vol.cost[0, 3, 6, 10])
-        (torch.Size([1, 6, 12, 20]), 3, 0.0)
-    """
-    check_shape(reference, ["B", "C", "H", "W"], "reference")
-    check_shape(other, ["B", "C", "H", "W"], "other")
-    check_shape(offsets, ["D"], "offsets")
-    if reference.shape[:3] != other.shape[:3]:
-        raise ShapeError(f"reference {tuple(reference.shape)} and other {tuple(other.shape)} must share B, C, H")
-    if not (ad_threshold > 0 and gradient_threshold > 0):
-        raise OptionError(f"ad_threshold and gradient_threshold must be > 0, got {ad_threshold}, "
-                          f"{gradient_threshold}")
-    if not 0 <= gradient_weight <= 1:
-        raise OptionError(f"gradient_weight must be in [0, 1], got {gradient_weight}")
-    width = reference.shape[-1]
-    scale = 1.0 / ((1 - gradient_weight) * ad_threshold + gradient_weight * gradient_threshold)
-    stack = torch.cat([other, _x_gradient(other)], dim=1)  # one shifted view per offset serves both terms
-    grad_ref = _x_gradient(reference)
-    channels = reference.shape[1]
-    slices, valid = [], []
-    for off in offsets.tolist():
-        view, ok = shifted(stack, off, width)
-        ad = (reference - view[:, :channels]).abs().mean(1).clamp_max(ad_threshold)
-        gd = (grad_ref[:, 0] - view[:, channels]).abs().clamp_max(gradient_threshold)
-        cost = ((1 - gradient_weight) * ad + gradient_weight * gd) * scale
-        slices.append(torch.where(ok, cost, torch.ones_like(cost)))
-        valid.append(ok)
-    return CostVolume(torch.stack(slices, dim=1), torch.stack(valid).view(1, len(valid), 1, width))
-
-
 def guided_filter(
     volume: torch.Tensor, guide: torch.Tensor, radius: int = 13, eps: float = 1e-4, subsample: int = 1
 ) -> torch.Tensor:
@@ -386,13 +314,11 @@ def match_rectified(
         raise OptionError(f"num_disparities must be an int in [2, W), got {num_disparities!r}")
     ref, other = (left.mean(1, keepdim=True), right.mean(1, keepdim=True)) if options.grey else (left, right)
     offsets = -torch.arange(num_disparities, dtype=left.dtype, device=left.device)
-    if options.cost == "census":
-        volume = census_volume(ref, other, offsets, options.window, options.census_threshold)
-    elif options.cost == "ad_gradient":
+    if options.cost == "ad_gradient":
         volume = ad_gradient_volume(left, right, offsets, options.ad_threshold, options.gradient_threshold,
                                     options.gradient_weight)
     else:
-        volume = cost_volume(ref, other, offsets, options.cost, options.window)
+        volume = cost_volume(ref, other, offsets, options.cost, options.window, options.census_threshold)
     cost = volume.cost
     if options.out_of_range == "replicate":
         cost = _replicate_out_of_range(cost, volume.valid)

@@ -38,7 +38,10 @@ def test_shifted_interpolates_and_masks():
     view, ok = shifted(x, -2.25, 6)
     assert ok.tolist() == [False, False, False, True, True, True]
     torch.testing.assert_close(view[0, 0, 0, 3:], torch.tensor([0.75, 1.75, 2.75]))
-    assert (view[0, 0, 0, :3] == 0).all()
+    assert (view[0, 0, 0, :3] == 0).all()  # the edge column's value (border padding)
+    view, ok = shifted(x, 1.5, 6)
+    assert ok.tolist() == [True] * 4 + [False] * 2
+    torch.testing.assert_close(view[0, 0, 0], torch.tensor([1.5, 2.5, 3.5, 4.5, 5.0, 5.0]))
 
 
 def test_box_filter_is_a_mean():

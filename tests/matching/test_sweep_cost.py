@@ -3,16 +3,9 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
-from prismstereo.matching.sweep_cost import (
-    Warped,
-    _gather_bilinear,
-    flat_index,
-    sample_points,
-    shift_cost,
-    sweep_cost,
-    warp_slices,
-    worst_cost,
-)
+from prismstereo.matching._graph import gather_bilinear
+from prismstereo.matching.cost import Warped, sweep_cost, worst_cost
+from prismstereo.matching.sweep_cost import flat_index, sample_points, shift_cost, warp_slices
 
 
 def _shift_grid(h: int, w: int, w_o: int, shifts: list[float]) -> torch.Tensor:
@@ -160,7 +153,7 @@ def test_sample_points_both_forms_are_bilinear_with_border_clamping(channels, wi
     y[0, 0, 0, :3] = torch.tensor([6.0, 6.0, 0.0], dtype=torch.float64)
     eager = sample_points(image, x, y)
     assert eager.shape == (2, channels, 3, 4, width)
-    gathered = _gather_bilinear(image, x, y)  # the ONNX form, run eagerly
+    gathered = gather_bilinear(image, x, y)  # the ONNX form, run eagerly
     torch.testing.assert_close(gathered, eager)
     for b, j, r, c in [(0, 0, 0, 0), (0, 0, 0, 1), (0, 0, 0, 2), (1, 2, 3, 4), (1, 1, 2, 0)]:
         expected = _bilinear_reference(image[b], float(x[b, j, r, c]), float(y[b, j, r, c]))
@@ -175,7 +168,7 @@ def test_sample_points_gradients_and_errors():
          ).requires_grad_()
     y = (torch.rand(1, 2, 3, 3, generator=gen, dtype=torch.float64) * 0.8 + 1.1).requires_grad_()
     assert torch.autograd.gradcheck(sample_points, (image, x, y))
-    assert torch.autograd.gradcheck(_gather_bilinear, (image, x, y))
+    assert torch.autograd.gradcheck(gather_bilinear, (image, x, y))
     with pytest.raises(ShapeError, match="must match"):
         sample_points(image, x, y[:, :1])
     with pytest.raises(ShapeError, match="batch"):
