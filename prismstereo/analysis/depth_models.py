@@ -14,7 +14,8 @@ import torch
 
 from prismstereo.analysis._common import as_tensor
 from prismstereo.errors import check_shape
-from prismstereo.geometry.optics import project_points, trace_pixels
+from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 from prismstereo.geometry.virtual_camera import ray_midpoint
 

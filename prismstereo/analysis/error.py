@@ -6,7 +6,7 @@ is the thesis' D = x_l + x_r (eq. 6.14), written in our frame (the thesis' x_l i
 positive, grows with depth and tends to 2 f tan(omega_inf) for a point at infinity on the axis (omega_inf
 the camera-ray angle that leaves the prism parallel to the axis), ~= 2 f (n - 1) alpha, the asymptote of
 eq. 6.15 (0.85 % lower for setup 1). Exactly, :func:`project_pair` gives u_l
-and u_r of a point through :func:`prismstereo.geometry.optics.project_points`, and :func:`depth_exact`
+and u_r of a point through :func:`prismstereo.geometry.projection.project_points`, and :func:`depth_exact`
 turns a pixel pair back into a depth by intersecting the two traced rays.
 
 **Three depth models.** :func:`depth_small_angle` is eq. 6.15 (small alpha, small field angles);

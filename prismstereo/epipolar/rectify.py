@@ -19,7 +19,8 @@ from typing import NamedTuple
 import torch
 
 from prismstereo.errors import RigError
-from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.geometry.virtual_camera import VirtualCamera, VirtualCameraPair, virtual_cameras
 

@@ -9,7 +9,7 @@ are float32 in [0, 1].
 Ground truth comes from each pixel's centre ray: depth Z, the 3D point, validity (the ray passes the
 prism and hits the scene), the half it belongs to, and for the reference (left) half its co-visibility
 and true match in the right half: the point is projected into the right half with
-:func:`~prismstereo.geometry.optics.project_points` and counts as co-visible when that pixel's own ray
+:func:`~prismstereo.geometry.projection.project_points` and counts as co-visible when that pixel's own ray
 reaches the same point (nothing occludes it, it is on the sensor and in the right half).
 """
 
@@ -23,7 +23,8 @@ import kornia
 import torch
 from tqdm.auto import tqdm
 
-from prismstereo.geometry.optics import pixel_directions, project_points, trace_pixels
+from prismstereo.geometry.optics import pixel_directions, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.synthetic.lens import (
     _check_lens,
