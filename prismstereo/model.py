@@ -56,14 +56,9 @@ from prismstereo.defaults import default_coarse_factor, default_downsample, pyra
 from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.range import default_z_range
 from prismstereo.depth.result import DepthResult
-from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
-from prismstereo.epipolar.table import (
-    series_at,
-    sweep_hypotheses,
-    sweep_series,
-    tabulate_sweep,
-    valid_interval,
-)
+from prismstereo.epipolar.series import series_at, sweep_series
+from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_hypotheses, sweep_to_depth
+from prismstereo.epipolar.sweep_table import tabulate_sweep, valid_interval
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig

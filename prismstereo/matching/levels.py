@@ -26,7 +26,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.epipolar.row_rectify import RectifiedLevel
-from prismstereo.epipolar.table import column_to_sweep, positions_at, series_at, series_band
+from prismstereo.epipolar.series import series_at, series_band
+from prismstereo.epipolar.sweep import positions_at
+from prismstereo.epipolar.sweep_table import column_to_sweep
 from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
 from prismstereo.matching.select import (
@@ -302,7 +304,8 @@ class FineBand(nn.Module):
 
     Example:
         >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
-        >>> from prismstereo.epipolar.table import sweep_series, tabulate_sweep, valid_interval
+        >>> from prismstereo.epipolar.series import sweep_series
+        >>> from prismstereo.epipolar.sweep_table import tabulate_sweep, valid_interval
         >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 900.0))
         >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1).double()
         >>> coefficients = sweep_coefficients(fit, uv).permute(2, 0, 1, 3)
