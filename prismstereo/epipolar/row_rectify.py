@@ -1,6 +1,6 @@
 """Row rectification of the two half-images by vertical warps, fitted to the exact sweep.
 
-Pinhole rectification (:mod:`prismstereo.epipolar.rectify`, Fusiello) leaves true correspondences up to
+Pinhole rectification (:mod:`prismstereo.analysis.pinhole_rectify`, Fusiello) leaves true correspondences up to
 0.9 px (``thesis_setup1``) and 12 px (``thesis_setup2``) apart vertically: the bi-prism's virtual cameras are
 not pinholes. Here the rectification is fitted to the exact correspondences instead. Both halves keep their
 columns and are only warped vertically: reference pixel (u, v) goes to rectified row

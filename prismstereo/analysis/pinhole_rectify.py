@@ -1,4 +1,6 @@
-"""Pinhole rectification of the two virtual cameras (approximate; for visualisation and conventional tools).
+"""Pinhole rectification of the two virtual cameras: analysis only (approximate; for visualisation, conventional
+tools and measuring how far the virtual pinholes are from the exact optics). The depth model rectifies with
+:mod:`prismstereo.epipolar.row_rectify` instead, fitted to the exact sweep.
 
 The virtual cameras (:mod:`prismstereo.geometry.virtual_camera`) are rectified the classic way
 (Fusiello, Trucco & Verri 2000): both are rotated to a common orientation whose x axis is the baseline
