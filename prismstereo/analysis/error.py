@@ -53,7 +53,7 @@ import torch
 from prismstereo.analysis._common import AnalysisError, as_tensor
 from prismstereo.analysis.depth_models import (
     StereoPair,
-    _ab,
+    depth_constants,
     depth_exact,
     depth_planar,
     depth_small_angle,
@@ -211,7 +211,7 @@ def closed_form_sensitivities(
     check_option(n_form, ("corrected", "thesis"), "n_form")
     z = _depths(depth)
     p = as_parameters(rig, z)
-    a, b = _ab(p)
+    a, b = depth_constants(p)
     g, r = (z - a) / b, (z - a + b) / (z - a)
     k = (p.n - 1) / p.n
     dd = (z - a + b) ** 2 / (2 * p.alpha * p.f * p.n * b)  # eq. 6.22

@@ -27,13 +27,13 @@ from prismstereo.geometry.optics import pixel_directions, trace_pixels
 from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.synthetic.lens import (
-    _check_lens,
-    _fill_nearest,
-    _positive_number,
     apparent_depth,
     blur_circle_px,
+    check_lens,
     defocus_blur,
+    fill_nearest,
     fresnel_transmittance,
+    positive_number,
     prism_transmittance,
 )
 from prismstereo.synthetic.scenes import Scene
@@ -127,9 +127,9 @@ class ImageFormation:
             raise SceneError(f"poisson_photons must be positive or None, got {self.poisson_photons}")
         if self.bits not in (8, 16, None):
             raise SceneError(f"bits must be 8, 16 or None, got {self.bits!r}")
-        if self.f_number is not None and not _positive_number(self.f_number):
+        if self.f_number is not None and not positive_number(self.f_number):
             raise SceneError(f"f_number must be a finite number > 0 or None, got {self.f_number!r}")
-        if not _positive_number(self.focus_mm):
+        if not positive_number(self.focus_mm):
             raise SceneError(f"focus_mm must be a finite distance > 0 (mm), got {self.focus_mm!r}")
         if not isinstance(self.fresnel, bool):
             raise SceneError(f"fresnel must be a bool, got {self.fresnel!r}")
@@ -272,7 +272,7 @@ def render(
         raise SceneError("scenes must be a Scene or a non-empty sequence of Scenes")
     formation = formation or ImageFormation()
     if formation.f_number is not None:
-        _check_lens(rig, formation.f_number, formation.focus_mm)
+        check_lens(rig, formation.f_number, formation.focus_mm)
     for scene in scenes:
         scene.validate(rig)
     gen = torch.Generator().manual_seed(formation.seed)
@@ -283,7 +283,7 @@ def render(
         points, valid, left, covisible, match, apparent = _ground_truth(rig, scene, formation.f_number is not None)
         lens_depth = None
         if formation.f_number is not None:
-            lens_depth = _fill_nearest(apparent.view(h, w), valid.view(h, w), formation.focus_mm)
+            lens_depth = fill_nearest(apparent.view(h, w), valid.view(h, w), formation.focus_mm)
         image = _form_image(radiance, rig, formation, gen, lens_depth)
         fields = (
             image,
