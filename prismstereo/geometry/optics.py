@@ -17,10 +17,9 @@ the back plane, and leaves the glass through the back plane (not through the oth
 still get finite numbers (square roots are clamped) so no NaN reaches a gradient.
 
 :func:`trace_pixels` and :func:`trace_directions` are the checked entry points (a rig or its tensors, any
-dtype). :func:`trace_pixel_rays` and :func:`trace_rays` are the same tracer on :class:`RigParameters` already
-on the inputs' dtype, without argument checks, for solvers that trace in loops, and they can trace through a
-face's infinite plane (``extended``): the point -> pixel projection (:mod:`prismstereo.geometry.projection`)
-and the sweep fit (:mod:`prismstereo.epipolar.sweep`) build on them.
+dtype); :func:`trace_pixel_rays` and :func:`trace_rays`, the same tracer without checks and optionally through
+a face's infinite plane, serve the solvers of :mod:`prismstereo.geometry.projection` and
+:mod:`prismstereo.epipolar.sweep`.
 """
 
 from __future__ import annotations
@@ -160,19 +159,8 @@ def _pixel_directions(p: RigParameters, uv: torch.Tensor) -> tuple[torch.Tensor,
 
 
 def trace_pixel_rays(p: RigParameters, uv: torch.Tensor, half: str = "auto", extended: bool = False) -> RayBundle:
-    """:func:`trace_rays` of the pixels' camera rays, invalid where the lens model has no preimage.
-
-    :func:`trace_pixels` without its checks, for solvers that trace in loops
-    (:func:`~prismstereo.geometry.projection.solve_projection`).
-
-    Args:
-        p: the rig's tensors on ``uv``'s dtype and device (:func:`~prismstereo.geometry.rig.as_parameters`).
-        uv: (*, 2) pixel coordinates.
-        half: 'auto', 'left' or 'right', as in :func:`trace_rays`.
-        extended: trace through the face's infinite plane, as in :func:`trace_rays`.
-
-    Returns:
-        RayBundle as :func:`trace_pixels`.
+    """:func:`trace_pixels` without its checks: :func:`trace_rays` (same ``p``, ``half``, ``extended``) of the
+    pixels' (*, 2) camera rays, invalid where the lens model has no preimage.
 
     Example:
         >>> uv = torch.tensor([[100.0, 300.0]], dtype=torch.float64)
