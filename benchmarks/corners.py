@@ -20,7 +20,7 @@ import torch
 
 from prismstereo import thesis_setup1
 from prismstereo.calibration import detect_board, parse_target
-from prismstereo.geometry.optics import project_points
+from prismstereo.geometry.projection import project_points
 from prismstereo.synthetic import ImageFormation, calibration_views, render
 
 CONDITIONS = {

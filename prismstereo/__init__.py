@@ -15,7 +15,6 @@ import importlib
 
 from prismstereo.errors import CalibrationError, OptionError, PrismStereoError, RigError, ShapeError
 from prismstereo.geometry.optics import (
-    Projection,
     RayBundle,
     Refraction,
     apex_ray,
@@ -23,12 +22,12 @@ from prismstereo.geometry.optics import (
     half_of_pixels,
     pixel_directions,
     points_at_depth,
-    project_points,
     refract,
     trace_directions,
     trace_pixels,
 )
 from prismstereo.geometry.presets import load_rig, thesis_setup1, thesis_setup2
+from prismstereo.geometry.projection import Projection, project_points
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import (
     VirtualCamera,

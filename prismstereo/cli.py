@@ -18,8 +18,9 @@ from prismstereo import __version__
 from prismstereo.cli_calibrate import add_calibrate_parser
 from prismstereo.cli_depth import add_depth_parser, add_export_parser
 from prismstereo.errors import PrismStereoError
-from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
 from prismstereo.geometry.presets import PRESETS, load_rig
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.geometry.virtual_camera import VirtualCamera, virtual_cameras
 

@@ -12,7 +12,7 @@ The layers, in order:
      (:mod:`prismstereo.epipolar.row_rectify`; correspondences share a row to 2e-4 px with ``thesis_setup1``,
      0.1 px with ``thesis_setup2``), so every hypothesis is an integer column shift: a 1-D cost volume built by
      one gather (:func:`~prismstereo.matching.sweep_cost.shift_cost`), the winning shift turned into the
-     sweep coordinate exactly (:func:`~prismstereo.epipolar.table.column_to_sweep`);
+     sweep coordinate exactly (:func:`~prismstereo.epipolar.sweep_table.column_to_sweep`);
    * ``'sweep'``: every hypothesis warps the other half onto the reference pixels with the exact per-pixel
      sweep (:func:`~prismstereo.matching.sweep_cost.warp_slices`, one ``grid_sample`` of D x H x W samples).
 
@@ -21,7 +21,7 @@ The layers, in order:
    into invalid neighbours (:func:`~prismstereo.matching.levels.extend_estimate`).
 4. **Fine level**: the coarse estimate upsampled to full resolution; a band of 2 R + 1 hypotheses (<= 1 px
    apart) around it per pixel, evaluated on the exact per-pixel sweep (truncated power series,
-   :mod:`prismstereo.epipolar.table`, within ~2e-4 px of the polynomials); cost, box, winner and
+   :mod:`prismstereo.epipolar.series`, within ~2e-4 px of the polynomials); cost, box, winner and
    sub-pixel refinement (equiangular, parabola or a differentiable local soft-argmin).
    With f = 1 the full range is searched at full resolution in one level (the reference mode).
 5. Depth from the sweep coordinate (exact: s is linear in 1/Z), a confidence (the calibrated probability of a
@@ -57,8 +57,7 @@ from prismstereo.defaults import default_coarse_factor, default_downsample
 from prismstereo.depth.level import DepthLevel
 from prismstereo.depth.range import default_z_range
 from prismstereo.depth.result import DepthResult
-from prismstereo.epipolar.sweep import sweep_to_depth
-from prismstereo.epipolar.table import sweep_hypotheses
+from prismstereo.epipolar.sweep import sweep_hypotheses, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig

@@ -5,7 +5,7 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo import OptionError, thesis_setup1
-from prismstereo.epipolar.table import series_at
+from prismstereo.epipolar.series import series_at
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, height_field_scene, render
 from tests.conftest import scaled_rig

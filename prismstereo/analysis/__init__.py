@@ -8,6 +8,9 @@ Every closed form of the thesis sits next to the exact ray-traced model it appro
   the exact model), sensitivities (eq. 6.20-6.35 vs autograd), error budgets, where eq. 6.15 fails.
 * :mod:`~prismstereo.analysis.design` (ch. 6.3): the f / pixel count, T, alpha or T_o that meets a target
   depth error, by the thesis' formulas and by root finding on the exact model.
+* :mod:`~prismstereo.analysis.pinhole_rectify` (ch. 4): Fusiello rectification of the virtual pinholes and how
+  far true correspondences stay off their rows (not exported here; the model rectifies with
+  :mod:`prismstereo.epipolar.row_rectify`).
 * :mod:`~prismstereo.analysis.plots`: the thesis' figures drawn from the above.
 """
 

@@ -11,7 +11,7 @@ import torch
 from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 
-__all__ = ["AnalysisError", "as_tensor", "check_positive", "brent", "check_untilted"]
+__all__ = ["AnalysisError", "as_tensor", "check_positive", "check_rig", "depths_beyond", "brent", "check_untilted"]
 
 
 class AnalysisError(PrismStereoError, ValueError):
@@ -44,6 +44,21 @@ def check_positive(value: torch.Tensor, name: str, *, strict: bool = True) -> No
     if bool(bad.any()):
         bound = "> 0" if strict else ">= 0"
         raise AnalysisError(f"{name} must be finite and {bound}, got {v[bad].flatten()[0].item()!r}")
+
+
+def check_rig(rig: object) -> None:
+    """Raise :class:`AnalysisError` unless ``rig`` is a :class:`BiPrismRig` (the ray-traced analyses take one)."""
+    if not isinstance(rig, BiPrismRig):
+        raise AnalysisError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
+
+
+def depths_beyond(depth: torch.Tensor | float, back_plane_z: float) -> torch.Tensor:
+    """``depth`` as a (D,) tensor; :class:`AnalysisError` unless every depth is finite and beyond the prism's
+    back plane at ``back_plane_z`` (mm)."""
+    depth = as_tensor(depth, name="depth").reshape(-1)
+    if depth.numel() == 0 or bool((~torch.isfinite(depth) | (depth <= back_plane_z)).any()):
+        raise AnalysisError(f"depths must be finite and beyond the prism's back plane (> {back_plane_z:.3f} mm)")
+    return depth
 
 
 def check_untilted(rig: BiPrismRig | RigParameters, what: str) -> None:

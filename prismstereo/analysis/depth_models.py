@@ -14,13 +14,15 @@ import torch
 
 from prismstereo.analysis._common import as_tensor
 from prismstereo.errors import check_shape
-from prismstereo.geometry.optics import project_points, trace_pixels
+from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
 __all__ = [
     "StereoPair",
     "ExactDepth",
+    "depth_constants",
     "disparity_mm",
     "project_pair",
     "depth_small_angle",
@@ -87,8 +89,15 @@ def project_pair(rig: BiPrismRig | RigParameters, points: torch.Tensor) -> Stere
 
 
 # ----------------------------------------------------------------------------------- depth models
-def _ab(p: RigParameters) -> tuple[torch.Tensor, torch.Tensor]:
-    """A = (T_o + T)(n - 1)/n and B = T_o (n - 1)/n of eq. 6.21-6.22."""
+def depth_constants(p: RigParameters) -> tuple[torch.Tensor, torch.Tensor]:
+    """A = (T_o + T)(n - 1)/n and B = T_o (n - 1)/n of eq. 6.21-6.22, the constants of the thesis' depth
+    formula (eq. 6.15) and its sensitivities.
+
+    Example:
+        >>> p = as_parameters(thesis_setup1(), torch.zeros(1, dtype=torch.float64))
+        >>> a, b = depth_constants(p); bool(a > b > 0)
+        True
+    """
     k = (p.n - 1) / p.n
     return (p.T_o + p.T) * k, p.T_o * k
 
@@ -112,7 +121,7 @@ def depth_small_angle(rig: BiPrismRig | RigParameters, disparity: torch.Tensor |
     """
     d = as_tensor(disparity, name="disparity")
     p = as_parameters(rig, d)
-    a, b = _ab(p)
+    a, b = depth_constants(p)
     s = d + 2 * p.f * p.alpha
     return a - b * s / (s - 2 * p.f * p.alpha * p.n)
 
@@ -127,7 +136,7 @@ def disparity_small_angle(rig: BiPrismRig | RigParameters, depth: torch.Tensor |
     """
     z = as_tensor(depth, name="depth")
     p = as_parameters(rig, z)
-    a, b = _ab(p)
+    a, b = depth_constants(p)
     q = 2 * p.f * p.alpha * p.n
     return q * (z - a) / (z - a + b) - 2 * p.f * p.alpha
 

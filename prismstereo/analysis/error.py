@@ -6,7 +6,7 @@ is the thesis' D = x_l + x_r (eq. 6.14), written in our frame (the thesis' x_l i
 positive, grows with depth and tends to 2 f tan(omega_inf) for a point at infinity on the axis (omega_inf
 the camera-ray angle that leaves the prism parallel to the axis), ~= 2 f (n - 1) alpha, the asymptote of
 eq. 6.15 (0.85 % lower for setup 1). Exactly, :func:`project_pair` gives u_l
-and u_r of a point through :func:`prismstereo.geometry.optics.project_points`, and :func:`depth_exact`
+and u_r of a point through :func:`prismstereo.geometry.projection.project_points`, and :func:`depth_exact`
 turns a pixel pair back into a depth by intersecting the two traced rays.
 
 **Three depth models.** :func:`depth_small_angle` is eq. 6.15 (small alpha, small field angles);
@@ -53,7 +53,7 @@ import torch
 from prismstereo.analysis._common import AnalysisError, as_tensor
 from prismstereo.analysis.depth_models import (
     StereoPair,
-    _ab,
+    depth_constants,
     depth_exact,
     depth_planar,
     depth_small_angle,
@@ -211,7 +211,7 @@ def closed_form_sensitivities(
     check_option(n_form, ("corrected", "thesis"), "n_form")
     z = _depths(depth)
     p = as_parameters(rig, z)
-    a, b = _ab(p)
+    a, b = depth_constants(p)
     g, r = (z - a) / b, (z - a + b) / (z - a)
     k = (p.n - 1) / p.n
     dd = (z - a + b) ** 2 / (2 * p.alpha * p.f * p.n * b)  # eq. 6.22

@@ -59,7 +59,15 @@ from typing import Literal, NamedTuple
 
 import torch
 
-from prismstereo.analysis._common import AnalysisError, as_tensor, brent, check_positive, check_untilted
+from prismstereo.analysis._common import (
+    AnalysisError,
+    as_tensor,
+    brent,
+    check_positive,
+    check_rig,
+    check_untilted,
+    depths_beyond,
+)
 from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = [
@@ -80,6 +88,7 @@ __all__ = [
     "offset_shift",
     "fov_closed_form",
     "fov_extent",
+    "fov_type_from_epsilon",
     ]
 
 FOVType = Literal["divergent", "semi-divergent", "convergent"]
@@ -172,10 +181,13 @@ class FOVExtent(NamedTuple):
     width: torch.Tensor
     overlap: torch.Tensor
 
-
-def _check_rig(rig: object) -> None:
-    if not isinstance(rig, BiPrismRig):
-        raise AnalysisError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
+    @classmethod
+    def from_halves(cls, depth: torch.Tensor, left: torch.Tensor, right: torch.Tensor) -> FOVExtent:
+        """The extent whose halves see ``left`` and ``right`` (D, 2) at ``depth`` (D,): their overlap and width."""
+        lo = torch.maximum(left[..., 0], right[..., 0])
+        hi = torch.minimum(left[..., 1], right[..., 1])
+        overlap = hi > lo
+        return cls(depth, left, right, torch.stack([lo, hi], -1), (hi - lo).clamp_min(0), overlap)
 
 
 def _check_prism(alpha: torch.Tensor, n: torch.Tensor) -> None:
@@ -285,7 +297,14 @@ def fov_coefficient(
     return ray2_angle(alpha, n, sensor_width_mm, focal_length_mm) / ray1_angle(alpha, n)
 
 
-def _type_from_epsilon(epsilon: float) -> str:
+def fov_type_from_epsilon(epsilon: float) -> str:
+    """The FOV type of Table 5.1 for a given epsilon = phi_4 / phi_2: 'divergent' (>= 1), 'semi-divergent'
+    (>= 0) or 'convergent'.
+
+    Example:
+        >>> fov_type_from_epsilon(1.0), fov_type_from_epsilon(0.5), fov_type_from_epsilon(-0.1)
+        ('divergent', 'semi-divergent', 'convergent')
+    """
     if epsilon >= 1.0:
         return "divergent"
     return "semi-divergent" if epsilon >= 0.0 else "convergent"
@@ -299,7 +318,7 @@ def fov_type(alpha: float, n: float, sensor_width_mm: float, focal_length_mm: fl
         >>> fov_type(math.radians(6.4), 1.48, 4.7616, 25.0), fov_type(math.radians(21.8), 1.48, 4.7616, 25.0)
         ('semi-divergent', 'convergent')
     """
-    return _type_from_epsilon(float(fov_coefficient(alpha, n, sensor_width_mm, focal_length_mm)))  # type: ignore[return-value]
+    return fov_type_from_epsilon(float(fov_coefficient(alpha, n, sensor_width_mm, focal_length_mm)))  # type: ignore[return-value]
 
 
 def boundary_angles(n: float, sensor_width_mm: float, focal_length_mm: float) -> BoundaryAngles:
@@ -436,7 +455,7 @@ def fov_closed_form(rig: BiPrismRig) -> FOVClosedForm:
         >>> fov.fov_type, round(float(fov.left_ray1.intercept), 5)
         ('semi-divergent', 0.20344)
     """
-    _check_rig(rig)
+    check_rig(rig)
     check_untilted(rig, "fov_closed_form")
     f64 = torch.float64
     alpha, n = torch.tensor(rig.alpha_rad, dtype=f64), torch.tensor(rig.refractive_index, dtype=f64)
@@ -477,7 +496,7 @@ def fov_closed_form(rig: BiPrismRig) -> FOVClosedForm:
     far = _meet(left2, right2)
     return FOVClosedForm(
         phi2=phi2, phi4=phi4, gamma=left1.angle - right1.angle, epsilon=epsilon,
-        fov_type=_type_from_epsilon(float(epsilon)),
+        fov_type=fov_type_from_epsilon(float(epsilon)),
         boundary=boundary_angles(rig.refractive_index, width, rig.focal_length_mm),
         h=h, v=v, left_ray1=left1, left_ray2=left2, right_ray1=right1, right_ray2=right2,
         crossing_depth=crossing, far_depth=far, edge_rays_on_prism=on_prism,
@@ -492,20 +511,6 @@ def _meet(a: RayLine, b: RayLine) -> torch.Tensor:
     return torch.where((slope == 0) | (dz <= 0), inf, a.back_plane_z + dz)
 
 
-def _extent(depth: torch.Tensor, left: torch.Tensor, right: torch.Tensor) -> FOVExtent:
-    lo = torch.maximum(left[..., 0], right[..., 0])
-    hi = torch.minimum(left[..., 1], right[..., 1])
-    overlap = hi > lo
-    return FOVExtent(depth, left, right, torch.stack([lo, hi], -1), (hi - lo).clamp_min(0), overlap)
-
-
-def _depths(depth: torch.Tensor | float, back_plane_z: float) -> torch.Tensor:
-    depth = as_tensor(depth, name="depth").reshape(-1)
-    if depth.numel() == 0 or bool((~torch.isfinite(depth) | (depth <= back_plane_z)).any()):
-        raise AnalysisError(f"depths must be finite and beyond the prism's back plane (> {back_plane_z:.3f} mm)")
-    return depth
-
-
 def fov_extent(fov: FOVClosedForm, depth: torch.Tensor | float) -> FOVExtent:
     """The closed-form extents at depths Z: left half [Ray 2, Ray 1], right half [Ray 1, Ray 2], overlap.
 
@@ -518,7 +523,7 @@ def fov_extent(fov: FOVClosedForm, depth: torch.Tensor | float) -> FOVExtent:
         >>> round(float(ext.width[0]), 2)
         89.13
     """
-    depth = _depths(depth, float(fov.left_ray1.back_plane_z)).to(fov.phi2.dtype)
+    depth = depths_beyond(depth, float(fov.left_ray1.back_plane_z)).to(fov.phi2.dtype)
     left = torch.stack([fov.left_ray2.x_at(depth), fov.left_ray1.x_at(depth)], -1)
     right = torch.stack([fov.right_ray1.x_at(depth), fov.right_ray2.x_at(depth)], -1)
-    return _extent(depth, left, right)
+    return FOVExtent.from_halves(depth, left, right)

@@ -12,17 +12,8 @@ from typing import Literal, NamedTuple
 
 import torch
 
-from prismstereo.analysis._common import AnalysisError, as_tensor
-from prismstereo.analysis.fov import (
-    FOVExtent,
-    FOVType,
-    _check_rig,
-    _depths,
-    _extent,
-    _type_from_epsilon,
-    fov_closed_form,
-    fov_extent,
-)
+from prismstereo.analysis._common import AnalysisError, as_tensor, check_rig, depths_beyond
+from prismstereo.analysis.fov import FOVExtent, FOVType, fov_closed_form, fov_extent, fov_type_from_epsilon
 from prismstereo.errors import check_option
 from prismstereo.geometry.optics import apex_ray, points_at_depth, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
@@ -73,7 +64,7 @@ def exact_fov_extent(
         >>> round(float(ext.width[0]), 2)
         89.13
     """
-    _check_rig(rig)
+    check_rig(rig)
     if not isinstance(samples, int) or samples < 3:
         raise AnalysisError(f"samples must be an int >= 3, got {samples!r}")
     f64 = torch.float64
@@ -88,7 +79,7 @@ def exact_fov_extent(
     inner = [trace_pixels(rig, torch.tensor([[rig.apex_column + s * 1e-10, v]], dtype=f64), half)
              for s, half in ((-1.0, "left"), (1.0, "right"))]
     z_max = max(float(rays.origins[..., 2].max()), rig.apex_distance_mm + rig.prism_thickness_mm)
-    depth = _depths(depth, z_max)
+    depth = depths_beyond(depth, z_max)
     bounds = []
     for k, is_left in enumerate((True, False)):
         x = points_at_depth(rays, depth[:, None])[..., 0]
@@ -100,7 +91,7 @@ def exact_fov_extent(
             raise AnalysisError(f"no valid ray in the {'left' if is_left else 'right'} half of row {v}")
         inf = torch.full_like(x, math.inf)
         bounds.append(torch.stack([torch.where(mask, x, inf).amin(-1), torch.where(mask, x, -inf).amax(-1)], -1))
-    return _extent(depth, bounds[0], bounds[1])
+    return FOVExtent.from_halves(depth, bounds[0], bounds[1])
 
 
 def exact_fov_type(rig: BiPrismRig) -> FOVType:
@@ -111,7 +102,7 @@ def exact_fov_type(rig: BiPrismRig) -> FOVType:
         >>> exact_fov_type(thesis_setup1())
         'semi-divergent'
     """
-    _check_rig(rig)
+    check_rig(rig)
     f64 = torch.float64
     apex = [apex_ray(rig, half) for half in ("left", "right")]
     phi2 = 0.5 * (math.atan2(float(apex[0].directions[0]), float(apex[0].directions[2]))
@@ -119,7 +110,7 @@ def exact_fov_type(rig: BiPrismRig) -> FOVType:
     edges = trace_pixels(rig, torch.tensor([[-0.5, rig.cy], [rig.image_width - 0.5, rig.cy]], dtype=f64))
     ang = torch.atan2(edges.directions[:, 0], edges.directions[:, 2])
     phi4 = 0.5 * float(ang[1] - ang[0])
-    return _type_from_epsilon(phi4 / phi2)  # type: ignore[return-value]
+    return fov_type_from_epsilon(phi4 / phi2)  # type: ignore[return-value]
 
 
 def compare_fov(rig: BiPrismRig, depth: torch.Tensor | float, samples: int = 2049) -> FOVComparison:
@@ -161,7 +152,7 @@ def fov_alpha_sweep(
         >>> sweep.fov_types, bool(sweep.worst.max() < 1e-9)
         (['divergent', 'semi-divergent', 'convergent'], True)
     """
-    _check_rig(rig)
+    check_rig(rig)
     check_option(keep, ("width", "thickness"), "keep")
     alphas = as_tensor(alphas_deg, name="alphas_deg").reshape(-1).to(torch.float64)
     half_width = rig.prism_width_mm / 2

@@ -8,7 +8,7 @@ the detections (:class:`~prismstereo.calibration.targets.ViewDetection`): a (num
 row k the real-frame position of board point id k (NaN where unknown).
 
 OpenCV orders a checkerboard's corners from either end (a half turn of the ids), so ids are assigned by
-projection: each true corner is projected through the rig's exact optics (:func:`~prismstereo.geometry.optics.
+projection: each true corner is projected through the rig's exact optics (:func:`~prismstereo.geometry.projection.
 project_points`) and every detected corner takes the nearest one.
 """
 
@@ -18,7 +18,7 @@ import torch
 
 from prismstereo.calibration.targets import Board, ViewDetection
 from prismstereo.errors import CalibrationError
-from prismstereo.geometry.optics import project_points
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.synthetic.scenes import Plane, Scene
 from prismstereo.synthetic.textures import CheckerTexture

@@ -2,7 +2,7 @@
 
 Unknowns: the free rig parameters (:mod:`prismstereo.calibration.parameters`) and one pose per view (board
 -> camera, axis-angle and translation: X = R(w) P + t). Residuals: for every detected corner of every half,
-the exact projection of its board point through that half of the prism (:func:`~prismstereo.geometry.optics.
+the exact projection of its board point through that half of the prism (:func:`~prismstereo.geometry.projection.
 solve_projection`, lens distortion included) minus the detected pixel, with the priors and Jacobian of
 :class:`~prismstereo.calibration.problem.RigProblem`; solved by Levenberg-Marquardt
 (:mod:`prismstereo.calibration.solver`) from the nominal rig.
@@ -22,7 +22,8 @@ import torch
 from prismstereo.calibration.problem import RigProblem
 from prismstereo.calibration.targets import Board, ViewDetection
 from prismstereo.errors import CalibrationError
-from prismstereo.geometry.optics import solve_projection, trace_pixels
+from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.projection import solve_projection
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import ray_midpoint
 

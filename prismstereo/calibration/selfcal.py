@@ -43,7 +43,8 @@ from prismstereo.calibration.problem import RigProblem
 from prismstereo.calibration.solver import unobservable
 from prismstereo.calibration.targets import to_gray_u8
 from prismstereo.errors import CalibrationError
-from prismstereo.geometry.optics import points_at_depth, solve_projection, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.projection import solve_projection
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import ray_midpoint
 

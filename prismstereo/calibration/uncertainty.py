@@ -19,7 +19,8 @@ from torch.func import jacfwd
 
 from prismstereo.calibration.parameters import rig_parameters, rig_vector
 from prismstereo.errors import CalibrationError
-from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.geometry.virtual_camera import ray_midpoint
 

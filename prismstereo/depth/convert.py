@@ -5,7 +5,7 @@
   and everywhere for hypotheses uniform in inverse depth).
 * Disparity <-> depth: disparity is the horizontal distance (full-sensor px) from a reference pixel to the
   right-half pixel that sees the same point, d = u_right - u_ref. It is computed from the exact optics
-  (ray tracing and :func:`~prismstereo.geometry.optics.project_points`), not the small-angle depth
+  (ray tracing and :func:`~prismstereo.geometry.projection.project_points`), not the small-angle depth
   equation 6.15; depth from disparity solves that relation for Z by Newton steps on 1/Z.
 """
 
@@ -14,7 +14,8 @@ from __future__ import annotations
 import torch
 
 from prismstereo.errors import RigError, check_shape
-from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 
 __all__ = ["index_to_depth", "depth_to_index", "depth_to_disparity", "disparity_to_depth"]

@@ -32,8 +32,9 @@ from prismstereo.config import StereoConfig
 from prismstereo.defaults import default_coarse_factor, pyramid_band, pyramid_coarse_factor
 from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.result import DepthResult
-from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
-from prismstereo.epipolar.table import series_at, sweep_hypotheses, sweep_series, tabulate_sweep, valid_interval
+from prismstereo.epipolar.series import series_at, sweep_series
+from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_hypotheses, sweep_to_depth
+from prismstereo.epipolar.sweep_table import tabulate_sweep, valid_interval
 from prismstereo.errors import OptionError
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig

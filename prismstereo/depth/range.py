@@ -2,7 +2,7 @@
 
 Both rest on one exact quantity, the **co-visible fraction** c(Z) (:func:`covisible_fraction`): the share of
 reference-half pixels whose scene point on the fronto-parallel plane at depth Z is also seen through the
-right prism face (ray traced through the left face, then :func:`~prismstereo.geometry.optics.project_points`
+right prism face (ray traced through the left face, then :func:`~prismstereo.geometry.projection.project_points`
 into the right half). It is the pixel-level form of the thesis' common field of view (ch. 5, fig. 5.3-5.7):
 near 0 at the prism's back plane, growing with Z as the two halves' fields of view overlap, 1 where they
 coincide (setup 1: the Ray 1 / Ray 2 crossing near 1.40 m), then falling slowly (semi-divergent) or to 0
@@ -29,7 +29,8 @@ import math
 import torch
 
 from prismstereo.errors import PrismStereoError
-from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["DepthRangeError", "covisible_fraction", "default_z_range", "check_z_range", "back_plane_depth"]

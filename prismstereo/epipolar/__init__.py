@@ -1,11 +1,12 @@
 """Epipolar geometry of the bi-prism.
 
 The depth model's path: the exact plane sweep as a Chebyshev interpolant (:mod:`~prismstereo.epipolar.sweep`),
-its power series and tables for the fine bands (:mod:`~prismstereo.epipolar.table`), and the row rectification
-fitted to it for the coarse level (:mod:`~prismstereo.epipolar.row_rectify`). Beside it, for analysis and other
-tools: the thesis' lines and the exact curves (:mod:`~prismstereo.epipolar.lines`), sampling grids and shift
-bands (:mod:`~prismstereo.epipolar.grids`); the pinhole rectification of the virtual cameras
-(:mod:`prismstereo.epipolar.rectify`, approximate, not exported here).
+its truncated power series, which the fine bands sample through (:mod:`~prismstereo.epipolar.series`), its
+table with local cubics, inversion and valid intervals (:mod:`~prismstereo.epipolar.sweep_table`), and the row
+rectification fitted to it for the coarse level (:mod:`~prismstereo.epipolar.row_rectify`). Beside it, for
+analysis and other tools: the thesis' lines and the exact curves (:mod:`~prismstereo.epipolar.lines`),
+sampling grids and shift bands (:mod:`~prismstereo.epipolar.grids`). The pinhole rectification of the virtual
+cameras (approximate, analysis only) is :mod:`prismstereo.analysis.pinhole_rectify`.
 """
 
 from prismstereo.epipolar.grids import (
@@ -32,23 +33,17 @@ from prismstereo.epipolar.lines import (
     thesis_epipolar_lines,
 )
 from prismstereo.epipolar.row_rectify import RowRectification, fit_row_rectification, rectified_level
+from prismstereo.epipolar.series import series_at, series_band, sweep_series
 from prismstereo.epipolar.sweep import (
     SweepFit,
     depth_to_sweep,
     fit_sweep,
     sweep_coefficients,
+    sweep_hypotheses,
     sweep_positions,
     sweep_to_depth,
 )
-from prismstereo.epipolar.table import (
-    column_to_sweep,
-    series_at,
-    series_band,
-    sweep_hypotheses,
-    sweep_series,
-    tabulate_sweep,
-    valid_interval,
-)
+from prismstereo.epipolar.sweep_table import column_to_sweep, tabulate_sweep, valid_interval
 
 __all__ = [
     "SweepFit",

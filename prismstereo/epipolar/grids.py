@@ -3,7 +3,7 @@
 Depth hypotheses z_1..z_D (uniform in inverse depth by default). For every reference pixel (v, u) of the
 left half (u < apex column, W_ref columns) and every hypothesis, the *exact grid* holds the right-half
 pixel that sees the reference pixel's point at depth z_i: trace the reference ray, take its point at
-Z = z_i, project it through the right face (:func:`~prismstereo.geometry.optics.project_points`).
+Z = z_i, project it through the right face (:func:`~prismstereo.geometry.projection.project_points`).
 
 Per-hypothesis ``grid_sample`` is the slowest way to build a cost volume, so :func:`shift_bands` gives a
 fast form: the hypotheses are split into bands; for each band the right half is resampled *once* into a
@@ -25,7 +25,8 @@ from typing import Literal, NamedTuple
 import torch
 
 from prismstereo.errors import OptionError, RigError, check_option, check_shape
-from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 
 __all__ = [

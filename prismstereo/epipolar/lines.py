@@ -2,7 +2,7 @@
 
 For a reference (left half) pixel, its scene point lies somewhere on the pixel's outgoing ray; the right
 half sees that ray as a curve, the *exact epipolar curve*, computed here by projecting points of the ray
-through the right face with :func:`~prismstereo.geometry.optics.project_points`. The thesis approximates
+through the right face with :func:`~prismstereo.geometry.projection.project_points`. The thesis approximates
 it by a straight line through two points (sec. 4.2): the projection of the ray's point at infinity
 (eq. 4.5-4.9) and the epipole, the projection of the left virtual camera's centre (eq. 4.10), both by the
 right *virtual pinhole*. The conventional alternative builds a fundamental matrix from the two virtual
@@ -21,7 +21,8 @@ import torch
 from kornia.geometry.epipolar import compute_correspond_epilines, fundamental_from_projections
 
 from prismstereo.errors import RigError, check_floating, check_shape
-from prismstereo.geometry.optics import Projection, points_at_depth, project_points, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.projection import Projection, project_points
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import VirtualCamera, VirtualCameraPair, virtual_cameras
 

@@ -1,6 +1,6 @@
 """Row rectification of the two half-images by vertical warps, fitted to the exact sweep.
 
-Pinhole rectification (:mod:`prismstereo.epipolar.rectify`, Fusiello) leaves true correspondences up to
+Pinhole rectification (:mod:`prismstereo.analysis.pinhole_rectify`, Fusiello) leaves true correspondences up to
 0.9 px (``thesis_setup1``) and 12 px (``thesis_setup2``) apart vertically: the bi-prism's virtual cameras are
 not pinholes. Here the rectification is fitted to the exact correspondences instead. Both halves keep their
 columns and are only warped vertically: reference pixel (u, v) goes to rectified row
@@ -35,8 +35,8 @@ from typing import Literal, NamedTuple
 import torch
 import torch.nn.functional as F
 
-from prismstereo.epipolar.sweep import SweepFit, chebyshev_basis, sweep_coefficients
-from prismstereo.epipolar.table import positions_at, tabulate_sweep
+from prismstereo.epipolar.sweep import SweepFit, chebyshev_basis, positions_at, sweep_coefficients
+from prismstereo.epipolar.sweep_table import tabulate_sweep
 from prismstereo.errors import OptionError, RigError, check_option
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
@@ -68,7 +68,7 @@ class RectifiedLevel(NamedTuple):
             pixel of the (unrectified) level reference image.
         table: (K, H_r, W_l, 2) the exact sweep of each rectified reference pixel (:func:`tabulate_sweep` at
             its source position, full-sensor px): a shift becomes a sweep coordinate by
-            :func:`~prismstereo.epipolar.table.column_to_sweep`.
+            :func:`~prismstereo.epipolar.sweep_table.column_to_sweep`.
         first_row: the rectified row (full-resolution px) of the level's top edge is first_row - 0.5.
     """
 

@@ -1,7 +1,7 @@
 """The exact plane sweep as a Chebyshev tensor: m(u, v, s) for every reference pixel and depth.
 
 The right-half correspondence of reference pixel (u, v) at depth Z is the exact ray-traced projection
-(eq. 3.1-3.10 forward, :func:`~prismstereo.geometry.optics.solve_projection` backward) of the point on the
+(eq. 3.1-3.10 forward, :func:`~prismstereo.geometry.projection.solve_projection` backward) of the point on the
 pixel's ray at that depth; as Z varies it traces the exact epipolar curve (thesis ch. 4, eq. 4.1-4.10
 approximate it by a straight line). The map is analytic in all three variables, so a tensor-product
 Chebyshev interpolant
@@ -26,12 +26,14 @@ Everything is differentiable w.r.t. the rig parameters (pass
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import torch
 
 from prismstereo.errors import OptionError, RigError, check_shape
-from prismstereo.geometry.optics import _trace, pixel_directions, points_at_depth, solve_projection
+from prismstereo.geometry.optics import pixel_directions, points_at_depth, trace_rays
+from prismstereo.geometry.projection import solve_projection
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 
 __all__ = [
@@ -43,6 +45,8 @@ __all__ = [
     "sweep_coefficients",
     "evaluate_sweep",
     "sweep_positions",
+    "positions_at",
+    "sweep_hypotheses",
 ]
 
 
@@ -119,7 +123,7 @@ def sweep_to_depth(s: torch.Tensor, z_range: torch.Tensor) -> torch.Tensor:
 def _exact(p: RigParameters, u: torch.Tensor, v: torch.Tensor, s: torch.Tensor, z_range: torch.Tensor):
     """Exact right positions (N_s, N_v, N_u, 2) and convergence on the face planes' continuation."""
     uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1)  # (N_v, N_u, 2)
-    rays = _trace(p, pixel_directions(p, uv), "left_extended")
+    rays = trace_rays(p, pixel_directions(p, uv), "left", extended=True)
     out, ok, prev = [], [], None
     for z in sweep_to_depth(s, z_range):
         proj = solve_projection(p, points_at_depth(rays, z), "right", 6, prev, extended=True)
@@ -268,3 +272,43 @@ def sweep_positions(fit: SweepFit, uv_ref: torch.Tensor, s: torch.Tensor) -> tor
         torch.Size([4, 96, 64, 2])
     """
     return evaluate_sweep(sweep_coefficients(fit, uv_ref), s)
+
+
+def positions_at(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+    """Per-pixel sweep polynomials at coordinates shared by all pixels, by one matrix product.
+
+    Args:
+        coefficients: (N, H, W, 2) per-pixel Chebyshev coefficients in s.
+        s: (S,) coordinates in [-1, 1].
+
+    Returns:
+        (S, H, W, 2) positions, dtype of ``coefficients``.
+
+    Example:
+        >>> positions_at(torch.ones(3, 4, 5, 2), torch.tensor([1.0, 0.0])).shape
+        torch.Size([2, 4, 5, 2])
+    """
+    check_shape(coefficients, ["N", "H", "W", 2], "coefficients")
+    n = coefficients.shape[0]
+    basis = chebyshev_basis(s.to(coefficients), n)  # (S, N)
+    return (basis @ coefficients.reshape(n, -1)).view(-1, *coefficients.shape[1:])
+
+
+def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0) -> int:
+    """Number of hypotheses, uniform in s over [-1, 1], with neighbours at most ``max_step_px`` apart in
+    the other half for every pixel of the per-pixel sweep polynomials ``coefficients`` (N, H, W, 2).
+
+    Example:
+        >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 700.0))
+        >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1)
+        >>> coef = sweep_coefficients(fit, uv.double()).permute(2, 0, 1, 3)
+        >>> sweep_hypotheses(coef) >= 10
+        True
+    """
+    if max_step_px <= 0:
+        raise OptionError(f"max_step_px must be > 0, got {max_step_px}")
+    probe = torch.linspace(-1.0, 1.0, 257, dtype=coefficients.dtype, device=coefficients.device)
+    sub = coefficients[:, ::4, ::4]
+    pos = positions_at(sub, probe)  # (257, h, w, 2)
+    speed = (pos[1:] - pos[:-1]).norm(dim=-1).amax() * 256 / 2  # px per unit s (max over pixels)
+    return max(2, math.ceil(float(speed) * 2 / max_step_px * 1.02) + 1)

@@ -1,8 +1,7 @@
-"""Rig, exact prism optics and virtual cameras (thesis chapter 3)."""
+"""Rig, exact prism optics (tracing and projection) and virtual cameras (thesis chapter 3)."""
 
 from prismstereo.geometry.optics import (
     Half,
-    Projection,
     RayBundle,
     Refraction,
     apex_ray,
@@ -10,13 +9,12 @@ from prismstereo.geometry.optics import (
     half_of_pixels,
     pixel_directions,
     points_at_depth,
-    project_points,
     refract,
-    solve_projection,
     trace_directions,
     trace_pixels,
 )
 from prismstereo.geometry.presets import load_rig, thesis_setup1, thesis_setup2
+from prismstereo.geometry.projection import Projection, project_points, solve_projection
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.geometry.virtual_camera import (
     VirtualCamera,

@@ -1,4 +1,4 @@
-"""Exact ray optics of the bi-prism: vector Snell refraction, pixel -> ray tracing, point -> pixel projection.
+"""Exact ray optics of the bi-prism: vector Snell refraction and pixel -> ray tracing.
 
 This is the thesis' ray construction (eq. 3.1-3.10: camera ray R1, refracted R2 inside the glass, R3 after
 the back plane) written in vector form, batched over any leading dims and differentiable w.r.t. pixels,
@@ -15,6 +15,11 @@ decides its half-image: the left face (x < d at the apex depth when untilted) is
 A ray is *valid* when it enters within the prism's extent, is not lost to total internal reflection at
 the back plane, and leaves the glass through the back plane (not through the other face). Invalid rays
 still get finite numbers (square roots are clamped) so no NaN reaches a gradient.
+
+:func:`trace_pixels` and :func:`trace_directions` are the checked entry points (a rig or its tensors, any
+dtype); :func:`trace_pixel_rays` and :func:`trace_rays`, the same tracer without checks and optionally through
+a face's infinite plane, serve the solvers of :mod:`prismstereo.geometry.projection` and
+:mod:`prismstereo.epipolar.sweep`.
 """
 
 from __future__ import annotations
@@ -26,22 +31,22 @@ import torch
 from prismstereo.conventions import HALVES as _HALVES
 from prismstereo.conventions import Half
 from prismstereo.errors import RigError, check_floating, check_option, check_shape
-from prismstereo.geometry.distortion import distort, round_trip_px, undistort
+from prismstereo.geometry.distortion import round_trip_px, undistort
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 
 __all__ = [
     "Half",
     "RayBundle",
     "Refraction",
-    "Projection",
-    "solve_projection",
     "refract",
     "pixel_directions",
     "trace_pixels",
     "trace_directions",
+    "trace_pixel_rays",
+    "trace_rays",
+    "apex_direction",
     "apex_ray",
     "points_at_depth",
-    "project_points",
     "half_of_pixels",
     "check_rig_images",
     "euler_rotation",
@@ -79,19 +84,6 @@ class RayBundle(NamedTuple):
     valid: torch.Tensor
     left: torch.Tensor
     entries: torch.Tensor
-
-
-class Projection(NamedTuple):
-    """Result of :func:`project_points`.
-
-    Attributes:
-        uv: (*, 2) pixel coordinates (u, v) in the full sensor image.
-        valid: (*,) bool: the point is beyond the back plane, the solver converged, the pixel is on the
-            sensor inside the requested half, and its ray is valid.
-    """
-
-    uv: torch.Tensor
-    valid: torch.Tensor
 
 
 def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -149,16 +141,6 @@ def pixel_directions(rig: BiPrismRig | RigParameters, uv: torch.Tensor) -> torch
     return _pixel_directions(p, uv)[0]
 
 
-def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Cross product over the last dim, written out (exports to plain ONNX arithmetic)."""
-    return torch.stack(
-        [a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-         a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-         a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]],
-        dim=-1,
-    )
-
-
 def _pixel_directions(p: RigParameters, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Unit camera-ray directions (*, 3) and, for a distorting lens, (*,) whether the undistortion converged to a
     true preimage (beyond the fold of a strong lens model the pixel has none: the ray is then invalid)."""
@@ -176,10 +158,17 @@ def _pixel_directions(p: RigParameters, uv: torch.Tensor) -> tuple[torch.Tensor,
     return d / d.norm(dim=-1, keepdim=True), ok
 
 
-def _trace_pixels(p: RigParameters, uv: torch.Tensor, half: str) -> RayBundle:
-    """_trace of the pixels' camera rays, invalid where the lens model has no preimage."""
+def trace_pixel_rays(p: RigParameters, uv: torch.Tensor, half: str = "auto", extended: bool = False) -> RayBundle:
+    """:func:`trace_pixels` without its checks: :func:`trace_rays` (same ``p``, ``half``, ``extended``) of the
+    pixels' (*, 2) camera rays, invalid where the lens model has no preimage.
+
+    Example:
+        >>> uv = torch.tensor([[100.0, 300.0]], dtype=torch.float64)
+        >>> trace_pixel_rays(as_parameters(thesis_setup1(), uv), uv).left
+        tensor([True])
+    """
     directions, ok = _pixel_directions(p, uv)
-    rays = _trace(p, directions, half)
+    rays = trace_rays(p, directions, half, extended)
     return rays if ok is None else rays._replace(valid=rays.valid & ok)
 
 
@@ -234,10 +223,30 @@ def _planes(p: RigParameters) -> _Planes:
     )
 
 
-def _trace(p: RigParameters, directions: torch.Tensor, half: str) -> RayBundle:
-    """Trace camera rays from the optical centre; ``half`` 'auto' picks the face the ray really hits,
-    'left'/'right' force that face's (extended) plane, and validity then also requires it to be the face
-    the ray really hits."""
+def trace_rays(p: RigParameters, directions: torch.Tensor, half: str = "auto", extended: bool = False) -> RayBundle:
+    """Trace camera rays from the optical centre through the prism: :func:`trace_directions` on the rig's
+    tensors, without argument checks.
+
+    ``half`` 'auto' picks the face the ray really hits; 'left'/'right' force that face's plane (extended past
+    the apex), and validity then also requires it to be the face the ray really hits. With ``extended`` the
+    forced face is its infinite plane and none of the prism's edges count (no apex, back-plane edge or
+    other-face checks): the analytic continuation through which the sweep is fitted smoothly
+    (:mod:`prismstereo.epipolar.sweep`).
+
+    Args:
+        p: the rig's tensors on ``directions``' dtype and device (:func:`~prismstereo.geometry.rig.as_parameters`).
+        directions: (*, 3) unit directions in the camera frame (z > 0).
+        half: 'auto', 'left' or 'right'.
+        extended: trace through the face's infinite plane.
+
+    Returns:
+        RayBundle with origins/directions/entries (*, 3), valid/left (*,).
+
+    Example:
+        >>> d = torch.tensor([[0.01, 0.0, 1.0]], dtype=torch.float64); d = d / d.norm(dim=-1, keepdim=True)
+        >>> trace_rays(as_parameters(thesis_setup1(), d), d, "left", extended=True).valid
+        tensor([True])
+    """
     pl = _planes(p)
     den_l = _dot(directions, pl.n_left)
     den_r = _dot(directions, pl.n_right)
@@ -245,8 +254,6 @@ def _trace(p: RigParameters, directions: torch.Tensor, half: str) -> RayBundle:
     t_l = _dot(pl.n_left, pl.apex) / torch.where(den_l > 0, den_l, torch.ones_like(den_l))
     t_r = _dot(pl.n_right, pl.apex) / torch.where(den_r > 0, den_r, torch.ones_like(den_r))
     natural_left = t_l > t_r  # a ray exactly at the apex (x = d) belongs to the right half
-    extended = half.endswith("_extended")  # internal: the face's infinite plane, no prism-edge checks
-    half = half.removesuffix("_extended")
     if half == "auto":
         use_left = natural_left
     else:
@@ -299,7 +306,7 @@ def trace_directions(
     check_shape(directions, ["*", 3], "directions")
     check_floating(directions, "directions")
     check_option(half, _TRACE_HALVES, "half")
-    return _trace(as_parameters(rig, directions), directions, half)
+    return trace_rays(as_parameters(rig, directions), directions, half)
 
 
 def trace_pixels(
@@ -324,7 +331,7 @@ def trace_pixels(
     check_floating(uv, "uv")
     check_option(half, _TRACE_HALVES, "half")
     p = as_parameters(rig, uv)
-    return _trace_pixels(p, uv, half)
+    return trace_pixel_rays(p, uv, half)
 
 
 def half_of_pixels(rig: BiPrismRig | RigParameters, uv: torch.Tensor) -> torch.Tensor:
@@ -366,8 +373,20 @@ def apex_ray(rig: BiPrismRig | RigParameters, half: Half, like: torch.Tensor | N
     if like is None:
         like = rig.alpha if isinstance(rig, RigParameters) else torch.zeros((), dtype=torch.float64)
     p = as_parameters(rig, like)
+    return trace_rays(p, apex_direction(p), half)
+
+
+def apex_direction(p: RigParameters) -> torch.Tensor:
+    """The (3,) unit direction of the camera ray through the prism's apex point A = (d, 0, T_o).
+
+    Traced through a face it is that half's central ray (:func:`apex_ray`), the axis of its virtual camera.
+
+    Example:
+        >>> apex_direction(as_parameters(thesis_setup1(), torch.zeros(1, dtype=torch.float64)))
+        tensor([0., 0., 1.], dtype=torch.float64)
+    """
     apex = _planes(p).apex
-    return _trace(p, apex / apex.norm(), half)
+    return apex / apex.norm()
 
 
 def points_at_depth(rays: RayBundle, depth: torch.Tensor | float) -> torch.Tensor:
@@ -390,149 +409,6 @@ def points_at_depth(rays: RayBundle, depth: torch.Tensor | float) -> torch.Tenso
     # Set Z exactly (removes rounding of the division; keeps the gradient w.r.t. depth).
     z = torch.as_tensor(depth, dtype=pts.dtype, device=pts.device).expand_as(pts[..., 2])
     return torch.cat([pts[..., :2], z.unsqueeze(-1)], dim=-1)
-
-
-# ----------------------------------------------------------------------------------- projection
-def _residual(p: RigParameters, points: torch.Tensor, uv: torch.Tensor, half: str) -> tuple[torch.Tensor, RayBundle]:
-    """Slope mismatch (2,) between the traced ray of ``uv`` and the line from its exit point to the point."""
-    rays = _trace_pixels(p, uv, half)
-    rel = points - rays.origins
-    dz = rel[..., 2:3]
-    dz = torch.where(dz.abs() > 1e-9, dz, torch.full_like(dz, 1e-9))
-    r = rays.directions[..., :2] / rays.directions[..., 2:3] - rel[..., :2] / dz
-    return r, rays
-
-
-def _newton_step(
-    p: RigParameters, points: torch.Tensor, uv: torch.Tensor, half: str, h: float, max_step: float
-) -> tuple[torch.Tensor, torch.Tensor, RayBundle]:
-    """One Newton step on uv; the Jacobian (forward differences) is computed without grad so that the
-    returned step's gradient is the implicit-function gradient -J^-1 dr/dtheta."""
-    r, rays = _residual(p, points, uv, half)
-    with torch.no_grad():
-        r0 = r.detach()
-        du = torch.zeros_like(uv)
-        du[..., 0] = h
-        ru, _ = _residual(p, points, uv + du, half)
-        dv = torch.zeros_like(uv)
-        dv[..., 1] = h
-        rv, _ = _residual(p, points, uv + dv, half)
-        a, c = (ru[..., 0] - r0[..., 0]) / h, (ru[..., 1] - r0[..., 1]) / h
-        b, d = (rv[..., 0] - r0[..., 0]) / h, (rv[..., 1] - r0[..., 1]) / h
-        det = a * d - b * c
-        det = torch.where(det.abs() > 1e-30, det, torch.full_like(det, 1e-30))
-    # delta = -J^-1 r (2x2 solve written out: ONNX friendly, no linalg ops)
-    step = -torch.stack([d * r[..., 0] - b * r[..., 1], -c * r[..., 0] + a * r[..., 1]], dim=-1) / det.unsqueeze(-1)
-    norm = step.norm(dim=-1, keepdim=True).detach()
-    step = step * torch.clamp(max_step / norm.clamp_min(1e-30), max=1.0)
-    return uv + step, step.norm(dim=-1), rays
-
-
-def project_points(
-    rig: BiPrismRig | RigParameters,
-    points: torch.Tensor,
-    half: Half,
-    iterations: int = 5,
-    initial_uv: torch.Tensor | None = None,
-) -> Projection:
-    """Project 3D points through one half of the prism to sensor pixels (the inverse of tracing).
-
-    Solves trace(uv) passes through X for uv by a fixed number of Newton iterations (no data-dependent
-    loop, so the graph is ONNX-traceable), started from the half's virtual pinhole built on its apex ray
-    (thesis sec. 3.2) and finished by one more step whose gradient is the implicit-function gradient, so
-    results are differentiable w.r.t. the points and every rig parameter. Converges to < 1e-6 px (float64)
-    and < 1e-3 px (float32) for points between the back plane and 5 m.
-
-    Args:
-        rig: the rig (:class:`BiPrismRig` or :class:`RigParameters`).
-        points: (*, 3) points in the camera frame (mm), float32 or float64.
-        half: 'left' (reference) or 'right'.
-        iterations: Newton iterations before the final step (>= 1). Measured on the thesis setups and a
-            tilted, offset prism: 3 reach 1e-11 px in float64 from the pinhole start (up to ~30 px off for
-            setup 2); the default 5 leaves margin. Non-converged points come back with ``valid`` False.
-        initial_uv: (*, 2) optional starting pixels (e.g. the solution at a neighbouring depth), replacing
-            the virtual-pinhole start where they are not NaN; two or three iterations then suffice.
-
-    Returns:
-        Projection(uv (*, 2), valid (*,)).
-
-    Example:
-        >>> proj = project_points(thesis_setup1(), torch.tensor([[10.0, 5.0, 600.0]]), "left")
-        >>> proj.uv.shape, proj.valid
-        (torch.Size([1, 2]), tensor([True]))
-    """
-    check_floating(points, "points")
-    p = as_parameters(rig, points)
-    uv, converged = solve_projection(p, points, half, iterations, initial_uv)
-    on_sensor = (
-        (uv[..., 0] >= -0.5) & (uv[..., 0] <= p.width - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= p.height - 0.5)
-    )
-    return Projection(uv, converged & on_sensor)
-
-
-def solve_projection(
-    rig: BiPrismRig | RigParameters,
-    points: torch.Tensor,
-    half: Half,
-    iterations: int = 5,
-    initial_uv: torch.Tensor | None = None,
-    extended: bool = False,
-) -> Projection:
-    """:func:`project_points` without the sensor bounds: the sensor-plane position (*, 2) of each point seen
-    through ``half``'s prism face, valid where the ray exists (no miss, no TIR), reaches the point and the
-    Newton solve converged, even if the position lies off the sensor. With ``extended`` the face is its
-    infinite plane (no apex, edge or other-face checks): the analytic continuation used to fit smooth
-    sweep curves (:mod:`prismstereo.epipolar.sweep`) through depths where the real ray does not exist.
-
-    Example:
-        >>> solve_projection(thesis_setup1(), torch.tensor([[10.0, 5.0, 600.0]]), "right").valid
-        tensor([True])
-    """
-    check_shape(points, ["*", 3], "points")
-    check_floating(points, "points")
-    check_option(half, _HALVES, "half")
-    if not isinstance(iterations, int) or iterations < 1:
-        raise RigError(f"iterations must be a positive int, got {iterations!r}")
-    p = as_parameters(rig, points)
-    half = f"{half}_extended" if extended else half
-    f64 = points.dtype == torch.float64
-    h = 1e-4 if f64 else 2e-2
-    tol = 1e-6 if f64 else 2e-3
-    max_step = 0.25 * p.width
-    if initial_uv is not None:
-        check_shape(initial_uv, ["*", 2], "initial_uv")
-    with torch.no_grad():
-        uv = _initial_guess(p, points.detach(), half)
-        if initial_uv is not None:
-            start = initial_uv.detach().to(points).expand_as(uv)
-            uv = torch.where(torch.isnan(start), uv, start)
-        for _ in range(iterations):
-            uv, _, _ = _newton_step(p, points, uv, half, h, max_step)
-            uv = torch.stack([uv[..., 0].clamp(-p.width, 2.0 * p.width),
-                              uv[..., 1].clamp(-p.height, 2.0 * p.height)], dim=-1)
-    uv, last, rays = _newton_step(p, points, uv.detach(), half, h, max_step)
-    beyond = _dot(points - rays.origins, rays.directions) > 0
-    return Projection(uv, rays.valid & beyond & (last.detach() < tol))
-
-
-def _initial_guess(p: RigParameters, points: torch.Tensor, half: str) -> torch.Tensor:
-    """Project through the half's virtual pinhole: centre where the apex ray's back-extension meets z = 0,
-    axis the apex ray's direction (the thesis' virtual camera, eq. 3.11-3.12), real intrinsics."""
-    pl = _planes(p)
-    axis_ray = _trace(p, pl.apex / pl.apex.norm(), half)
-    o, a = axis_ray.origins, axis_ray.directions
-    centre = o - a * (o[2] / a[2])
-    # minimal rotation taking the axis a to e_z: R = I + [v]x + [v]x^2 / (1 + c), v = a x e_z, c = a_z
-    v = torch.stack([a[1], -a[0], torch.zeros_like(a[0])])
-    w = points - centre
-    cross = _cross(v.expand_as(w), w)
-    w = w + cross + _cross(v.expand_as(w), cross) / (1.0 + a[2])
-    z = w[..., 2].clamp_min(1e-6)
-    fpx = p.f / p.pixel_size
-    xy = torch.stack([w[..., 0] / z, w[..., 1] / z], dim=-1)
-    if p.distortion is not None:
-        xy = distort(xy, p.distortion)
-    return torch.stack([p.cx + fpx * xy[..., 0], p.cy + fpx * xy[..., 1]], dim=-1)
 
 
 # ----------------------------------------------------------------------------------- rig check
@@ -566,7 +442,7 @@ def check_rig_images(rig: BiPrismRig, samples: int = 33) -> None:
     u = torch.linspace(-0.5, rig.image_width - 0.5, samples, dtype=torch.float64)
     v = torch.linspace(-0.5, rig.image_height - 0.5, samples, dtype=torch.float64)
     uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1).reshape(-1, 2)
-    rays = _trace_pixels(rig.parameters(uv), uv, "auto")
+    rays = trace_pixel_rays(rig.parameters(uv), uv, "auto")
     for name, mask in (("left", rays.left), ("right", ~rays.left)):
         if not bool((rays.valid & mask).any()):
             raise RigError(

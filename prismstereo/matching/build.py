@@ -10,8 +10,7 @@ import torch
 from torch import nn
 
 from prismstereo.epipolar.row_rectify import fit_row_rectification, level_coverage, rectified_level
-from prismstereo.epipolar.sweep import SweepFit, sweep_coefficients
-from prismstereo.epipolar.table import positions_at, sweep_hypotheses
+from prismstereo.epipolar.sweep import SweepFit, positions_at, sweep_coefficients, sweep_hypotheses
 from prismstereo.errors import check_option
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.levels import RectifiedSearch, SearchOptions, SweepSearch

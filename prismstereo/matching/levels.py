@@ -9,10 +9,10 @@ like RAFT-Stereo's correlation blocks:
 * :class:`RectifiedSearch`: both halves row-rectified by vertical warps fitted to the exact sweep
   (:mod:`prismstereo.epipolar.row_rectify`); every hypothesis is a column shift (one gather builds the volume,
   :func:`~prismstereo.matching.sweep_cost.shift_cost`); the winning shift becomes s exactly
-  (:func:`~prismstereo.epipolar.table.column_to_sweep`), resampled onto the unrectified pixels.
+  (:func:`~prismstereo.epipolar.sweep_table.column_to_sweep`), resampled onto the unrectified pixels.
 
 :class:`FineBand` then re-estimates every full-resolution pixel in a band of hypotheses around an estimate,
-on the exact sweep (:mod:`prismstereo.epipolar.table`). :mod:`prismstereo.matching.build` builds a rig's
+on the exact sweep (:mod:`prismstereo.epipolar.series`). :mod:`prismstereo.matching.build` builds a rig's
 search.
 """
 
@@ -26,7 +26,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.epipolar.row_rectify import RectifiedLevel
-from prismstereo.epipolar.table import column_to_sweep, positions_at, series_at, series_band
+from prismstereo.epipolar.series import series_at, series_band
+from prismstereo.epipolar.sweep import positions_at
+from prismstereo.epipolar.sweep_table import column_to_sweep
 from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.matching._graph import fill_invalid, tracing
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
@@ -294,7 +296,8 @@ class FineBand(nn.Module):
 
     Example:
         >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
-        >>> from prismstereo.epipolar.table import sweep_series, tabulate_sweep, valid_interval
+        >>> from prismstereo.epipolar.series import sweep_series
+        >>> from prismstereo.epipolar.sweep_table import tabulate_sweep, valid_interval
         >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 900.0))
         >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1).double()
         >>> coefficients = sweep_coefficients(fit, uv).permute(2, 0, 1, 3)
@@ -315,10 +318,10 @@ class FineBand(nn.Module):
     def forward(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
                 series: torch.Tensor, interval: torch.Tensor, texture: torch.Tensor | None = None) -> LevelResult:
         """The band around ``s0`` (B, 1, H, W) (detached, in [-1, 1]) with the estimate's validity ``ok0``;
-        ``series`` (2, D + 1, H, W) the exact sweep (:func:`~prismstereo.epipolar.table.sweep_series`), ``interval``
-        (2, H, W) each pixel's valid s (:func:`~prismstereo.epipolar.table.valid_interval`); ``texture`` optionally
-        (B, 1, H, W) the reference's grey :func:`~prismstereo.matching.aggregate.box_std` over the cost window
-        (the wide box's weight; computed here when None)."""
+        ``series`` (2, D + 1, H, W) the exact sweep (:func:`~prismstereo.epipolar.series.sweep_series`),
+        ``interval`` (2, H, W) each pixel's valid s (:func:`~prismstereo.epipolar.sweep_table.valid_interval`);
+        ``texture`` optionally (B, 1, H, W) the reference's grey :func:`~prismstereo.matching.aggregate.box_std`
+        over the cost window (the wide box's weight; computed here when None)."""
         exporting = tracing()
         h = reference.shape[-2]
         halo = self.options.window // 2 + max(self.options.box, self.options.wide_box) // 2

@@ -29,21 +29,37 @@ from prismstereo.geometry.optics import RayBundle, euler_rotation
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 from prismstereo.synthetic.textures import SceneError
 
-__all__ = ["apparent_depth", "blur_circle_px", "defocus_blur", "fresnel_transmittance", "prism_transmittance"]
+__all__ = [
+    "apparent_depth", "blur_circle_px", "check_lens", "defocus_blur", "fill_nearest", "fresnel_transmittance",
+    "positive_number", "prism_transmittance",
+]
 
 _FINE_STEP_PX = 0.5  # radius spacing of the blur levels up to 4 px; above, levels grow geometrically by 1/8
 _LEVEL_RATIO = 1.0 / 8.0
 
 
-def _positive_number(value: object) -> bool:
-    """A finite int or float > 0 (not a bool): an f-number or a distance."""
+def positive_number(value: object) -> bool:
+    """A finite int or float > 0 (not a bool): an f-number or a distance.
+
+    Example:
+        >>> positive_number(2.8), positive_number(True), positive_number(float("inf"))
+        (True, False, False)
+    """
     return (not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
             and value > 0)
 
 
-def _check_lens(rig: BiPrismRig, f_number: float, focus_mm: float) -> None:
-    """Raise :class:`SceneError` unless f_number > 0 and the focus distance lies beyond the focal length."""
-    if not _positive_number(f_number):
+def check_lens(rig: BiPrismRig, f_number: float, focus_mm: float) -> None:
+    """Raise :class:`SceneError` unless f_number > 0 and the focus distance lies beyond the focal length.
+
+    Example:
+        >>> check_lens(thesis_setup1(), 2.8, 600.0)
+        >>> check_lens(thesis_setup1(), 2.8, 10.0)
+        Traceback (most recent call last):
+        ...
+        prismstereo.synthetic.textures.SceneError: focus_mm must exceed the lens' focal length ...
+    """
+    if not positive_number(f_number):
         raise SceneError(f"f_number must be a finite number > 0, got {f_number!r}")
     if isinstance(focus_mm, bool) or not isinstance(focus_mm, (int, float)) or not math.isfinite(focus_mm):
         raise SceneError(f"focus_mm must be a finite number, got {focus_mm!r}")
@@ -77,7 +93,7 @@ def blur_circle_px(rig: BiPrismRig, depth_mm: torch.Tensor, f_number: float, foc
     """
     check_shape(depth_mm, ["*"], "depth_mm")
     check_floating(depth_mm, "depth_mm")
-    _check_lens(rig, f_number, focus_mm)
+    check_lens(rig, f_number, focus_mm)
     if (depth_mm <= 0).any():
         raise SceneError("depth_mm must be positive (NaN and inf are allowed)")
     f = rig.focal_length_mm
@@ -278,9 +294,14 @@ def defocus_blur(image: torch.Tensor, radius_px: torch.Tensor) -> torch.Tensor:
     return out
 
 
-def _fill_nearest(depth: torch.Tensor, valid: torch.Tensor, default: float) -> torch.Tensor:
+def fill_nearest(depth: torch.Tensor, valid: torch.Tensor, default: float) -> torch.Tensor:
     """(H, W) depth with every invalid pixel set to the depth of its nearest valid pixel (OpenCV's 5x5-mask
-    distance transform); all ``default`` when no pixel is valid."""
+    distance transform); all ``default`` when no pixel is valid.
+
+    Example:
+        >>> fill_nearest(torch.tensor([[1.0, 0.0, 0.0, 4.0]]), torch.tensor([[True, False, False, True]]), 9.0)
+        tensor([[1., 1., 4., 4.]])
+    """
     if bool(valid.all()):
         return depth
     if not bool(valid.any()):

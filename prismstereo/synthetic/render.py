@@ -9,7 +9,7 @@ are float32 in [0, 1].
 Ground truth comes from each pixel's centre ray: depth Z, the 3D point, validity (the ray passes the
 prism and hits the scene), the half it belongs to, and for the reference (left) half its co-visibility
 and true match in the right half: the point is projected into the right half with
-:func:`~prismstereo.geometry.optics.project_points` and counts as co-visible when that pixel's own ray
+:func:`~prismstereo.geometry.projection.project_points` and counts as co-visible when that pixel's own ray
 reaches the same point (nothing occludes it, it is on the sensor and in the right half).
 """
 
@@ -23,16 +23,17 @@ import kornia
 import torch
 from tqdm.auto import tqdm
 
-from prismstereo.geometry.optics import pixel_directions, project_points, trace_pixels
+from prismstereo.geometry.optics import pixel_directions, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.synthetic.lens import (
-    _check_lens,
-    _fill_nearest,
-    _positive_number,
     apparent_depth,
     blur_circle_px,
+    check_lens,
     defocus_blur,
+    fill_nearest,
     fresnel_transmittance,
+    positive_number,
     prism_transmittance,
 )
 from prismstereo.synthetic.scenes import Scene
@@ -126,9 +127,9 @@ class ImageFormation:
             raise SceneError(f"poisson_photons must be positive or None, got {self.poisson_photons}")
         if self.bits not in (8, 16, None):
             raise SceneError(f"bits must be 8, 16 or None, got {self.bits!r}")
-        if self.f_number is not None and not _positive_number(self.f_number):
+        if self.f_number is not None and not positive_number(self.f_number):
             raise SceneError(f"f_number must be a finite number > 0 or None, got {self.f_number!r}")
-        if not _positive_number(self.focus_mm):
+        if not positive_number(self.focus_mm):
             raise SceneError(f"focus_mm must be a finite distance > 0 (mm), got {self.focus_mm!r}")
         if not isinstance(self.fresnel, bool):
             raise SceneError(f"fresnel must be a bool, got {self.fresnel!r}")
@@ -271,7 +272,7 @@ def render(
         raise SceneError("scenes must be a Scene or a non-empty sequence of Scenes")
     formation = formation or ImageFormation()
     if formation.f_number is not None:
-        _check_lens(rig, formation.f_number, formation.focus_mm)
+        check_lens(rig, formation.f_number, formation.focus_mm)
     for scene in scenes:
         scene.validate(rig)
     gen = torch.Generator().manual_seed(formation.seed)
@@ -282,7 +283,7 @@ def render(
         points, valid, left, covisible, match, apparent = _ground_truth(rig, scene, formation.f_number is not None)
         lens_depth = None
         if formation.f_number is not None:
-            lens_depth = _fill_nearest(apparent.view(h, w), valid.view(h, w), formation.focus_mm)
+            lens_depth = fill_nearest(apparent.view(h, w), valid.view(h, w), formation.focus_mm)
         image = _form_image(radiance, rig, formation, gen, lens_depth)
         fields = (
             image,

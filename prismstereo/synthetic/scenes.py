@@ -46,6 +46,7 @@ __all__ = [
     "sphere_scene",
     "height_field_scene",
     "middlebury_scene",
+    "vector3",
 ]
 
 F64 = torch.float64
@@ -65,7 +66,13 @@ class Hit(NamedTuple):
     coords: torch.Tensor
 
 
-def _vec(value: Sequence[float], name: str) -> torch.Tensor:
+def vector3(value: Sequence[float], name: str) -> torch.Tensor:
+    """``value`` as a (3,) float64 tensor; :class:`SceneError` naming ``name`` unless it is 3 finite numbers.
+
+    Example:
+        >>> vector3([0, 0, 600], "centre")
+        tensor([  0.,   0., 600.], dtype=torch.float64)
+    """
     t = torch.as_tensor(value, dtype=F64).flatten()
     if t.numel() != 3 or not torch.isfinite(t).all():
         raise SceneError(f"{name} must be 3 finite numbers, got {value!r}")
@@ -114,12 +121,12 @@ class Plane(Surface):
         u_axis: Sequence[float] | None = None,
         bounds_mm: tuple[float, float, float, float] | None = None,
     ) -> None:
-        self.point = _vec(point, "point")
-        n = _vec(normal, "normal")
+        self.point = vector3(point, "point")
+        n = vector3(normal, "normal")
         if n.norm() < 1e-12:
             raise SceneError("normal must be non-zero")
         self.normal = n / n.norm()
-        u = _vec(u_axis, "u_axis") if u_axis is not None else torch.tensor([1.0, 0.0, 0.0], dtype=F64)
+        u = vector3(u_axis, "u_axis") if u_axis is not None else torch.tensor([1.0, 0.0, 0.0], dtype=F64)
         u = u - (u @ self.normal) * self.normal
         if u.norm() < 1e-9:
             raise SceneError("u_axis must not be parallel to the normal")
@@ -160,7 +167,7 @@ class Sphere(Surface):
     """
 
     def __init__(self, centre: Sequence[float], radius_mm: float, texture: Texture) -> None:
-        self.centre = _vec(centre, "centre")
+        self.centre = vector3(centre, "centre")
         if not radius_mm > 0:
             raise SceneError(f"radius_mm must be positive, got {radius_mm}")
         self.radius = float(radius_mm)

@@ -11,7 +11,7 @@ import cv2
 import torch
 
 from prismstereo.geometry.optics import euler_rotation
-from prismstereo.synthetic.scenes import Plane, Scene, _vec
+from prismstereo.synthetic.scenes import Plane, Scene, vector3
 from prismstereo.synthetic.textures import CheckerTexture, CircleGridTexture, ImageTexture, SceneError, Texture
 
 __all__ = ["checkerboard_target", "charuco_target", "circle_grid_target", "calibration_views"]
@@ -22,7 +22,7 @@ F64 = torch.float64
 def _target(texture: Texture, size: tuple[float, float], margin: float, centre_mm, rotation_deg) -> Plane:
     """A bounded plane whose texture origin is the pattern's corner, posed by rotation then translation."""
     rot = euler_rotation(torch.tensor([math.radians(a) for a in rotation_deg], dtype=F64))
-    centre = _vec(centre_mm, "centre_mm")
+    centre = vector3(centre_mm, "centre_mm")
     corner = centre - rot[:, 0] * size[0] / 2 - rot[:, 1] * size[1] / 2
     return Plane(corner.tolist(), rot[:, 2].tolist(), texture, u_axis=rot[:, 0].tolist(),
                  bounds_mm=(-margin, size[0] + margin, -margin, size[1] + margin))
@@ -72,7 +72,7 @@ def charuco_target(
     texture = ImageTexture(torch.from_numpy(picture).float() / 255.0, (cols + 2) * square_mm, (rows + 2) * square_mm)
     size = ((cols + 2) * square_mm, (rows + 2) * square_mm)
     rot = euler_rotation(torch.tensor([math.radians(a) for a in rotation_deg], dtype=F64))
-    corner = _vec(centre_mm, "centre_mm") - rot[:, 0] * size[0] / 2 - rot[:, 1] * size[1] / 2
+    corner = vector3(centre_mm, "centre_mm") - rot[:, 0] * size[0] / 2 - rot[:, 1] * size[1] / 2
     plane = Plane(corner.tolist(), rot[:, 2].tolist(), texture, u_axis=rot[:, 0].tolist(),
                   bounds_mm=(0.0, size[0], 0.0, size[1]))
     return Scene([plane], background=background, name=f"charuco_{cols}x{rows}")

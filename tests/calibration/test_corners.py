@@ -6,7 +6,7 @@ import torch
 from prismstereo import CalibrationError, thesis_setup1
 from prismstereo.calibration import detect_board, parse_target
 from prismstereo.calibration.corners import corner_spacing, refine_corners
-from prismstereo.geometry.optics import project_points
+from prismstereo.geometry.projection import project_points
 from prismstereo.synthetic import ImageFormation, calibration_views, render
 from tests.calibration.conftest import NOMINAL
 

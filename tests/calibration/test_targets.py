@@ -6,7 +6,7 @@ import torch
 from prismstereo import CalibrationError
 from prismstereo.calibration import Board, detect_board, parse_target
 from prismstereo.calibration.targets import to_gray_u8
-from prismstereo.geometry.optics import project_points
+from prismstereo.geometry.projection import project_points
 from tests.calibration.conftest import BOARD, NOMINAL, board_captures, board_scenes
 
 

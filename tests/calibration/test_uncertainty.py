@@ -6,7 +6,8 @@ import torch
 from prismstereo import CalibrationError, thesis_setup1
 from prismstereo.calibration.parameters import NAMES, rig_vector, vector_to_rig
 from prismstereo.calibration.uncertainty import depth_uncertainty
-from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
 F64 = torch.float64

@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from prismstereo import OptionError, thesis_setup1, thesis_setup2
-from prismstereo.epipolar.rectify import rectification_residual, rectify_virtual_cameras
+from prismstereo.analysis.pinhole_rectify import rectification_residual, rectify_virtual_cameras
 from prismstereo.epipolar.row_rectify import fit_row_rectification, rectified_level, rectified_rows, source_rows
 from prismstereo.epipolar.sweep import fit_sweep, sweep_positions
 from prismstereo.geometry.optics import trace_pixels

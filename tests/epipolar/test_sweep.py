@@ -12,7 +12,7 @@ from prismstereo.epipolar.sweep import (
     sweep_positions,
     sweep_to_depth,
 )
-from prismstereo.geometry.optics import solve_projection
+from prismstereo.geometry.projection import solve_projection
 from tests.conftest import RIGS, scaled_rig
 
 

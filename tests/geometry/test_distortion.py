@@ -5,7 +5,8 @@ import torch
 
 from prismstereo import RigError, ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.geometry.distortion import distort, distortion_jacobian, max_round_trip_px, undistort
-from prismstereo.geometry.optics import pixel_directions, project_points, trace_pixels
+from prismstereo.geometry.optics import pixel_directions, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 
 F64 = torch.float64

@@ -5,8 +5,8 @@ import torch
 
 import prismstereo.matching.levels as levels
 from prismstereo import OptionError, ShapeError, thesis_setup1
+from prismstereo.epipolar.series import series_at
 from prismstereo.epipolar.sweep import depth_to_sweep
-from prismstereo.epipolar.table import series_at
 from prismstereo.matching.levels import (
     FineBand,
     LevelResult,

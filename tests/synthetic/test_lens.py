@@ -24,7 +24,7 @@ from prismstereo.synthetic import (
     render_radiance,
     step_scene,
 )
-from prismstereo.synthetic.lens import _disk_kernel, _fill_nearest, _levels
+from prismstereo.synthetic.lens import _disk_kernel, _levels, fill_nearest
 from tests.conftest import offset_rig, scaled_rig, tilted_rig
 
 F64 = torch.float64
@@ -276,9 +276,9 @@ def test_defocus_blur_errors(radius, error, match):
 def test_fill_nearest():
     depth = torch.tensor([[1.0, math.nan, math.nan, 4.0], [math.nan, math.nan, math.nan, math.nan]], dtype=F64)
     valid = torch.isfinite(depth)
-    filled = _fill_nearest(depth, valid, 600.0)
+    filled = fill_nearest(depth, valid, 600.0)
     assert torch.equal(filled, torch.tensor([[1.0, 1.0, 4.0, 4.0], [1.0, 1.0, 4.0, 4.0]], dtype=F64))
-    assert torch.equal(_fill_nearest(depth, torch.zeros_like(valid), 600.0), torch.full_like(depth, 600.0))
+    assert torch.equal(fill_nearest(depth, torch.zeros_like(valid), 600.0), torch.full_like(depth, 600.0))
 
 
 def test_apparent_depth_of_a_plate_like_ray():

@@ -1,4 +1,6 @@
-"""Pinhole rectification of the two virtual cameras (approximate; for visualisation and conventional tools).
+"""Pinhole rectification of the two virtual cameras: analysis only (approximate; for visualisation, conventional
+tools and measuring how far the virtual pinholes are from the exact optics). The depth model rectifies with
+:mod:`prismstereo.epipolar.row_rectify` instead, fitted to the exact sweep.
 
 The virtual cameras (:mod:`prismstereo.geometry.virtual_camera`) are rectified the classic way
 (Fusiello, Trucco & Verri 2000): both are rotated to a common orientation whose x axis is the baseline
@@ -19,7 +21,8 @@ from typing import NamedTuple
 import torch
 
 from prismstereo.errors import RigError
-from prismstereo.geometry.optics import points_at_depth, project_points, trace_pixels
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.geometry.virtual_camera import VirtualCamera, VirtualCameraPair, virtual_cameras
 
