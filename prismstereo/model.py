@@ -43,6 +43,7 @@ alternatives measured: ``docs/design.md`` (*How the model picks its defaults*; t
 
 from __future__ import annotations
 
+import inspect
 import warnings
 from collections.abc import Mapping
 from typing import Any, Literal, NamedTuple
@@ -368,3 +369,8 @@ class PrismStereo(nn.Module):
         smoothed, _, features = final.smooth(s, est.confidence, est.sampled)
         return ConfidenceInputs(est.features, sweep_to_depth(s, z_range), sampled, features,
                                 sweep_to_depth(smoothed, z_range))
+
+
+# help() and inspect show the constructor's parameters, not __new__'s (*args, **kwargs: it only picks the matcher)
+PrismStereo.__signature__ = inspect.signature(PrismStereo.__init__).replace(
+    parameters=list(inspect.signature(PrismStereo.__init__).parameters.values())[1:])
