@@ -52,6 +52,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo._graph import tracing
 from prismstereo.batching import per_image
 from prismstereo.config import StereoConfig, preset
 from prismstereo.defaults import default_coarse_factor, default_downsample
@@ -311,7 +312,7 @@ class PrismStereo(nn.Module):
         the measurements behind it); traced or exported it is one graph for the whole batch.
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
-        if image.shape[0] > 1 and not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
+        if image.shape[0] > 1 and not tracing():
             parts = per_image(self._forward, image)
             return DepthResult(*(torch.cat(ts, 0) for ts in zip(*parts, strict=True)))
         return self._forward(image)

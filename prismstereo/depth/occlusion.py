@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import torch
 
+from prismstereo._graph import flat_index, scatter_min
 from prismstereo.errors import OptionError, ShapeError, check_shape
-from prismstereo.matching.sweep_cost import flat_index
 
 __all__ = ["zbuffer_visible"]
 
@@ -75,20 +75,5 @@ def zbuffer_visible(
     z = torch.where(valid, depth, far).view(b, -1)
     occ = z if occluders is None else torch.where(occluders, depth, far).view(b, -1)
     zbuf = torch.full((b, n), float("inf"), dtype=z.dtype, device=z.device)
-    zbuf = _ScatterMin.apply(zbuf, target, occ) if torch.onnx.is_in_onnx_export() else \
-        zbuf.scatter_reduce(1, target, occ, reduce="amin")
+    zbuf = scatter_min(zbuf, target, occ)
     return (z * (1 - tolerance) <= zbuf.gather(1, target)).view(b, 1, h, w_ref)
-
-
-class _ScatterMin(torch.autograd.Function):
-    """``data.scatter_reduce(1, index, updates, "amin")`` exported as one ScatterElements (reduction 'min'): the
-    exporter's own form wraps it in an If whose branch copies all three inputs (Identity; ~2 ms per 1024 x 768
-    frame in onnxruntime)."""
-
-    @staticmethod
-    def forward(ctx, data: torch.Tensor, index: torch.Tensor, updates: torch.Tensor) -> torch.Tensor:  # noqa: D102
-        return data.scatter_reduce(1, index, updates, reduce="amin")
-
-    @staticmethod
-    def symbolic(g, data, index, updates):  # noqa: D102
-        return g.op("ScatterElements", data, index, updates, axis_i=1, reduction_s="min")

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import torch
 
+from prismstereo._graph import exporting
 from prismstereo.errors import OptionError, ShapeError, check_shape
 
 __all__ = ["series_at", "series_band", "sweep_series"]
@@ -146,8 +147,8 @@ def series_band(series: torch.Tensor, s0: torch.Tensor, offsets: torch.Tensor, t
     series = _rows_of(series, s0, top)
     n = series.shape[1] - 1
     t = offsets.to(s0)
-    exporting = torch.onnx.is_in_onnx_export()
-    if exporting:
+    exported = exporting()
+    if exported:
         vander = t.view(-1, 1) ** torch.arange(n + 1, device=s0.device).to(s0)  # (J, D + 1)
     t = t.view(1, -1, 1, 1)
     out = []
@@ -157,7 +158,7 @@ def series_band(series: torch.Tensor, s0: torch.Tensor, offsets: torch.Tensor, t
         for k in range(n):  # after pass k, b[k] is a_k (b[D] = c_D = a_D throughout)
             for i in range(n - 1, k - 1, -1):
                 b[i] = b[i] + s0 * b[i + 1]
-        if exporting:  # (J, D + 1) @ (B, D + 1, H_s W): a MatMul (a 1 x 1 Conv became 16-channel NCHWc blocks)
+        if exported:  # (J, D + 1) @ (B, D + 1, H_s W): a MatMul (a 1 x 1 Conv became 16-channel NCHWc blocks)
             b[n] = b[n].expand_as(s0)
             a = torch.cat(b, 1).flatten(2)
             out.append(torch.matmul(vander, a).view(s0.shape[0], -1, *s0.shape[2:]))

@@ -28,6 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo._graph import exporting
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, evaluate_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_shape
@@ -361,7 +362,7 @@ class LearnedStereo(nn.Module):
         dtype = self.volume.depths.dtype
         x = normalise_image(image.to(dtype))
         volume = self.volume(self.features(x))
-        if not torch.onnx.is_in_onnx_export():  # the layout is a CPU speed-up the exporter does not take
+        if not exporting():  # the layout is a CPU speed-up the exporter does not take
             volume = volume.contiguous(memory_format=torch.channels_last_3d)
         cost = self.aggregation(volume)[:, 0]  # (B, D, h, w_b)
         regression = depth_regression(cost, self.volume.depths, self.volume.valid)

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import torch
 
+from prismstereo._graph import box_mean, in_place, scan_eager, scan_traced
 from prismstereo.errors import OptionError, ShapeError, check_shape
-from prismstereo.matching._graph import box_mean, in_place, scan_eager, scan_traced
 
 __all__ = ["box_filter", "box_std", "sgm_aggregate", "sgm_aggregate_guided"]
 
@@ -32,7 +32,7 @@ def box_filter(volume: torch.Tensor, window: int) -> torch.Tensor:
     once (borders average the pixels inside the image only).
 
     Torch eager and an ONNX export compute it in different forms that agree to float rounding
-    (:func:`~prismstereo.matching._graph.box_mean`: in-place shifted sums vs one AveragePool).
+    (:func:`~prismstereo._graph.box_mean`: in-place shifted sums vs one AveragePool).
 
     Example:
         >>> box_filter(torch.ones(1, 3, 8, 8), 5).shape
@@ -87,7 +87,7 @@ def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
     one scan computes both horizontal paths, one both vertical ones, and one the four diagonal ones (8
     directions; those with a shift of -1 flipped to +1). The paths along one axis are summed in their oriented
     layout (the W-axis ones in ``_DIRECTIONS`` order), the two sums transposed back and added. Without autograd
-    in torch eager the scans are :func:`~prismstereo.matching._graph.scan_eager` and the sums are taken in place.
+    in torch eager the scans are :func:`~prismstereo._graph.scan_eager` and the sums are taken in place.
 
     Measured on the 1/8-resolution coarse volume of a 1024 x 768 frame ((1, 49, 64, 97), 4 directions,
     2 threads, medians of 20 alternating runs): onnxruntime 13.0-14.3 -> 10.4-10.9 ms (half the graph nodes:

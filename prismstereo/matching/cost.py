@@ -30,8 +30,8 @@ from typing import Literal, NamedTuple
 import torch
 import torch.nn.functional as F
 
+from prismstereo._graph import fill_invalid
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
-from prismstereo.matching._graph import fill_invalid
 from prismstereo.matching.aggregate import box_filter
 
 __all__ = ["Cost", "COSTS", "CostVolume", "Warped", "ad_gradient_volume", "census_transform", "cost_volume", "grey",
@@ -145,12 +145,23 @@ def census_cost(reference: torch.Tensor, views: torch.Tensor, window: int, thres
 
 def grey(x: torch.Tensor) -> torch.Tensor:
     """Channel mean of (B, C, ...), keeping the channel axis (no ReduceMean, a copy in onnxruntime, for one
-    channel)."""
+    channel).
+
+    Example:
+        >>> grey(torch.ones(1, 3, 4, 5)).shape
+        torch.Size([1, 1, 4, 5])
+    """
     return x if x.shape[1] == 1 else x.mean(1, keepdim=True)
 
 
 def window_moments(x: torch.Tensor, window: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Window mean and variance (clamped at 0) of every plane of (B, K, H, W), each (B, K, H, W)."""
+    """Window mean and variance (clamped at 0) of every plane of (B, K, H, W), each (B, K, H, W).
+
+    Example:
+        >>> mean, var = window_moments(torch.arange(25.0).view(1, 1, 5, 5), 3)
+        >>> float(mean[0, 0, 2, 2]), round(float(var[0, 0, 2, 2]), 2)  # 6, 7, 8, 11, ..., 18
+        (12.0, 17.33)
+    """
     if x.shape[1] == 1:  # one plane: x and x^2 in one box (onnxruntime pools a channel on one thread: 2 for 1)
         mean, square = box_filter(torch.cat([x, x * x], 1), window).split(1, 1)
     else:
@@ -161,13 +172,25 @@ def window_moments(x: torch.Tensor, window: int) -> tuple[torch.Tensor, torch.Te
 def ncc_cost(cross: torch.Tensor, var_r: torch.Tensor, var_v: torch.Tensor) -> torch.Tensor:
     """1 - NCC in [0, 2] from the window covariance and the two variances, each variance floored at ~ the
     variance of 8-bit noise: windows without texture (e.g. the black pixels outside the prism's view) get
-    NCC ~ 0 instead of a ratio of rounding errors (torch and onnxruntime differed by 0.02 without)."""
+    NCC ~ 0 instead of a ratio of rounding errors (torch and onnxruntime differed by 0.02 without).
+
+    Example:
+        >>> ncc_cost(torch.tensor([1.0, 0.0]), torch.tensor([1.0, 0.0]), torch.tensor([1.0, 0.0]))
+        tensor([1.0014e-05, 1.0000e+00])
+    """
     ncc = cross / torch.sqrt((var_r + _VAR_FLOOR) * (var_v + _VAR_FLOOR))
     return 1.0 - ncc.clamp(-1, 1)
 
 
 def zncc_cost(reference: torch.Tensor, views: torch.Tensor, window: int) -> torch.Tensor:
-    """1 - ZNCC (B, D, H, W) of the grey ``reference`` (B, C, H, W) against each grey view (B, C, D, H, W)."""
+    """1 - ZNCC (B, D, H, W) of the grey ``reference`` (B, C, H, W) against each grey view (B, C, D, H, W).
+
+    Example:
+        >>> ref = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
+        >>> cost = zncc_cost(ref, torch.stack([ref, 1.0 - ref], 2), 5)
+        >>> cost.shape, bool(cost[0, 0].max() < 0.01), bool(cost[0, 1].min() > 1.99)
+        (torch.Size([1, 2, 8, 8]), True, True)
+    """
     # centred on 0.5 (ZNCC is offset-invariant): E[x^2] - E[x]^2 then cancels far less in float32, which keeps
     # torch and onnxruntime within ~1e-6 of each other on low-contrast windows
     ref = grey(reference) - 0.5  # (B, 1, H, W)

@@ -25,12 +25,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo._graph import fill_invalid, tracing
 from prismstereo.epipolar.row_rectify import RectifiedLevel
 from prismstereo.epipolar.series import series_at, series_band
 from prismstereo.epipolar.sweep import positions_at
 from prismstereo.epipolar.sweep_table import column_to_sweep
 from prismstereo.errors import OptionError, ShapeError, check_shape
-from prismstereo.matching._graph import fill_invalid, tracing
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
 from prismstereo.matching.cost import Warped, grey, sweep_cost, worst_cost
 from prismstereo.matching.select import (

@@ -15,8 +15,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from prismstereo._graph import fill_invalid, sample_bilinear
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
-from prismstereo.matching._graph import fill_invalid, flat_index, sample_bilinear
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.cost import (
     COSTS,
@@ -30,8 +30,7 @@ from prismstereo.matching.cost import (
     zncc_cost,
 )
 
-# flat_index (owned by _graph) is public here for the gathers and scatters outside matching
-__all__ = ["flat_index", "sample_points", "sample_slices", "shift_cost", "warp_slices"]
+__all__ = ["sample_points", "sample_slices", "shift_cost", "warp_slices"]
 
 
 def sample_slices(other: torch.Tensor, grid: torch.Tensor, shared: bool | None = None) -> torch.Tensor:
@@ -83,7 +82,7 @@ def sample_points(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torc
     are clamped to the image, which is ``grid_sample``'s border padding).
 
     Torch eager calls ``grid_sample``; an ONNX export gathers each position's four taps and blends them
-    (:func:`~prismstereo.matching._graph.sample_bilinear`: onnxruntime's GridSample kernel is single-threaded
+    (:func:`~prismstereo._graph.sample_bilinear`: onnxruntime's GridSample kernel is single-threaded
     and slow). The two forms agree to float rounding; both are differentiable w.r.t. the image and the
     positions.
 

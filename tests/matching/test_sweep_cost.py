@@ -3,9 +3,9 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
-from prismstereo.matching._graph import gather_bilinear
+from prismstereo._graph import flat_index, gather_bilinear
 from prismstereo.matching.cost import Warped, sweep_cost, worst_cost
-from prismstereo.matching.sweep_cost import flat_index, sample_points, shift_cost, warp_slices
+from prismstereo.matching.sweep_cost import sample_points, shift_cost, warp_slices
 
 
 def _shift_grid(h: int, w: int, w_o: int, shifts: list[float]) -> torch.Tensor:

@@ -1,16 +1,20 @@
-"""The runtime-dependent forms of the matching layers: what torch eager runs, and what goes into a traced / ONNX
-graph instead, side by side, one function per operation.
+"""The runtime-dependent forms of the layers: what torch eager runs, and what goes into a traced / ONNX graph
+instead, side by side, one function per operation.
 
 Every operation here computes the same numbers in both forms (to float rounding, the SGM scan and the fills
 bitwise); each form is the fastest one measured in its runtime (torch eager on CPU, onnxruntime; numbers in
 ``docs/design.md``, *Implementation measurements*). The algorithms (:mod:`~prismstereo.matching.cost`,
 :mod:`~prismstereo.matching.aggregate`, :mod:`~prismstereo.matching.sweep_cost`, :mod:`~prismstereo.matching.levels`)
-call these and never test the runtime themselves; the tests hold the two forms equal.
+call these and never test the runtime themselves; the tests hold the two forms equal. Layers whose exported form
+is a different arrangement of the same algorithm (the power series of :mod:`~prismstereo.epipolar.series`, the
+table gathers of :mod:`~prismstereo.epipolar.sweep_table`, the model's batching) ask :func:`exporting` /
+:func:`tracing` here.
 
 * :func:`fill_invalid`: invalid entries of a volume -> a value (a full tensor vs a scalar constant, or a Max).
 * :func:`box_mean`: window mean (in-place shifted sums vs one AveragePool).
 * :func:`scan_traced` / :func:`scan_eager`: one SGM scan (Concat of steps vs a preallocated buffer).
 * :func:`sample_bilinear`: bilinear samples at pixel positions (``grid_sample`` vs element gathers).
+* :func:`scatter_min`: a scatter with a minimum (``scatter_reduce`` vs one ScatterElements).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import torch
 import torch.nn.functional as F
 
 __all__ = ["GATHER_ROWS", "box_mean", "exporting", "fill_invalid", "flat_index", "gather_bilinear", "in_place",
-           "sample_bilinear", "scan_eager", "scan_traced", "tracing"]
+           "sample_bilinear", "scan_eager", "scan_traced", "scatter_min", "tracing"]
 
 # onnxruntime's GatherElements runs the rows of its index (all axes before the gathered one) on its threads and one
 # row on one thread: the bilinear taps gather from the image repeated on this many rows (a Concat, a copy of the
@@ -241,3 +245,37 @@ def flat_index(row: torch.Tensor, column: torch.Tensor, width: int, size: int) -
     else:
         index = row.to(index_type) * width + column.to(index_type)
     return index.clamp(0, size - 1)
+
+
+def scatter_min(data: torch.Tensor, index: torch.Tensor, updates: torch.Tensor) -> torch.Tensor:
+    """``data.scatter_reduce(1, index, updates, "amin")``: in an exported graph one ScatterElements with reduction
+    'min' (the exporter's own form wraps it in an If whose branch copies all three inputs, ~2 ms per 1024 x 768
+    frame in onnxruntime).
+
+    Args:
+        data: (B, N) the values before the scatter.
+        index: (B, M) integer positions in [0, N).
+        updates: (B, M) the values scattered; each position keeps the smallest.
+
+    Returns:
+        (B, N).
+
+    Example:
+        >>> scatter_min(torch.full((1, 3), 9.0), torch.tensor([[0, 0, 2]]), torch.tensor([[5.0, 4.0, 7.0]]))
+        tensor([[4., 9., 7.]])
+    """
+    if exporting():
+        return _ScatterMin.apply(data, index, updates)
+    return data.scatter_reduce(1, index, updates, reduce="amin")
+
+
+class _ScatterMin(torch.autograd.Function):
+    """:func:`scatter_min`'s exported form: one ScatterElements (reduction 'min')."""
+
+    @staticmethod
+    def forward(ctx, data: torch.Tensor, index: torch.Tensor, updates: torch.Tensor) -> torch.Tensor:  # noqa: D102
+        return data.scatter_reduce(1, index, updates, reduce="amin")
+
+    @staticmethod
+    def symbolic(g, data, index, updates):  # noqa: D102
+        return g.op("ScatterElements", data, index, updates, axis_i=1, reduction_s="min")
