@@ -277,14 +277,10 @@ class FineBand(nn.Module):
     most half a step further out) and judged by that hypothesis' confidence (with R = 1 that is always the
     centre: taken by static slices, without a winner search or gathers). The band runs over horizontal
     strips whose cost and box filters see ``window // 2 + max(fine_box, wide_box) // 2`` rows beyond the strip,
-    so the strips give the whole image's numbers (bitwise, measured). In torch eager strips of ~64 rows at
-    1024 x 768 keep the band's (11, rows, W) volumes (~1.6 MB) in cache instead of 17 MB ones in DRAM. An
-    exported graph takes bands of up to 2 M voxels in one piece (the pyramid's at 1024 x 768: a band of 5 on
-    768 x 512 pixels) and larger ones in strips (unrolled into the graph, the batch axis stays dynamic): with
-    the sweep as a power series, the default pyramid's final band in one piece instead of 2 strips of 468 rows
-    took 0.95x the frame time (paired A/B; its rows no longer copied out of the series per strip), peak RSS over
-    two frames 510 -> 537 MB. (With the earlier sweep table, 4 strips had been ~15 ms faster than one piece and
-    769 -> 474 MB.)
+    so the strips give the whole image's numbers (bitwise). Torch eager takes cache-sized strips (~400 k voxels);
+    an exported graph takes bands of up to 2 M voxels in one piece and larger ones in strips unrolled into the
+    graph (the batch axis stays dynamic); the timings behind both sizes: ``docs/design.md``, *Implementation
+    measurements*.
 
     Args:
         options: matching options of the band (cost, window, census threshold, box = the band's box window,
