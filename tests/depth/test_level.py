@@ -1,0 +1,60 @@
+"""DepthLevel: one resolution of the model (its own search or a placement from a coarser level)."""
+
+import pytest
+import torch
+
+from prismstereo import OptionError, thesis_setup1
+from prismstereo.config import StereoConfig
+from prismstereo.depth.level import DepthLevel, Placement
+from prismstereo.epipolar.sweep import depth_to_sweep
+from prismstereo.model import PrismStereo
+from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
+
+RIG = thesis_setup1().downscaled(4)  # 256 x 192
+Z = (400.0, 800.0)
+
+
+@pytest.fixture(scope="module")
+def capture():
+    return render(RIG, fronto_parallel_plane(RIG, 600.0, seed=2), ImageFormation(supersample=2, noise_sigma=1 / 255,
+                                                                                 seed=4)).image
+
+
+def test_a_level_with_its_own_search_finds_the_plane(capture):
+    level = DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=2))
+    assert level.factor == 2 and level.band == 3 and level.config.validity.validity == "calibrated"
+    assert level.config.search.sampling == "rectified" and level.search is not None
+    with torch.no_grad():
+        res = level.depth(capture)
+    assert res.depth.shape == res.valid.shape == (1, 1, RIG.image_height, RIG.reference_width)
+    assert res.match.shape == (1, 2, RIG.image_height, RIG.reference_width)
+    rel = ((res.depth - 600.0).abs() / 600.0)[res.valid]
+    assert res.valid.float().mean() > 0.8 and float(rel.mean()) < 2e-3
+
+
+def test_the_pyramid_is_a_binned_level_placing_a_full_resolution_level(capture):
+    model = PrismStereo(RIG, Z, {"downsample": 2, "full_band": 2})
+    binned, final = model.levels
+    assert model.binned is binned and model.final is final and final.placed_by == 2 and final.search is None
+    with torch.no_grad():
+        placement = binned.placement(torch.nn.functional.avg_pool2d(capture, 2))
+        low = binned.depth(torch.nn.functional.avg_pool2d(capture, 2))
+        res = final.depth(capture, placement)
+    assert isinstance(placement, Placement) and placement.reach == 2 * binned.factor
+    torch.testing.assert_close(placement.s, low.index * binned.step - 1.0)
+    s_true = depth_to_sweep(torch.tensor(600.0), torch.tensor(Z))
+    assert float((placement.s - s_true)[placement.valid].abs().median()) < 2 * binned.step
+    assert torch.equal(res.depth, model(capture).depth)  # the model is exactly this composition
+
+
+def test_level_errors(capture):
+    with pytest.raises(OptionError, match="validity 'calibrated' needs a coarse-to-fine model"):
+        DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=1, validity="calibrated"))
+    with pytest.raises(OptionError, match="dense needs a coarse-to-fine model"):
+        DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=1, dense=True))
+    with pytest.raises(OptionError, match="coarse_factor must be an int >= 1 leaving >= 8 rows"):
+        DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=32))
+    level = DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=2))
+    with pytest.raises(OptionError, match="a placed level needs the coarser level's result"):
+        level.depth(capture, Placement(torch.zeros(1, 1, 96, 64), torch.ones(1, 1, 96, 64, dtype=torch.bool),
+                                       torch.ones(1, 1, 96, 64), 2))
