@@ -16,8 +16,9 @@ depth (:class:`ValidityConfig`) — with the model's defaults. Presets name the 
 * ``'reference'``: one exact full-resolution level over the whole range (no coarse-to-fine placement): slow,
   the baseline the others are measured against.
 
-``PrismStereo.from_config(rig, z_range_mm, config)`` builds the model; ``prismstereo depth`` and ``export`` take
-``--preset NAME`` and ``--config FILE.json``.
+``PrismStereo(rig, z_range_mm, config)`` builds the model from a config, a preset's name or a dict of options on
+top of the default (``{"coarse_factor": 1}``; :meth:`StereoConfig.with_options` on any config); ``prismstereo
+depth`` and ``export`` take ``--preset NAME`` and ``--config FILE.json``.
 """
 
 from __future__ import annotations
@@ -264,8 +265,8 @@ _GROUPS: dict[str, type] = {"search": SearchConfig, "cost": CostConfig, "aggrega
 class StereoConfig:
     """Every option of :class:`~prismstereo.model.PrismStereo`, grouped by stage; the defaults are the model's.
 
-    The option values are checked by the model when it is built (:meth:`PrismStereo.from_config`); this class
-    checks the structure (known groups and names).
+    Each group checks its option values when it is built (:class:`~prismstereo.errors.OptionError`); what depends
+    on the rig (a coarse factor or binning leaving too few rows) is checked by the model.
 
     Example:
         >>> config = preset("fast")
