@@ -4,8 +4,6 @@ import numpy as np
 import onnxruntime as ort
 import pytest
 import torch
-from hypothesis import HealthCheck, assume, given, settings
-from hypothesis import strategies as st
 from kornia.geometry.camera import PinholeCamera
 
 from prismstereo import (
@@ -25,7 +23,7 @@ from prismstereo import (
     trace_directions,
     trace_pixels,
 )
-from tests.conftest import ROUND_TRIP_TOL, random_pixels
+from tests.conftest import random_pixels
 
 F64 = torch.float64
 
@@ -272,102 +270,12 @@ def test_points_at_depth():
     assert cross.norm(dim=-1).max() < 1e-9
 
 
-# ----------------------------------------------------------------------------- project_points
-def test_project_points_round_trip(rig, dtype):
-    uv = random_pixels(rig, 3000, dtype, seed=2)
-    rays = trace_pixels(rig, uv)
-    for depth in (rays.origins[:, 2] + 0.5, 250.0, 1000.0, 5000.0):  # 0.5 mm beyond the (tilted) back plane
-        pts = points_at_depth(rays, depth)
-        for half, mask in (("left", rays.left), ("right", ~rays.left)):
-            m = mask & rays.valid
-            proj = project_points(rig, pts[m], half)
-            assert proj.uv.dtype == dtype
-            err = (proj.uv - uv[m]).norm(dim=-1)
-            assert err.max().item() < ROUND_TRIP_TOL[dtype], (half, depth)
-            assert proj.valid.all(), (half, depth)
-
-
-@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(
-    alpha=st.floats(2.0, 25.0),
-    n=st.floats(1.4, 1.8),
-    f=st.floats(8.0, 35.0),
-    t_o=st.floats(60.0, 300.0),
-    d=st.floats(-3.0, 3.0),
-    tilt=st.tuples(st.floats(-2.0, 2.0), st.floats(-2.0, 2.0), st.floats(-2.0, 2.0)),
-    depth=st.floats(1.0, 5000.0),
-    seed=st.integers(0, 2**16),
-)
-def test_project_points_round_trip_random_rigs(alpha, n, f, t_o, d, tilt, depth, seed):
-    try:
-        rig = thesis_setup1().replace(
-            alpha_deg=alpha, refractive_index=n, focal_length_mm=f, apex_distance_mm=t_o,
-            prism_thickness_mm=50.0 * math.tan(math.radians(alpha)), prism_offset_x_mm=d, prism_tilt_deg=tilt,
-        )
-    except RigError:
-        assume(False)
-    uv = random_pixels(rig, 64, F64, seed=seed)
-    rays = trace_pixels(rig, uv)
-    assume(bool(rays.valid.any()))
-    z = torch.maximum(rays.origins[:, 2] + 1.0, torch.tensor(depth, dtype=F64))
-    pts = points_at_depth(rays, z)
-    for half, mask in (("left", rays.left), ("right", ~rays.left)):
-        m = mask & rays.valid
-        if m.any():
-            proj = project_points(rig, pts[m], half)
-            assert (proj.uv - uv[m]).norm(dim=-1).max().item() < 1e-6
-            assert proj.valid.all()
-
-
-def test_project_points_batch_dims(dtype):
-    rig = thesis_setup1()
-    gen = torch.Generator().manual_seed(3)
-    pts = torch.rand(2, 3, 5, 3, generator=gen, dtype=dtype) * torch.tensor([40.0, 40.0, 800.0], dtype=dtype)
-    pts = pts + torch.tensor([-20.0, -20.0, 400.0], dtype=dtype)
-    proj = project_points(rig, pts, "left")
-    assert proj.uv.shape == (2, 3, 5, 2) and proj.valid.shape == (2, 3, 5)
-    flat = project_points(rig, pts.reshape(-1, 3), "left")
-    torch.testing.assert_close(proj.uv.reshape(-1, 2), flat.uv)
-
-
-def test_project_points_invalid_points():
-    rig = thesis_setup1()
-    pts = torch.tensor(
-        [
-            [0.0, 0.0, 100.0],  # between camera and prism
-            [0.0, 0.0, 175.0],  # inside the glass (before the back plane at 175.6)
-            [-600.0, 0.0, 600.0],  # far outside the field of view
-            [0.0, 0.0, 600.0],  # on the axis: seen by both halves
-        ],
-        dtype=F64,
-    )
-    left = project_points(rig, pts, "left")
-    right = project_points(rig, pts, "right")
-    assert left.valid.tolist() == [False, False, False, True]
-    assert right.valid.tolist() == [False, False, False, True]
-    assert torch.isfinite(left.uv).all() and torch.isfinite(right.uv).all()
-    # the on-axis point: left half sees it at u < apex column, right half at u > apex column
-    assert left.uv[3, 0] < rig.apex_column < right.uv[3, 0]
-    torch.testing.assert_close(left.uv[3, 0] + right.uv[3, 0], torch.tensor(2 * rig.cx, dtype=F64))
-
-
-def test_project_points_bad_arguments():
-    rig = thesis_setup1()
-    with pytest.raises(ShapeError, match=r"points must have shape \(\*, 3\)"):
-        project_points(rig, torch.zeros(4, 2), "left")
-    with pytest.raises(OptionError, match="Unknown half 'auto'. Choose from: 'left', 'right'"):
-        project_points(rig, torch.zeros(4, 3), "auto")
-    with pytest.raises(RigError, match="iterations must be a positive int"):
-        project_points(rig, torch.zeros(4, 3), "left", iterations=0)
-    with pytest.raises(PrismStereoError, match="floating-point"):
-        project_points(rig, torch.zeros(4, 3, dtype=torch.int32), "left")
-
-
 # ----------------------------------------------------------------------------- gradients
 PARAM_NAMES = ("alpha", "n", "f", "T", "T_o", "d", "tilt")
 
 
-def _params_fn(rig, fn):
+def params_fn(rig, fn):
+    """A gradcheck function of the rig parameters PARAM_NAMES (float64) and its inputs."""
     base = rig.parameters(dtype=F64)
 
     def wrapped(*values):
@@ -379,6 +287,7 @@ def _params_fn(rig, fn):
 
 
 def misaligned_rig():
+    """Setup 1 with the prism offset and tilted about all three axes."""
     return thesis_setup1().replace(prism_offset_x_mm=1.0, prism_tilt_deg=(0.5, -0.5, 0.3))
 
 
@@ -386,7 +295,7 @@ def misaligned_rig():
 def test_gradcheck_trace_wrt_rig(make):
     rig = make()
     uv = torch.tensor([[100.0, 200.0], [700.0, 600.0], [480.0, 390.0]], dtype=F64)
-    fn, inputs = _params_fn(rig, lambda p: torch.cat(list(trace_pixels(p, uv)[:2]), -1))
+    fn, inputs = params_fn(rig, lambda p: torch.cat(list(trace_pixels(p, uv)[:2]), -1))
     assert torch.autograd.gradcheck(fn, inputs)
 
 
@@ -394,21 +303,6 @@ def test_gradcheck_trace_wrt_pixels():
     rig = thesis_setup1()
     uv = torch.tensor([[100.0, 200.0], [700.0, 600.0]], dtype=F64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: torch.cat(list(trace_pixels(rig, x)[:2]), -1), (uv,))
-
-
-@pytest.mark.parametrize("make", [thesis_setup1, misaligned_rig])
-def test_gradcheck_project_wrt_rig(make):
-    rig = make()
-    pts = torch.tensor([[10.0, 5.0, 600.0], [-40.0, -20.0, 900.0]], dtype=F64)
-    for half in ("left", "right"):
-        fn, inputs = _params_fn(rig, lambda p, h=half: project_points(p, pts, h).uv)
-        assert torch.autograd.gradcheck(fn, inputs)
-
-
-def test_gradcheck_project_wrt_points():
-    rig = thesis_setup2()
-    pts = torch.tensor([[10.0, 5.0, 600.0], [-40.0, -20.0, 300.0]], dtype=F64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda x: project_points(rig, x, "left").uv, (pts,))
 
 
 def test_gradients_finite_on_invalid_rays():
