@@ -20,7 +20,7 @@ an independent closed form (``tests/geometry/test_optics.py``), textures on the 
 
 The models are ``PrismStereo``'s defaults: at 1024 x 768 the pyramid (the 2 x 2-binned model places a final
 band of 5 full-resolution hypotheses). ``--downsample K`` evaluates the models that match on K x K-binned
-captures (``--downsample 1``: the full-resolution coarse level, the default before session 7); with an explicit
+captures (``--downsample 1``: the full-resolution coarse level, an earlier default); with an explicit
 ``--downsample`` each pixel gets its block's value unless ``--full-band R`` adds the final band of 2 R + 1
 hypotheses.
 

@@ -6,7 +6,7 @@ and 1 inter-op thread, all graph optimisations) with ``thesis_setup1`` at 1024 x
 sensor by K for quick runs). Times: ``--repeats`` interleaved rounds after one warm-up call each
 (``benchmarks/_timing.py``: every method once per round, in reversed order every other round, 0.1 s apart), the
 median and fastest per method; the "x SGBM" column is the median over rounds of the method's time divided by
-SGBM's time in the same round. (Since session 9: this host drifts between phases of up to ~2x within minutes,
+SGBM's time in the same round. (This host drifts between phases of up to ~2x within minutes,
 and not equally for every method: in one run the 2-thread onnxruntime and torch rows were ~2x slower than in the
 next while single-threaded SGBM was not, so ratios of medians timed block by block compared different phases.)
 Each table says how many cores other processes used meanwhile (/proc/stat minus this process): on a shared 2-core
@@ -30,7 +30,7 @@ onnxruntime and OpenCV much less, so only trust runs where that is ~0.
    (``sampling='sweep'``; the default is the rectified shift volume). Both ranges also time the pyramid with
    ``full_band=1, band_edges='clamp'`` (the fast full-resolution setting: a band of 3, each pixel refined around its
    centre, at most half a step beyond it, instead of rejected when the best of the three is on an edge), the model
-   with ``downsample=1`` (the full-resolution coarse level, coarse factor 4; the default before session 7) and with
+   with ``downsample=1`` (the full-resolution coarse level, coarse factor 4; an earlier default) and with
    ``downsample=2, full_band=0`` (matching on the 2 x 2-binned capture, each pixel its block's depth: the speed knob,
    half the lateral resolution; the narrow range also with coarse factor 4 on the binned image, where the default
    picks 2) and, for context, StereoSGBM on the same binned halves (numDisparities halved, depth converted with the
@@ -48,9 +48,7 @@ onnxruntime and OpenCV much less, so only trust runs where that is ~0.
    with the CPU time split into user and system and the minor page faults per call (fresh large temporaries
    are page-faulted in on every call; that is system time). The ratio is printed from the medians and from the
    fastest runs: on this shared VM a single image's time swings by up to 2x between host phases, and the
-   ratio with it (0.99-1.30x in five runs of session 5; 1.04-1.26x in five runs after the eager box filter and
-   semi-global scans got faster and the worker threads one intra-op thread each; 1.07-1.28x in four more, all
-   with the full-resolution coarse level, the default then; the pyramid gave 1.07x in one run).
+   ratio with it (0.99-1.30x over 14 runs with the full-resolution coarse level, 1.07x in one with the pyramid).
 4. **Peak RSS** of a fresh process (``subprocess`` + ``sys.executable``) that loads the exported wide graph
    with ``OnnxDepth`` and runs one frame, and of one that builds the torch model and runs one frame in eager
    mode: the high-water mark VmHWM of /proc/self/status after the imports, after loading / building, after
