@@ -8,17 +8,10 @@ import torch
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from prismstereo import (
-    OptionError,
-    PrismStereoError,
-    RigError,
-    ShapeError,
-    points_at_depth,
-    project_points,
-    thesis_setup1,
-    thesis_setup2,
-    trace_pixels,
-)
+from prismstereo.errors import OptionError, PrismStereoError, RigError, ShapeError
+from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
+from prismstereo.geometry.projection import project_points
 from tests.conftest import ROUND_TRIP_TOL, random_pixels
 from tests.geometry.test_optics import misaligned_rig, params_fn
 
