@@ -1,7 +1,8 @@
 """Matching layers: split the capture, build cost volumes, select hypotheses, post-process estimates.
 
 The depth model's path: :class:`SplitImage`, the coarse level (:class:`RectifiedSearch` / :class:`SweepSearch`
-with :func:`sweep_cost` / :func:`shift_cost`, :func:`box_filter`, :func:`sgm_aggregate`), the fine bands
+with :class:`SweepSampler`, the plane sweep's sampling that :class:`~prismstereo.nn.PrismCostVolume` shares,
+:func:`sweep_cost` / :func:`shift_cost`, :func:`box_filter`, :func:`sgm_aggregate`), the fine bands
 (:class:`FineBand`), the smoothing (:func:`robust_mean`) and the calibrated confidence
 (:class:`ConfidenceModel`). The rectified-pair matcher (``prismstereo match``) uses the same costs on column
 shifts (:func:`cost_volume`) with its own post-processing (:mod:`~prismstereo.matching.rectified`).
@@ -49,6 +50,7 @@ from prismstereo.matching.select import (
 )
 from prismstereo.matching.split import Halves, SplitImage
 from prismstereo.matching.sweep_cost import sample_slices, shift_cost, warp_slices
+from prismstereo.matching.sweep_sampler import SweepSampler, sweep_sampler
 
 __all__ = [
     "SplitImage",
@@ -62,6 +64,8 @@ __all__ = [
     "Warped",
     "sample_slices",
     "warp_slices",
+    "SweepSampler",
+    "sweep_sampler",
     "sweep_cost",
     "worst_cost",
     "shift_cost",

@@ -10,11 +10,11 @@ import torch
 from torch import nn
 
 from prismstereo.epipolar.row_rectify import fit_row_rectification, level_coverage, rectified_level
-from prismstereo.epipolar.sweep import SweepFit, positions_at, sweep_coefficients, sweep_hypotheses
+from prismstereo.epipolar.sweep import SweepFit, sweep_coefficients, sweep_hypotheses
 from prismstereo.errors import check_option
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.levels import RectifiedSearch, SearchOptions, SweepSearch
-from prismstereo.matching.sweep_cost import warp_slices
+from prismstereo.matching.sweep_sampler import block_centres, sweep_sampler
 
 __all__ = ["BuiltSearch", "build_search"]
 
@@ -69,34 +69,19 @@ def build_search(rig: BiPrismRig, fit: SweepFit, fine: torch.Tensor, options: Se
         (15, None)
     """
     check_option(sampling, ("rectified", "sweep"), "sampling")
-    h, w_ref, f64 = rig.image_height, rig.reference_width, torch.float64
+    h, w_ref = rig.image_height, rig.reference_width
     if sampling == "rectified":  # a 1-D shift volume on row-rectified halves
         rect = fit_row_rectification(rig, fit)
         level = rectified_level(rect, fit, factor, other_valid)
         return BuiltSearch(RectifiedSearch(options, level, factor, w_ref, lr_threshold), rect.max_residual_px)
     if factor == 1:
-        return BuiltSearch(SweepSearch(options, _normalised(rig, fine, 1).float(), num_hypotheses,
-                                       other_valid=other_valid), None)
-    hc, wc = math.ceil(h / factor), math.ceil(w_ref / factor)
-    uvc = (torch.stack(torch.meshgrid(torch.arange(wc, dtype=f64), torch.arange(hc, dtype=f64),
-                                      indexing="xy"), -1) + 0.5) * factor - 0.5
-    coarse = sweep_coefficients(fit, uvc).permute(2, 0, 1, 3)
-    valid_c = level_coverage(other_valid, factor) > 0.999
+        sampler = sweep_sampler(fit, num_hypotheses, other_start=w_ref, other_valid=other_valid, precompute=False,
+                                dtype=torch.float32, coefficients=fine)
+        return BuiltSearch(SweepSearch(options, sampler), None)
     # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
-    num_c = sweep_hypotheses(coarse / factor)
-    probe = torch.zeros(1, 1, valid_c.shape[0], valid_c.shape[1], dtype=f64)
-    coarse = _normalised(rig, coarse, factor)  # grid_sample units of the coarse other image
-    grid_c = positions_at(coarse, torch.linspace(-1.0, 1.0, num_c, dtype=f64))
-    valid = warp_slices(probe, grid_c.unsqueeze(0), valid_c).valid[0]
-    return BuiltSearch(SweepSearch(options, coarse.float(), num_c, valid=valid), None)
-
-
-def _normalised(rig: BiPrismRig, coefficients: torch.Tensor, factor: int) -> torch.Tensor:
-    """Map pixel-unit polynomials of full-sensor positions to grid_sample coordinates (align_corners=False) of the
-    other half, padded to a multiple of ``factor`` (the coarse level's box downsampling): the map is affine, so
-    only T_0's coefficient gets the offset."""
-    split, h, w_o = rig.reference_width, rig.image_height, rig.image_width - rig.reference_width
-    width, height = math.ceil(w_o / factor) * factor, math.ceil(h / factor) * factor
-    scale = coefficients.new_tensor([2.0 / width, 2.0 / height])
-    offset = coefficients.new_tensor([(1.0 - 2.0 * split) / width - 1.0, 1.0 / height - 1.0])
-    return torch.cat([coefficients[:1] * scale + offset, coefficients[1:] * scale])
+    coarse = sweep_coefficients(fit, block_centres(math.ceil(h / factor), math.ceil(w_ref / factor), factor,
+                                                   fit.coefficients)).permute(2, 0, 1, 3)
+    sampler = sweep_sampler(fit, sweep_hypotheses(coarse / factor), factor=factor, other_start=w_ref,
+                            other_valid=level_coverage(other_valid, factor) > 0.999, dtype=torch.float32,
+                            coefficients=coarse)
+    return BuiltSearch(SweepSearch(options, sampler), None)

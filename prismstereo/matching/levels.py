@@ -28,7 +28,6 @@ from torch import nn
 from prismstereo._graph import fill_invalid, tracing
 from prismstereo.epipolar.row_rectify import RectifiedLevel
 from prismstereo.epipolar.series import series_at, series_band
-from prismstereo.epipolar.sweep import positions_at
 from prismstereo.epipolar.sweep_table import column_to_sweep
 from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
@@ -40,7 +39,8 @@ from prismstereo.matching.select import (
     uniqueness,
     winner_take_all,
 )
-from prismstereo.matching.sweep_cost import sample_points, sample_slices, shift_cost, warp_slices
+from prismstereo.matching.sweep_cost import sample_points, sample_slices, shift_cost
+from prismstereo.matching.sweep_sampler import SweepSampler
 
 __all__ = ["Extended", "FineBand", "LevelResult", "RectifiedSearch", "SearchOptions", "SweepSearch", "extend_estimate"]
 
@@ -134,44 +134,34 @@ class _Search(nn.Module):
 
 
 class SweepSearch(_Search):
-    """The whole range at one level by the exact plane sweep.
+    """The whole range at one level by the exact plane sweep: the other half sampled on every pixel's sweep
+    (:class:`~prismstereo.matching.sweep_sampler.SweepSampler`, the sampling :class:`~prismstereo.nn.PrismCostVolume`
+    uses too), cost, aggregation, winner.
 
     Args:
         options: matching options.
-        coefficients: (N, H, W, 2) per-pixel sweep polynomials in ``grid_sample`` units of the level's other image.
-        num_hypotheses: D, uniform in s over [-1, 1].
-        valid: optional (D, H, W) bool, the samples' validity when precomputed (a fixed grid).
-        other_valid: (H_o, W_o) bool mask of the level's other image, used when ``valid`` is None.
+        sampler: the level's sampler (:func:`~prismstereo.matching.sweep_sampler.sweep_sampler`).
 
     Example:
-        >>> search = SweepSearch(SearchOptions(), torch.zeros(3, 8, 6, 2), 4, other_valid=torch.ones(8, 6).bool())
-        >>> search(torch.rand(1, 1, 8, 6), torch.rand(1, 1, 8, 6), final=True).s.shape
+        >>> from prismstereo.matching.sweep_sampler import SweepSampler
+        >>> sampler = SweepSampler(torch.zeros(3, 8, 6, 2), 4, other_valid=torch.ones(8, 6, dtype=torch.bool))
+        >>> SweepSearch(SearchOptions(), sampler)(torch.rand(1, 1, 8, 6), torch.rand(1, 1, 8, 6), final=True).s.shape
         torch.Size([1, 1, 8, 6])
     """
 
-    def __init__(self, options: SearchOptions, coefficients: torch.Tensor, num_hypotheses: int,
-                 valid: torch.Tensor | None = None, other_valid: torch.Tensor | None = None) -> None:
+    def __init__(self, options: SearchOptions, sampler: SweepSampler) -> None:
         super().__init__(options)
-        self.num_hypotheses = num_hypotheses
-        self.register_buffer("coefficients", coefficients)
-        self.register_buffer("valid", valid)
-        self.register_buffer("other_valid", other_valid)
+        self.sampler = sampler
+        self.num_hypotheses = sampler.num_hypotheses
 
     def forward(self, reference: torch.Tensor, other: torch.Tensor, final: bool) -> LevelResult:
         """Search the level images ``reference`` (B, C, H, W) and ``other`` (B, C, H_o, W_o)."""
-        num = self.num_hypotheses
-        s_values = torch.linspace(-1.0, 1.0, num, dtype=reference.dtype, device=reference.device)
-        grid = positions_at(self.coefficients.to(reference), s_values).unsqueeze(0)
-        if self.valid is None:
-            warped = warp_slices(other, grid, self.other_valid, shared=True)
-        else:
-            b = reference.shape[0]
-            warped = Warped(sample_slices(other, grid, shared=True), self.valid.unsqueeze(0).expand(b, -1, -1, -1))
+        warped = self.sampler(other)
         o = self.options
         volume = sweep_cost(reference, warped, o.cost, o.window, o.census_threshold)
         index, refined, confidence, unique, _ = self.decide(volume, reference.shape[1], final)
         ok = warped.valid.gather(1, index) & unique
-        return LevelResult(-1.0 + refined * (2.0 / (num - 1)), ok, confidence)
+        return LevelResult(-1.0 + refined * (2.0 / (self.num_hypotheses - 1)), ok, confidence)
 
 
 class RectifiedSearch(_Search):

@@ -6,16 +6,17 @@ ch. 4, which eq. 4.1-4.10 approximate by a straight line). The sweep coordinate 
 (s = -1 at z_min, +1 at z_max), so D hypotheses uniform in s are uniform in inverse depth.
 
 :func:`sweep_grid` evaluates the fitted sweep (:func:`~prismstereo.epipolar.sweep.fit_sweep`) of the rig seen
-through ``scale`` x ``scale`` binning (:meth:`~prismstereo.geometry.rig.BiPrismRig.binned`) at every binned
-reference pixel and hypothesis; :class:`PrismCostVolume` samples the right half of a feature map there and
-correlates it with the reference half (GwcNet / IGEV-style group-wise correlation, or a PSMNet-style
-concatenation volume for 3-D convolutions).
+through ``scale`` x ``scale`` binning (the full-resolution fit at the blocks' centres) at every binned reference
+pixel and hypothesis; :class:`PrismCostVolume` samples the right half of a feature map there and correlates it
+with the reference half (GwcNet / IGEV-style group-wise correlation, or a PSMNet-style concatenation volume for
+3-D convolutions). Both sample through :class:`~prismstereo.matching.sweep_sampler.SweepSampler`, built by
+:func:`~prismstereo.matching.sweep_sampler.sweep_sampler`: the classical model's sweep searches do too, so the
+library has one implementation of the plane sweep's sampling.
 
-Validity (the rule of :func:`~prismstereo.matching.sweep_cost.warp_slices`, as the classical model uses it): a
-sample is valid where the reference pixel's own ray enters the left face, the sample lies between the first
-and last pixel centres of the right half (every bilinear tap inside it, 1e-3 px slack), and every tap with
-non-zero weight is a right-half pixel whose own ray sees through the right face. Pixels are the binned rig's:
-a binned pixel's ray is the one through its centre.
+Validity (the classical model's rule, :func:`~prismstereo.matching.sweep_cost.warp_slices`): a sample is valid
+where the reference pixel's own ray (through its block's centre) enters the left face, the sample lies between the
+first and last pixel centres of the right half (every bilinear tap inside it, 1e-3 px slack), and every tap with
+non-zero weight is a binned right-half pixel whose whole block of sensor pixels sees through the right face.
 """
 
 from __future__ import annotations
@@ -25,12 +26,12 @@ from typing import Literal, NamedTuple
 import torch
 from torch import nn
 
-from prismstereo.epipolar.grids import normalise_right_grid
-from prismstereo.epipolar.sweep import fit_sweep, sweep_positions, sweep_to_depth
+from prismstereo.epipolar.row_rectify import level_coverage
+from prismstereo.epipolar.sweep import fit_sweep, positions_at, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, RigError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
-from prismstereo.matching.sweep_cost import sample_slices, warp_slices
+from prismstereo.matching.sweep_sampler import SweepSampler, block_centres, sweep_sampler
 
 __all__ = ["MODES", "Mode", "PrismCostVolume", "SweepGrid", "sweep_grid"]
 
@@ -74,6 +75,55 @@ def _check_int(value: object, name: str, low: int) -> int:
     return value
 
 
+def _binned_size(rig: BiPrismRig | RigParameters, scale: int) -> tuple[int, int, int]:
+    """(h, W_b, w_ref) of the rig seen through ``scale`` x ``scale`` binning; checks that both halves exist."""
+    if isinstance(rig, BiPrismRig):
+        if rig.image_width // scale < 2 or rig.image_height // scale < 1:
+            raise OptionError(f"scale {scale} leaves no binned image of the {rig.image_width}x{rig.image_height} "
+                              "sensor")
+        binned = rig.binned(scale)
+        height, width = binned.image_height, binned.image_width
+    elif isinstance(rig, RigParameters):
+        binned = _binned_parameters(rig, scale)
+        height, width = int(binned.height), int(binned.width)
+    else:
+        raise RigError(f"rig must be a BiPrismRig or RigParameters, got {type(rig).__name__}")
+    w_ref = int(binned.reference_width)
+    if not 0 < w_ref < width:
+        raise RigError(f"the binned sensor ({width} columns, split at {w_ref}) has an empty half at scale {scale}")
+    return height, width, w_ref
+
+
+class _Built(NamedTuple):
+    sampler: SweepSampler
+    valid: torch.Tensor
+    depths: torch.Tensor
+    coefficients: torch.Tensor  # (N, h, w_ref, 2) full-sensor pixels at the block centres
+
+
+def _build(rig: BiPrismRig | RigParameters, z_range_mm: tuple[float, float] | torch.Tensor, num_hypotheses: int,
+           scale: int) -> _Built:
+    """The binned level's :class:`~prismstereo.matching.sweep_sampler.SweepSampler` (the classical model's
+    :func:`~prismstereo.matching.sweep_sampler.sweep_sampler`) and the volume's validity."""
+    h, width, w_ref = _binned_size(rig, scale)
+    fit = fit_sweep(rig, z_range_mm)
+    like = fit.coefficients
+    centres = block_centres(h, w_ref, scale, like)
+    coefficients = sweep_coefficients(fit, centres).permute(2, 0, 1, 3)
+    with torch.no_grad():
+        frozen = rig if isinstance(rig, BiPrismRig) else _detached(rig)
+        rays = trace_pixels(frozen, centres.detach())
+        u_o = torch.arange(w_ref * scale, width * scale, dtype=like.dtype, device=like.device)
+        v = torch.arange(h * scale, dtype=like.dtype, device=like.device)
+        rays_o = trace_pixels(frozen, torch.stack(torch.meshgrid(u_o, v, indexing="xy"), dim=-1))
+        other_valid = level_coverage(rays_o.valid & ~rays_o.left, scale) > 0.999  # every pixel of the block
+    sampler = sweep_sampler(fit, num_hypotheses, factor=scale, reference_size=(h, w_ref), other_start=w_ref * scale,
+                            other_valid=other_valid, coefficients=coefficients)
+    valid = sampler.valid & (rays.valid & rays.left)
+    s = torch.linspace(-1.0, 1.0, num_hypotheses, dtype=like.dtype, device=like.device)
+    return _Built(sampler, valid, sweep_to_depth(s, fit.z_range), coefficients)
+
+
 def sweep_grid(
     rig: BiPrismRig | RigParameters,
     z_range_mm: tuple[float, float] | torch.Tensor,
@@ -84,8 +134,10 @@ def sweep_grid(
 
     The binned reference pixels (u, v), u in [0, w_ref), v in [0, h), pixel centres at integers, at D sweep
     coordinates s_i = -1 + 2 i / (D - 1): positions m(u, v, s_i) of the Chebyshev fit of the exact projections
-    (:func:`~prismstereo.epipolar.sweep.sweep_positions`, within 1e-3 px of them), depths
-    Z_i = 1 / (1/z_min + (s_i + 1) / 2 (1/z_max - 1/z_min)).
+    (:func:`~prismstereo.epipolar.sweep.fit_sweep` of the full-resolution rig at the blocks' centres, within
+    1e-3 px of them), depths Z_i = 1 / (1/z_min + (s_i + 1) / 2 (1/z_max - 1/z_min)). The grid is the one
+    :class:`PrismCostVolume` and the classical model's sweep searches sample
+    (:func:`~prismstereo.matching.sweep_sampler.sweep_sampler`).
 
     Args:
         rig: the full-resolution rig. A :class:`BiPrismRig` is computed in float64; :class:`RigParameters` in
@@ -109,38 +161,11 @@ def sweep_grid(
     """
     _check_int(num_hypotheses, "num_hypotheses", 2)
     _check_int(scale, "scale", 1)
-    if isinstance(rig, BiPrismRig):
-        if rig.image_width // scale < 2 or rig.image_height // scale < 1:
-            raise OptionError(f"scale {scale} leaves no binned image of the {rig.image_width}x{rig.image_height} "
-                              "sensor")
-        binned: BiPrismRig | RigParameters = rig.binned(scale)
-        width = binned.image_width
-    elif isinstance(rig, RigParameters):
-        binned = _binned_parameters(rig, scale)
-        width = binned.width
-    else:
-        raise RigError(f"rig must be a BiPrismRig or RigParameters, got {type(rig).__name__}")
-    w_ref = binned.reference_width
-    if not 0 < w_ref < width:
-        raise RigError(f"the binned sensor ({width} columns, split at {w_ref}) has an empty half at scale {scale}")
-    fit = fit_sweep(binned, z_range_mm)
-    like = fit.coefficients
-    u = torch.arange(w_ref, dtype=like.dtype, device=like.device)
-    v = torch.arange(fit.height, dtype=like.dtype, device=like.device)
-    uv_ref = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1)  # (h, w_ref, 2)
-    s = torch.linspace(-1.0, 1.0, num_hypotheses, dtype=like.dtype, device=like.device)
-    uv = sweep_positions(fit, uv_ref, s.view(-1, 1, 1))  # (D, h, w_ref, 2)
-    grid = normalise_right_grid(uv, binned)
-    with torch.no_grad():
-        frozen = binned if isinstance(binned, BiPrismRig) else _detached(binned)
-        rays = trace_pixels(frozen, uv_ref)
-        u_o = torch.arange(w_ref, width, dtype=like.dtype, device=like.device)
-        rays_o = trace_pixels(frozen, torch.stack(torch.meshgrid(u_o, v, indexing="xy"), dim=-1))
-        other_valid = rays_o.valid & ~rays_o.left  # (h, W - w_ref)
-        probe = torch.zeros(1, 1, *other_valid.shape, dtype=like.dtype, device=like.device)
-        sampled = warp_slices(probe, grid.detach().unsqueeze(0), other_valid, shared=True).valid[0]
-        valid = sampled & (rays.valid & rays.left)
-    return SweepGrid(grid, valid, sweep_to_depth(s, fit.z_range), uv)
+    built = _build(rig, z_range_mm, num_hypotheses, scale)
+    c = built.coefficients
+    s = torch.linspace(-1.0, 1.0, num_hypotheses, dtype=c.dtype, device=c.device)
+    uv = (positions_at(built.coefficients, s) - (scale - 1) / 2) / scale  # binned full-sensor pixels
+    return SweepGrid(built.sampler.grid(), built.valid, built.depths, uv)
 
 
 class PrismCostVolume(nn.Module):
@@ -163,7 +188,9 @@ class PrismCostVolume(nn.Module):
     docstring) are 0: the correlation, and in ``'concat'`` both halves of the entry (as PSMNet zeroes the
     disparities beyond the image). Pass :attr:`valid` to :func:`~prismstereo.nn.regression.depth_regression`.
 
-    The grid is a buffer computed once here (it moves with ``.to()``; the volume takes the features' dtype).
+    The sampling is the classical model's (:class:`~prismstereo.matching.sweep_sampler.SweepSampler`, the per-pixel
+    sweep polynomials as a buffer, evaluated at the D hypotheses in each forward; it moves with ``.to()``, the
+    volume takes the features' dtype).
     Gradients reach the features. With ``rig`` given as :class:`~prismstereo.geometry.rig.RigParameters`
     whose tensors require grad (e.g. ``rig.parameters(dtype=torch.float64, requires_grad=True)``) the grid is
     recomputed from them in every forward (a sweep fit, ~0.1-0.7 s), so gradients also reach the rig
@@ -171,12 +198,13 @@ class PrismCostVolume(nn.Module):
     without gradients) and the sensor size and split must stay those of construction. The fit runs in the
     parameters' dtype (use float64) and is cast to the features' dtype.
 
-    Exports to ONNX (opset >= 16 for GridSample; static spatial sizes, any batch) with the grid and mask as
+    Exports to ONNX (opset >= 16 for GridSample; static spatial sizes, any batch) with the polynomials and mask as
     constants, as :func:`~prismstereo.export.onnx.export_onnx` exports the classical model.
 
     Attributes:
-        grid: (D, h, w_ref, 2) buffer, :attr:`SweepGrid.grid` (normalised on the right half of the features).
-        valid: (D, h, w_ref) bool buffer, where the hypothesis samples the right half.
+        sampler: the :class:`~prismstereo.matching.sweep_sampler.SweepSampler` of the binned level.
+        grid: (D, h, w_ref, 2) its positions, :attr:`SweepGrid.grid` (normalised on the right half of the features).
+        valid: (D, h, w_ref) bool, where the hypothesis samples the right half (the sampler's mask).
         depths: (D,) buffer, hypotheses (mm), uniform in 1/Z.
         height, width, reference_width: h, W_b and w_ref of the binned sensor.
 
@@ -200,8 +228,6 @@ class PrismCostVolume(nn.Module):
         (torch.Size([2, 8, 48, 32]), torch.Size([8]), torch.Size([8, 48, 32]))
     """
 
-    grid: torch.Tensor
-    valid: torch.Tensor
     depths: torch.Tensor
 
     def __init__(
@@ -228,13 +254,22 @@ class PrismCostVolume(nn.Module):
         self.rig_gradients = isinstance(rig, RigParameters) and any(
             v.requires_grad for v in rig if isinstance(v, torch.Tensor))
         frozen = _detached(rig) if isinstance(rig, RigParameters) else rig
-        g = sweep_grid(frozen, self.z_range_mm, num_hypotheses, scale)
-        self.height, self.reference_width = g.valid.shape[1:]
-        self.width = (rig.image_width if isinstance(rig, BiPrismRig) else rig.width) // scale
+        built = _build(frozen, self.z_range_mm, num_hypotheses, scale)
+        self.height, self.width, self.reference_width = _binned_size(frozen, scale)
         dtype = torch.get_default_dtype()
-        self.register_buffer("grid", g.grid.to(dtype))
-        self.register_buffer("valid", g.valid)
-        self.register_buffer("depths", g.depths.to(dtype))
+        self.sampler = SweepSampler(built.sampler.coefficients.to(dtype), num_hypotheses, valid=built.valid)
+        self.register_buffer("depths", built.depths.to(dtype))
+
+    @property
+    def valid(self) -> torch.Tensor:
+        """(D, h, w_ref) bool: where the hypothesis samples the right half (see the module docstring)."""
+        return self.sampler.valid
+
+    @property
+    def grid(self) -> torch.Tensor:
+        """(D, h, w_ref, 2) the sample positions, normalised on the right half of the features
+        (:attr:`SweepGrid.grid`), in the buffers' dtype."""
+        return self.sampler.grid()
 
     def extra_repr(self) -> str:
         return (f"z_range_mm={self.z_range_mm}, num_hypotheses={self.num_hypotheses}, scale={self.scale}, "
@@ -257,30 +292,22 @@ class PrismCostVolume(nn.Module):
         channels = features.shape[1]
         if channels % self.groups:
             raise ShapeError(f"features have {channels} channels, not a multiple of groups={self.groups}")
-        grid, valid = self.grid, self.valid
-        if self.rig_gradients:
-            g = sweep_grid(self.rig, self.z_range_mm, self.num_hypotheses, self.scale)
-            if tuple(g.valid.shape[1:]) != (self.height, self.reference_width):
-                raise RigError(f"the rig's split moved: reference half {tuple(g.valid.shape[1:])}, built for "
+        sampler, grid = self.sampler, None
+        if self.rig_gradients:  # the grid recomputed from the rig, differentiably; the mask updated (no gradients)
+            built = _build(self.rig, self.z_range_mm, self.num_hypotheses, self.scale)
+            if tuple(built.valid.shape[1:]) != (self.height, self.reference_width):
+                raise RigError(f"the rig's split moved: reference half {tuple(built.valid.shape[1:])}, built for "
                                f"{(self.height, self.reference_width)}")
-            grid, valid = g.grid.to(device=features.device), g.valid.to(device=features.device)
-            self.valid = valid
-        return _volume(features, grid, valid, self.reference_width, self.groups, self.mode)
-
-
-def _volume(features: torch.Tensor, grid: torch.Tensor, valid: torch.Tensor, w_ref: int, groups: int,
-            mode: str) -> torch.Tensor:
-    """The volume of :class:`PrismCostVolume` from a grid on the right half and its validity."""
-    reference = features[..., :w_ref]
-    sampled = sample_slices(features[..., w_ref:], grid.to(features.dtype).unsqueeze(0), shared=True)
-    mask = valid.to(features.dtype)  # a product, not a Where: one multi-threaded Mul in onnxruntime
-    if mode == "concat":
-        d = grid.shape[0]
-        return torch.cat([reference.unsqueeze(2).expand(-1, -1, d, -1, -1), sampled], 1) * mask
-    product = reference.unsqueeze(2) * sampled  # (B, C, D, h, w_ref)
-    if groups == 1:
-        return product.mean(1) * mask
-    c = features.shape[1]
-    grouped = product.reshape(-1, groups, c // groups, *product.shape[2:])  # batch as -1: dynamic in an export
-    return grouped.mean(2) * mask
-
+            self.sampler.valid = built.valid.to(device=features.device)
+            grid = built.sampler.grid()
+        reference = features[..., :self.reference_width]
+        sampled = sampler(features[..., self.reference_width:], grid).image  # (B, C, D, h, w_ref)
+        mask = sampler.valid.to(features.dtype)  # a product, not a Where: one multi-threaded Mul in onnxruntime
+        if self.mode == "concat":
+            d = sampled.shape[2]
+            return torch.cat([reference.unsqueeze(2).expand(-1, -1, d, -1, -1), sampled], 1) * mask
+        product = reference.unsqueeze(2) * sampled
+        if self.groups == 1:
+            return product.mean(1) * mask
+        grouped = product.reshape(-1, self.groups, channels // self.groups, *product.shape[2:])  # batch: dynamic
+        return grouped.mean(2) * mask

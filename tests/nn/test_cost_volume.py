@@ -166,7 +166,7 @@ def test_static_rig_parameters_give_the_rig_grid(rig, volume):
 def test_buffers_follow_to_and_the_volume_follows_the_features(volume):
     double = PrismCostVolume(volume.rig, Z_RANGE, 8, 4).to(torch.float64)
     assert double.grid.dtype == double.depths.dtype == torch.float64 and double.valid.dtype == torch.bool
-    assert {"grid", "valid", "depths"} <= set(dict(double.named_buffers()))
+    assert {"sampler.coefficients", "sampler.valid", "depths"} <= set(dict(double.named_buffers()))
     assert volume(_features(volume, dtype=torch.float64)).dtype == torch.float64  # float32 buffers, float64 input
 
 
