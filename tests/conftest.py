@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -59,3 +61,32 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def onnx_cache(tmp_path_factory) -> Path:
+    """:func:`~prismstereo.export.onnx_session`'s cache (``$PRISMSTEREO_CACHE``) in a directory of this session:
+    no test reads or writes the user's ``~/.cache/prismstereo``, so a run here exports what one on a clean CI
+    machine does, and tests of the same graph export it once (see ``export_once``)."""
+    root = tmp_path_factory.mktemp("prismstereo_cache")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("PRISMSTEREO_CACHE", str(root))
+        yield root
+
+
+@pytest.fixture(scope="session")
+def export_once(onnx_cache):
+    """``export_once(model)``: the path of ``model``'s ONNX graph (1 channel, default opset), exported once per
+    session for each rig, range and options, under the name and in the directory where
+    :func:`~prismstereo.export.onnx_session` looks for it (the key is the graph's metadata, which rebuilds the
+    model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export."""
+    from prismstereo.export import export_onnx
+    from prismstereo.export.onnx import DEFAULT_OPSET, _cache_key
+
+    def export(model) -> Path:
+        path = onnx_cache / "onnx" / f"{_cache_key(model, 1, DEFAULT_OPSET)}.onnx"
+        if not path.is_file():
+            export_onnx(model.eval(), path)
+        return path
+
+    return export

@@ -33,11 +33,9 @@ def test_outputs_are_bitwise_unchanged(name):
 
 
 @pytest.mark.parametrize("name", sorted(GRAPHS))
-def test_exported_graphs_are_unchanged_node_for_node(name, tmp_path):
-    from prismstereo.export import export_onnx
-
+def test_exported_graphs_are_unchanged_node_for_node(name, export_once):
     model = dict(reference_cases.graph_cases())[name]
-    now = reference_cases.graph_digest(export_onnx(model().eval(), tmp_path / "graph.onnx"))
+    now = reference_cases.graph_digest(export_once(model()))  # shared with tests/export where it is the same model
     assert now == GRAPHS[name]
 
 

@@ -78,15 +78,14 @@ def test_read_frames_errors(clip, tmp_path):
         list(read_frames(tmp_path / "seq"))
 
 
-def test_stream_torch_and_onnx_agree_and_number_frames(clip, tmp_path):
-    from prismstereo.export import export_onnx
+def test_stream_torch_and_onnx_agree_and_number_frames(clip, export_once):
     from prismstereo.model import PrismStereo
 
     rig = thesis_setup1().downscaled(8)
     model = PrismStereo(rig, (400.0, 700.0))
     frames = [f.image for f in read_frames(clip / "frames")]
     torch_stream = DepthStream(model)
-    onnx_stream = DepthStream(export_onnx(model, tmp_path / "m.onnx"))
+    onnx_stream = DepthStream(export_once(model))  # the graph the CLI's --backend onnx runs below
     assert (torch_stream.backend, onnx_stream.backend) == ("torch", "onnx")
     for k, (frame, z) in enumerate(zip(frames, DEPTHS, strict=True)):
         a, b = torch_stream.push(frame), onnx_stream.push(frame)  # RGB -> grey inside

@@ -34,13 +34,29 @@ def _capture(rig, scene) -> torch.Tensor:
     return render(rig, scene, ImageFormation(supersample=2, noise_sigma=2 / 255, seed=11)).image
 
 
+def _shared(build: Callable[[], torch.Tensor]) -> Callable[[], torch.Tensor]:
+    """The capture ``build`` renders, rendered once and cloned for each case that uses it (several cases share
+    a capture; a render at 1024 x 768 takes longer than most models' forward)."""
+    memo: list[torch.Tensor] = []
+
+    def capture() -> torch.Tensor:
+        if not memo:
+            memo.append(build())
+        return memo[0].clone()
+
+    return capture
+
+
 def cases() -> Iterator[tuple[str, Callable[[], PrismStereo], Callable[[], torch.Tensor]]]:
     """(name, model builder, capture builder) of every frozen case: each preset on the full sensor (a pyramid)
     and on a half-size sensor (coarse-to-fine at full resolution), and single options that take other paths."""
     full, half, half2 = thesis_setup1(), thesis_setup1().downscaled(2), thesis_setup2().downscaled(2)
     z = (400.0, 800.0)
-    step = lambda rig: lambda: _capture(rig, step_scene(rig, 480.0, 700.0, seed=3))  # noqa: E731
-    slant = lambda rig: lambda: _capture(rig, slanted_plane(rig, 600.0, 20.0, seed=4))  # noqa: E731
+    steps = {id(rig): _shared(lambda rig=rig: _capture(rig, step_scene(rig, 480.0, 700.0, seed=3)))
+             for rig in (full, half, half2)}
+    slanted = _shared(lambda: _capture(half, slanted_plane(half, 600.0, 20.0, seed=4)))
+    step = lambda rig: steps[id(rig)]  # noqa: E731
+    slant = lambda rig: slanted  # noqa: E731
     for name in ("accurate", "fast", "dense"):
         yield f"setup1 1024x768 {name}", lambda n=name: PrismStereo.from_config(full, z, n), step(full)
     for name in ("accurate", "fast", "dense", "reference"):

@@ -25,8 +25,8 @@ def model():
 
 
 @pytest.fixture(scope="module")
-def exported(model, tmp_path_factory):
-    return export_onnx(model, tmp_path_factory.mktemp("onnx") / "depth.onnx")
+def exported(model, export_once):
+    return export_once(model)
 
 
 @pytest.fixture(scope="module")
@@ -94,12 +94,12 @@ def test_onnxruntime_matches_torch(exported, model, captures, batch):
                                      dict(downsample=2, full_band=1, band_edges="clamp"),
                                      dict(validity="thresholds"), dict(dense=True)],
                          ids=["sweep", "lr-check", "downsample", "pyramid", "fast-pyramid", "thresholds", "dense"])
-def test_other_graphs_match_torch(model, captures, options, tmp_path):
+def test_other_graphs_match_torch(model, captures, options, export_once):
     """The coarse level's other forms export too: the exact-sweep sampling (one GridSample of every
     hypothesis), the rectified level's left-right check, matching on the 2 x 2-binned capture, and the pyramid
     (the binned model placing a full-resolution band), also with a band of 3 that keeps its edge pixels."""
     variant = PrismStereo(model.rig, (300.0, 900.0), {"coarse_factor": 2, **options}).eval()
-    got = OnnxDepth(export_onnx(variant, tmp_path / "variant.onnx"))(captures[:2])
+    got = OnnxDepth(export_once(variant))(captures[:2])
     with torch.no_grad():
         want = variant(captures[:2])
     both = got.valid & want.valid
@@ -115,13 +115,13 @@ def test_other_graphs_match_torch(model, captures, options, tmp_path):
         assert float((rel > 1e-4).double().mean()) <= 5e-3
 
 
-def test_band_of_three_clamped_needs_no_winner_search(model, tmp_path):
+def test_band_of_three_clamped_needs_no_winner_search(model, export_once):
     """With band 1 and clamped edges the final band's winner is always its centre: the graph takes it by static
     slices (one ArgMin fewer than the pyramid's band of 5) and fills invalid samples without a Where on the band
     volume (onnxruntime runs Where on one thread)."""
     def ops(options: dict) -> list[onnx.NodeProto]:
         variant = PrismStereo(model.rig, (300.0, 900.0), {"coarse_factor": 2, "downsample": 2, **options}).eval()
-        return list(onnx.load(str(export_onnx(variant, tmp_path / "variant.onnx"))).graph.node)
+        return list(onnx.load(str(export_once(variant))).graph.node)  # the graphs test_other_graphs_match_torch runs
 
     fast = ops(dict(full_band=1, band_edges="clamp"))
     pyramid = ops(dict(full_band=2))
@@ -130,7 +130,7 @@ def test_band_of_three_clamped_needs_no_winner_search(model, tmp_path):
     assert final and not [n for n in final if n.op_type in ("Where", "ArgMin")]
 
 
-def test_fine_band_strips_keep_the_batch_axis_dynamic(model, captures, tmp_path, monkeypatch):
+def test_fine_band_strips_keep_the_batch_axis_dynamic(model, exported, captures, tmp_path, monkeypatch):
     """The exported fine band runs in row strips (4 at 1024 x 768); here forced to 5 strips on the small
     sensor: a graph traced with batch 1 runs a batch of 4 (the strip arithmetic once depended on the traced
     batch size, and onnxruntime failed on mismatched strip shapes at batch 4). The strips index the one sweep
@@ -142,7 +142,7 @@ def test_fine_band_strips_keep_the_batch_axis_dynamic(model, captures, tmp_path,
     def stored(path: Path) -> int:
         return sum(len(t.raw_data) for t in onnx.load(str(path)).graph.initializer)
 
-    whole = export_onnx(model, tmp_path / "whole.onnx")
+    whole = exported  # exported without the patch
     monkeypatch.setattr(levels, "_EXPORT_STRIP_VOXELS", (2 * model.final.band + 1) * model.rig.reference_width * 20)
     path = export_onnx(model, tmp_path / "strips.onnx")
     series = model.final.series.numel() * 4
