@@ -51,6 +51,8 @@ class TemporalOptions:
             last key frame's by more than this (a depth step entering the view, occlusions), in [0, 1].
         min_valid_ratio: a tracked frame whose valid share falls below this times the last key frame's is
             computed again by the full model, in [0, 1] (0: never).
+        extrapolate: the prior is the last depth extrapolated at constant velocity in inverse depth from the
+            frame before (where both are valid), not the last depth itself.
 
     Example:
         >>> TemporalOptions(band=2).to_dict()["band"]
@@ -64,9 +66,12 @@ class TemporalOptions:
     cut_threshold: float = 0.05
     max_invalid_growth: float = 0.02
     min_valid_ratio: float = 0.95
+    extrapolate: bool = True
 
     def __post_init__(self) -> None:
         check_option(self.band_edges, TEMPORAL_BAND_EDGES, "band_edges")
+        if not isinstance(self.extrapolate, bool):
+            raise OptionError(f"extrapolate must be a bool, got {self.extrapolate!r}")
         for name, least in (("band", 1), ("reach", 0), ("keyframe_interval", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < least:
