@@ -27,9 +27,8 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import torch
-from torch import nn
-
 import torch.nn.functional as F
+from torch import nn
 
 from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 from prismstereo.errors import OptionError, ShapeError
@@ -212,6 +211,12 @@ class DepthStream:
                 if key:
                     self._key_valid = float(res.valid.float().mean())
         return StreamResult(res.depth, res.valid, res.confidence, number, ms, key)
+
+    def reset(self) -> None:
+        """Forget the previous frames (the next one is a key frame, as after a cut); counts and times stay."""
+        with self._lock:
+            self._prior = self._before = self._thumb = None
+            self._since_key, self._key_valid = 0, 1.0
 
     def _run(self, image: torch.Tensor, prior: _Prior | None = None):
         """The model (``prior`` None) or the temporal graph on one image."""

@@ -219,7 +219,7 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
         try:
             torch.onnx.export(graph, inputs, str(path), opset_version=opset, input_names=names,
                               output_names=list(OUTPUT_NAMES), dynamo=False,
-                              dynamic_axes={**{n: {0: "batch"} for n in names}, **{n: {0: "batch"} for n in OUTPUT_NAMES}})
+                              dynamic_axes={n: {0: "batch"} for n in (*names, *OUTPUT_NAMES)})
         except Exception as exc:  # the exporter raises many types; report them as one
             raise ExportError(f"ONNX export failed: {exc}") from exc
     proto = onnx.load(str(path))
