@@ -42,7 +42,7 @@ class TemporalOptions:
     Attributes:
         band: R: the band around the prior has 2 R + 1 hypotheses (>= 1).
         band_edges: a pixel whose best hypothesis is on the band's edge: invalid ('reject') or refined from the
-            edge's inner neighbour ('clamp').
+            edge's inner neighbour ('clamp', default: no winner search, and on small moving sequences more coverage).
         reach: invalid prior pixels within this many pixels of valid ones take their mean sweep coordinate (>= 0).
         keyframe_interval: the full model at least every this many frames (>= 1; 1: every frame).
         cut_threshold: a scene cut: the mean absolute grey difference to the previous frame (8 x 8 block means,
@@ -60,7 +60,7 @@ class TemporalOptions:
     """
 
     band: int = 1
-    band_edges: BandEdges = "reject"
+    band_edges: BandEdges = "clamp"
     reach: int = 4
     keyframe_interval: int = 10
     cut_threshold: float = 0.05
