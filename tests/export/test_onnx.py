@@ -232,8 +232,8 @@ def test_temporal_graph_matches_torch_and_checks_its_prior(model, captures, expo
     assert runner.temporal == options and OnnxDepth(exported).temporal is None
     with torch.no_grad():
         prior = model(captures[:2])
-        want = TemporalDepth(model, options)(captures[1:3], *prior[:3])
-    got = runner(captures[1:3], prior)
+        want = TemporalDepth(model, options)(captures[:2], *prior[:3])  # a static scene
+    got = runner(captures[:2], prior)
     both = got.valid & want.valid
     assert both.float().mean() > 0.3 and (got.valid == want.valid).float().mean() >= 0.999
     rel = ((got.depth - want.depth).abs() / want.depth)[both]
