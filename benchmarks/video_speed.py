@@ -1,21 +1,26 @@
-"""Video: frame times of the depth graph in onnxruntime through ``DepthStream`` against OpenCV's StereoSGBM and
-StereoBM on the same moving sequence, and frame-to-frame flicker on a static scene.
+"""Video: frame times of the depth graph in onnxruntime through ``DepthStream``, per frame and with the temporal
+prior, against OpenCV's StereoSGBM and StereoBM on the same moving sequences, and frame-to-frame flicker on a
+static scene.
 
-1. **Moving sequence**: ``--frames`` captures of a noise-textured plane slanted 30 deg about y whose centre moves
-   from 525 to 575 mm while its slant turns by 10 deg (2 x 2 supersampling, read noise 1/255, 8 bits), through
-   ``thesis_setup1`` at 1024 x 768 and the same optics on a 640 x 480 sensor (pixels 1.6x larger: the common
-   endoscope size). Every frame goes through ``DepthStream`` (the default ``PrismStereo`` over 228-1374 mm,
-   exported once, onnxruntime with 2 intra-op threads) and through OpenCV's ``StereoSGBM`` (numDisparities covering
+1. **Sequences** of ``--frames`` captures (2 x 2 supersampling, read noise 1/255, 8 bits) through ``thesis_setup1``
+   at 1024 x 768 and the same optics on a 640 x 480 sensor (pixels 1.6x larger: the common endoscope size):
+
+   * ``moving``: a noise-textured plane slanted 25-35 deg about y whose centre moves from 525 to 575 mm;
+   * ``step``: a near plane at 450 mm entering the view from the right in front of a plane at 600 mm (its edge
+     moves 60 mm over the sequence);
+   * ``cut``: the moving plane for the first half, then a cut to another texture on a plane at 800 -> 780 mm.
+
+   Every frame goes through two ``DepthStream`` s of the default ``PrismStereo`` over 228-1374 mm, exported once
+   (onnxruntime, 2 intra-op threads): per frame, and with the temporal prior (its own temporal graph,
+   ``TemporalOptions()``; key frames by its rules), and through OpenCV's ``StereoSGBM`` (numDisparities covering
    the range's correspondence spread, blockSize 5, else defaults) and ``StereoBM`` (same) on the two 8-bit halves,
    one method after the other per frame, 0.1 s apart (``cv2.setNumThreads(2)``). Printed per method: median and
-   95th-percentile ms per frame, frames/s, the median over frames of the same-frame ratio to SGBM, and the mean
+   95th-percentile ms per frame, frames/s, the median over frames of the same-frame ratio to SGBM, the mean
    relative depth error and coverage over the co-visible reference pixels (OpenCV's disparities converted to depth
-   through the exact sweep, as ``benchmarks/onnx_speed.py``).
+   through the exact sweep, as ``benchmarks/onnx_speed.py``) and the temporal stream's key frames.
 2. **Flicker**: ``--static`` captures of a textured plane at 600 mm that differ only in their noise (read noise
    2/255, a new seed per frame): per pixel valid in every frame, the standard deviation of depth over the frames;
-   the median over pixels (mm and % of depth) for the per-frame model and for SGBM.
-
-Every frame is processed on its own (the library has no temporal prior yet).
+   the median over pixels (mm and % of depth) per frame, with the temporal prior and for SGBM.
 
 Run: .venv/bin/python benchmarks/video_speed.py [--frames 20] [--static 30] [--sizes 1024 640]
 """
@@ -37,10 +42,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from onnx_speed import opencv_depth, opencv_halves, pixel_sweep, score, spread_report  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
+from prismstereo.depth.temporal import TemporalOptions  # noqa: E402
 from prismstereo.export import export_onnx  # noqa: E402
 from prismstereo.model import PrismStereo  # noqa: E402
 from prismstereo.stream import DepthStream  # noqa: E402
-from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, slanted_plane  # noqa: E402
+from prismstereo.synthetic import (  # noqa: E402
+    ImageFormation,
+    fronto_parallel_plane,
+    render,
+    slanted_plane,
+    step_scene,
+)
 
 Z_RANGE = (228.0, 1374.0)
 
@@ -68,67 +80,91 @@ def percentile(values: list[float], q: float) -> float:
     return float(np.percentile(np.asarray(values), q))
 
 
-def moving(rig, frames: int, tmp: Path) -> None:
-    scenes = [slanted_plane(rig, 525.0 + 50.0 * k / max(1, frames - 1), 25.0 + 10.0 * k / max(1, frames - 1),
-                            seed=11) for k in range(frames)]
-    caps = render(rig, scenes, ImageFormation(supersample=2, noise_sigma=1 / 255, seed=3))
+def sequences(rig, frames: int) -> dict[str, list]:
+    """The scenes of the moving sequences (the module docstring)."""
+    last = max(1, frames - 1)
+    moving = [slanted_plane(rig, 525.0 + 50.0 * k / last, 25.0 + 10.0 * k / last, seed=11) for k in range(frames)]
+    step = [step_scene(rig, 450.0, 600.0, edge_x_mm=30.0 - 60.0 * k / last, seed=5) for k in range(frames)]
+    half = frames // 2
+    other = [fronto_parallel_plane(rig, 800.0 - 20.0 * k / last, seed=21) for k in range(frames - half)]
+    return {"moving": moving, "step": step, "cut": moving[:half] + other}
+
+
+def streams(rig, tmp: Path, name: str) -> tuple[PrismStereo, dict[str, DepthStream]]:
+    """The default model and its per-frame and temporal ONNX streams."""
     model = PrismStereo(rig, Z_RANGE).eval()
-    stream = DepthStream(export_onnx(model, tmp / f"model_{rig.image_width}.onnx"), threads=2)
+    graph = export_onnx(model, tmp / f"{name}_{rig.image_width}.onnx")
+    temporal = export_onnx(model, tmp / f"{name}_{rig.image_width}_temporal.onnx", temporal=TemporalOptions())
+    return model, {"per-frame ONNX": DepthStream(graph, threads=2),
+                   "temporal ONNX": DepthStream(graph, temporal_graph=temporal, threads=2)}
+
+
+def moving(rig, frames: int, model: PrismStereo, runs: dict[str, DepthStream]) -> None:
     split = rig.reference_width
     sweep = pixel_sweep(rig, Z_RANGE)
-    first = type("C", (), {"covisible": caps.covisible[:1], "match_uv": caps.match_uv[:1], "depth": caps.depth[:1]})
-    _, mirror = spread_report(sweep, first)
     nd = disparities(sweep)
-    matchers = {"StereoSGBM": cv2.StereoSGBM_create(minDisparity=0, numDisparities=nd, blockSize=5),
-                "StereoBM": cv2.StereoBM_create(numDisparities=nd, blockSize=5)}
-    times: dict[str, list[float]] = {"prismstereo ONNX": [], **{k: [] for k in matchers}}
-    errors: dict[str, list[tuple[float, float]]] = {k: [] for k in times}
-    stream.push(caps.image[0])  # warm-up
-    for k in range(frames):
-        image = caps.image[k:k + 1]
-        capture = type("C", (), {"depth": caps.depth[k:k + 1], "covisible": caps.covisible[k:k + 1]})
-        time.sleep(0.1)
-        res = stream.push(image[0])
-        times["prismstereo ONNX"].append(res.milliseconds)
-        mean, _, cover = score(res.depth, res.valid, capture, split)
-        errors["prismstereo ONNX"].append((mean, cover))
-        left, right = opencv_halves(image, split, mirror)
-        for name, matcher in matchers.items():
-            time.sleep(0.1)
-            t0 = time.perf_counter()
-            disparity = matcher.compute(left, right)
-            times[name].append(1e3 * (time.perf_counter() - t0))
-            depth, valid = opencv_depth(sweep, disparity, mirror)
-            mean, _, cover = score(depth, valid & sweep.inside, capture, split)
-            errors[name].append((mean, cover))
-    print(f"\n{rig.image_width} x {rig.image_height}, {frames} frames, range {Z_RANGE[0]:g}-{Z_RANGE[1]:g} mm, "
-          f"model: {model.summary()}; OpenCV numDisparities {nd}")
-    print(f"{'method':18s} {'median ms':>9s} {'p95 ms':>7s} {'frames/s':>8s} {'x SGBM':>7s} {'mean err %':>10s} "
-          f"{'coverage %':>10s}")
-    sgbm = times["StereoSGBM"]
-    for name, t in times.items():
-        ratio = statistics.median(a / b for a, b in zip(t, sgbm, strict=True))
-        mean = statistics.mean(e[0] for e in errors[name])
-        cover = statistics.mean(e[1] for e in errors[name])
-        print(f"{name:18s} {statistics.median(t):9.1f} {percentile(t, 95):7.1f} {1e3 / statistics.median(t):8.1f} "
-              f"{ratio:7.2f} {mean:10.3f} {cover:10.1f}")
+    print(f"\n{rig.image_width} x {rig.image_height}, {frames} frames per sequence, range {Z_RANGE[0]:g}-"
+          f"{Z_RANGE[1]:g} mm, model: {model.summary()}; OpenCV numDisparities {nd}")
+    print(f"{'sequence':9s}{'method':16s} {'median ms':>9s} {'p95 ms':>7s} {'frames/s':>8s} {'x SGBM':>7s} "
+          f"{'mean err %':>10s} {'coverage %':>10s} {'key frames':>10s}")
+    for sequence, scenes in sequences(rig, frames).items():
+        caps = render(rig, scenes, ImageFormation(supersample=2, noise_sigma=1 / 255, seed=3))
+        first = type("C", (), {"covisible": caps.covisible[:1], "match_uv": caps.match_uv[:1],
+                               "depth": caps.depth[:1]})
+        _, mirror = spread_report(sweep, first)
+        matchers = {"StereoSGBM": cv2.StereoSGBM_create(minDisparity=0, numDisparities=nd, blockSize=5),
+                    "StereoBM": cv2.StereoBM_create(numDisparities=nd, blockSize=5)}
+        times: dict[str, list[float]] = {**{k: [] for k in runs}, **{k: [] for k in matchers}}
+        errors: dict[str, list[tuple[float, float]]] = {k: [] for k in times}
+        keys = {k: 0 for k in runs}
+        for stream in runs.values():  # warm-up, then a fresh start: the sequence's first frame is a key frame
+            stream.push(caps.image[0])
+            stream.reset()
+        for k in range(frames):
+            image = caps.image[k:k + 1]
+            capture = type("C", (), {"depth": caps.depth[k:k + 1], "covisible": caps.covisible[k:k + 1]})
+            for name, stream in runs.items():
+                time.sleep(0.1)
+                res = stream.push(image[0])
+                times[name].append(res.milliseconds)
+                keys[name] += res.keyframe
+                mean, _, cover = score(res.depth, res.valid, capture, split)
+                errors[name].append((mean, cover))
+            left, right = opencv_halves(image, split, mirror)
+            for name, matcher in matchers.items():
+                time.sleep(0.1)
+                t0 = time.perf_counter()
+                disparity = matcher.compute(left, right)
+                times[name].append(1e3 * (time.perf_counter() - t0))
+                depth, valid = opencv_depth(sweep, disparity, mirror)
+                mean, _, cover = score(depth, valid & sweep.inside, capture, split)
+                errors[name].append((mean, cover))
+        sgbm = times["StereoSGBM"]
+        for name, t in times.items():
+            ratio = statistics.median(a / b for a, b in zip(t, sgbm, strict=True))
+            mean = statistics.mean(e[0] for e in errors[name])
+            cover = statistics.mean(e[1] for e in errors[name])
+            key = f"{keys[name]:10d}" if name in keys else f"{'':10s}"
+            print(f"{sequence:9s}{name:16s} {statistics.median(t):9.1f} {percentile(t, 95):7.1f} "
+                  f"{1e3 / statistics.median(t):8.1f} {ratio:7.2f} {mean:10.3f} {cover:10.1f} {key}")
 
 
-def flicker(rig, frames: int, tmp: Path) -> None:
+def flicker(rig, frames: int, runs: dict[str, DepthStream]) -> None:
     scene = fronto_parallel_plane(rig, 600.0, seed=4)
     caps = [render(rig, scene, ImageFormation(supersample=2, noise_sigma=2 / 255, seed=100 + k)) for k in range(frames)]
-    model = PrismStereo(rig, Z_RANGE).eval()
-    stream = DepthStream(export_onnx(model, tmp / f"flicker_{rig.image_width}.onnx"), threads=2)
+    for stream in runs.values():
+        stream.reset()
     split = rig.reference_width
     sweep = pixel_sweep(rig, Z_RANGE)
     _, mirror = spread_report(sweep, caps[0])
     sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=disparities(sweep), blockSize=5)
-    depth = {"prismstereo ONNX": [], "StereoSGBM": []}
-    valid = {"prismstereo ONNX": [], "StereoSGBM": []}
+    depth: dict[str, list[torch.Tensor]] = {**{k: [] for k in runs}, "StereoSGBM": []}
+    valid: dict[str, list[torch.Tensor]] = {k: [] for k in depth}
     for cap in caps:
-        res = stream.push(cap.image[0])
-        depth["prismstereo ONNX"].append(res.depth[0, 0].double())
-        valid["prismstereo ONNX"].append(res.valid[0, 0])
+        for name, stream in runs.items():
+            res = stream.push(cap.image[0])
+            depth[name].append(res.depth[0, 0].double())
+            valid[name].append(res.valid[0, 0])
         d, v = opencv_depth(sweep, sgbm.compute(*opencv_halves(cap.image, split, mirror)), mirror)
         depth["StereoSGBM"].append(d)
         valid["StereoSGBM"].append(v & sweep.inside)
@@ -155,9 +191,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         for width in args.sizes:
             rig = sensor(width)
-            moving(rig, args.frames, Path(folder))
+            model, runs = streams(rig, Path(folder), "model")
+            moving(rig, args.frames, model, runs)
             if args.static:
-                flicker(rig, args.static, Path(folder))
+                flicker(rig, args.static, runs)
 
 
 if __name__ == "__main__":

@@ -312,12 +312,21 @@ def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig, pose: torch.T
         inputs = {p.resolve() for p in sequence_files(source)}
     stem = sequence_name(source)
     model, summary = _build_model(args, rig)
+    from prismstereo.depth.temporal import TemporalOptions, supports_temporal
+
+    temporal = None
+    if args.temporal and supports_temporal(model):
+        temporal = TemporalOptions()
+        summary += f", temporal prior (a band +-{temporal.band} around the previous depth between key frames)"
+    elif args.temporal:
+        summary += ", every frame on its own (this model has no full-resolution band for the temporal prior)"
     if args.backend == "onnx":
         from prismstereo.export import onnx_session
 
-        stream = DepthStream(onnx_session(model, channels=1))
+        tracker = None if temporal is None else onnx_session(model, channels=1, temporal=temporal)
+        stream = DepthStream(onnx_session(model, channels=1), temporal_graph=tracker)
     else:
-        stream = DepthStream(model)
+        stream = DepthStream(model, temporal=temporal or False)
     print(f"{summary}, backend {args.backend}, {count} of {total} frames of {source}")
     writer = None
     try:
@@ -354,8 +363,9 @@ def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig, pose: torch.T
             writer.release()
     times = sorted(stream.times_ms)
     median = times[len(times) // 2] if times else float("nan")
+    keys = f", {stream.keyframes} key frames" if stream.temporal is not None else ""
     print(f"wrote {stream.frames} depth files {stem}_000000.{fmt} ... to {out}: {median:.1f} ms per frame "
-          f"(median of the depth computation), {stream.frames_per_second():.1f} frames/s"
+          f"(median of the depth computation), {stream.frames_per_second():.1f} frames/s{keys}"
           + (f"; preview video {args.preview_video}" if args.preview_video else ""))
     return 0
 
@@ -422,6 +432,9 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--preview-video", default=None, metavar="OUT.mp4",
                        help="video / sequence: also write the colour-mapped depth as a video (mp4v)")
     depth.add_argument("--preview-fps", type=float, default=10.0, help="frame rate of --preview-video")
+    depth.add_argument("--no-temporal", dest="temporal", action="store_false",
+                       help="video / sequence: every frame on its own (default: the temporal prior, a narrow band "
+                            "around the previous frame's depth between key frames; prismstereo.depth.temporal)")
     depth.add_argument("--ply", action="store_true",
                        help="also write <stem>.ply point clouds (camera frame, mm, coloured by the reference half, "
                             "with each point's confidence as a 'confidence' property)")

@@ -7,6 +7,15 @@ at a time from any thread, per-frame timing.
 serialises concurrent pushes (a capture thread and a UI thread may both call :meth:`DepthStream.push`).
 Frames may be (C, H, W) / (1, C, H, W) tensors in [0, 1] or OpenCV's decoded uint8 (H, W) / (H, W, 3) BGR arrays;
 colour is converted to grey when the model takes one channel.
+
+With ``temporal`` the stream uses the temporal prior (:mod:`prismstereo.depth.temporal`): a key frame gets the full
+model, the frames after it a narrow full-resolution band around the previous frame's depth (extrapolated at
+constant velocity in inverse depth when ``extrapolate``). A frame is a key frame when it is the first, when
+``keyframe_interval`` frames passed since the last, on a scene cut (its 8 x 8 block means differ from the previous
+frame's by more than ``cut_threshold`` on average), when the prior's invalid share grew by more than
+``max_invalid_growth`` since the last key frame, and (computed again) when the tracked result's valid share fell
+below ``min_valid_ratio`` times the key frame's. The temporal prior is off by default in the API (pushed frames
+need not be a video; an ONNX stream needs the second graph), on by default for videos in ``prismstereo depth``.
 """
 
 from __future__ import annotations
@@ -18,8 +27,10 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
+from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.video import frame_to_tensor
 
@@ -37,7 +48,9 @@ class StreamResult(NamedTuple):
         valid: (1, 1, H, W_ref) bool.
         confidence: (1, 1, H, W_ref) in [0, 1].
         frame: 0-based number of the frame in the stream.
-        milliseconds: time of the depth computation (the model or graph alone).
+        milliseconds: time of the depth computation (the model or graph alone; a key frame computed again after
+            a failed tracking step: both).
+        keyframe: computed by the full model (always, without the temporal prior), not around a prior.
     """
 
     depth: torch.Tensor
@@ -45,6 +58,15 @@ class StreamResult(NamedTuple):
     confidence: torch.Tensor
     frame: int
     milliseconds: float
+    keyframe: bool = True
+
+
+class _Prior(NamedTuple):
+    """The previous frame's result, as the temporal graph takes it."""
+
+    depth: torch.Tensor
+    valid: torch.Tensor
+    confidence: torch.Tensor
 
 
 class DepthStream:
@@ -53,17 +75,26 @@ class DepthStream:
     Args:
         model: a torch module returning a :class:`~prismstereo.model.DepthResult` for (1, C, H, W) images, the
             path of an exported ONNX graph (``.onnx``) or an :class:`~prismstereo.export.OnnxDepth` session.
+        temporal: False (default: every frame on its own), True (the temporal prior with default
+            :class:`~prismstereo.depth.temporal.TemporalOptions`, or a temporal graph's options) or the options.
+            A torch model needs a full-resolution band (:func:`~prismstereo.depth.temporal.supports_temporal`).
+        temporal_graph: ONNX streams with the temporal prior: the temporal graph of the same model
+            (:func:`~prismstereo.export.export_onnx` with ``temporal=``; a path or an ``OnnxDepth``); implies
+            ``temporal`` (its options, unless ``temporal`` gives others for the key-frame rules).
         threads: onnxruntime intra-op threads (ONNX graphs only).
         spinning: onnxruntime thread spinning (ONNX graphs only; see :class:`~prismstereo.export.OnnxDepth`).
 
     Attributes:
         backend: 'torch' or 'onnx'.
         channels, height, width: the input the model expects (torch: from its rig; ONNX: from its metadata).
+        temporal: the temporal prior's options, None without it.
         frames: frames processed so far.
+        keyframes: frames computed by the full model so far.
         times_ms: per-frame computation times (ms), in order.
 
     Raises:
-        OptionError: a model that is neither a module with a rig nor an ``.onnx`` path.
+        OptionError: a model that is neither a module with a rig nor an ``.onnx`` path; a temporal prior the model
+            cannot use or an ONNX stream with the temporal prior but without its temporal graph.
 
     Example:
         >>> from prismstereo.model import PrismStereo
@@ -73,11 +104,16 @@ class DepthStream:
         (torch.Size([1, 1, 48, 32]), 0, 1)
     """
 
-    def __init__(self, model: nn.Module | str | Path | OnnxDepth, *, threads: int = 2, spinning: bool = True) -> None:
+    def __init__(self, model: nn.Module | str | Path | OnnxDepth, *, temporal: bool | TemporalOptions = False,
+                 temporal_graph: str | Path | OnnxDepth | None = None, threads: int = 2,
+                 spinning: bool = True) -> None:
         self._lock = threading.Lock()
-        self.frames = 0
+        self.frames = self.keyframes = 0
         self.times_ms: list[float] = []
         from prismstereo.export import OnnxDepth
+
+        if not isinstance(temporal, (bool, TemporalOptions)):
+            raise OptionError(f"temporal must be a bool or TemporalOptions, got {type(temporal).__name__}")
 
         if isinstance(model, (str, Path, OnnxDepth)):
             if not isinstance(model, OnnxDepth) and Path(model).suffix.lower() != ".onnx":
@@ -94,6 +130,31 @@ class DepthStream:
         else:
             raise OptionError(f"a stream's model must be a torch module with a rig (e.g. PrismStereo) or an .onnx "
                               f"file, got {type(model).__name__}")
+        self._tracker = None
+        if self.backend == "torch" and temporal_graph is not None:
+            raise OptionError("temporal_graph is the ONNX temporal graph: a torch stream builds its own")
+        if self.backend == "torch" and temporal is not False:
+            self._tracker = TemporalDepth(model, temporal if isinstance(temporal, TemporalOptions) else None).eval()
+            self.temporal: TemporalOptions | None = self._tracker.options
+        elif self.backend == "onnx" and (temporal is not False or temporal_graph is not None):
+            if temporal_graph is None:
+                raise OptionError("an ONNX stream with the temporal prior needs temporal_graph: the model's temporal "
+                                  "graph (export_onnx(model, path, temporal=TemporalOptions()))")
+            graph = temporal_graph if isinstance(temporal_graph, OnnxDepth) else OnnxDepth(
+                temporal_graph, threads=threads, spinning=spinning)
+            if graph.temporal is None:
+                raise OptionError(f"{graph.path.name} is a per-frame graph, not a temporal one")
+            if graph.input_shape != self._runner.input_shape:
+                raise OptionError(f"the temporal graph takes {graph.input_shape}, the model {self._runner.input_shape}")
+            self._tracker = graph
+            self.temporal = temporal if isinstance(temporal, TemporalOptions) else graph.temporal
+        else:
+            self.temporal = None
+        self._prior: _Prior | None = None
+        self._before: _Prior | None = None  # the frame before the prior (extrapolation)
+        self._thumb: torch.Tensor | None = None
+        self._since_key = 0
+        self._key_valid = 1.0
 
     def _prepare(self, frame: torch.Tensor | np.ndarray) -> torch.Tensor:
         if isinstance(frame, np.ndarray):  # OpenCV's decoded frame: uint8 (H, W) or (H, W, 3) BGR
@@ -131,16 +192,60 @@ class DepthStream:
         image = self._prepare(frame)
         with self._lock:
             t0 = time.perf_counter()
-            if self.backend == "torch":
-                with torch.inference_mode():
-                    res = self._runner(image)
-            else:
-                res = self._runner(image)
+            thumb = None
+            if self.temporal is not None:
+                thumb = F.avg_pool2d(image.mean(1, keepdim=True), 8) if min(image.shape[-2:]) >= 8 else image
+            key = self._keyframe(thumb)
+            res = self._run(image) if key else self._run(image, self._predicted())
+            if not key and float(res.valid.float().mean()) < self.temporal.min_valid_ratio * self._key_valid:
+                key, res = True, self._run(image)  # the tracking lost too much: the full model after all
             ms = 1000.0 * (time.perf_counter() - t0)
             number = self.frames
             self.frames += 1
+            self.keyframes += key
             self.times_ms.append(ms)
-        return StreamResult(res.depth, res.valid, res.confidence, number, ms)
+            if self.temporal is not None:
+                self._thumb, self._before = thumb, self._prior
+                self._prior = _Prior(res.depth, res.valid, res.confidence)
+                self._since_key = 0 if key else self._since_key + 1
+                if key:
+                    self._key_valid = float(res.valid.float().mean())
+        return StreamResult(res.depth, res.valid, res.confidence, number, ms, key)
+
+    def reset(self) -> None:
+        """Forget the previous frames (the next one is a key frame, as after a cut); counts and times stay."""
+        with self._lock:
+            self._prior = self._before = self._thumb = None
+            self._since_key, self._key_valid = 0, 1.0
+
+    def _run(self, image: torch.Tensor, prior: _Prior | None = None):
+        """The model (``prior`` None) or the temporal graph on one image."""
+        runner = self._runner if prior is None else self._tracker
+        if self.backend == "torch":
+            with torch.inference_mode():
+                return runner(image) if prior is None else runner(image, *prior)
+        return runner(image) if prior is None else runner(image, prior)
+
+    def _keyframe(self, thumb: torch.Tensor | None) -> bool:
+        """Whether the next frame (its 8 x 8 block means ``thumb``) gets the full model (the class docstring)."""
+        options, prior = self.temporal, self._prior
+        if options is None or prior is None or self._thumb is None or self._since_key + 1 >= options.keyframe_interval:
+            return True
+        if float((thumb - self._thumb).abs().mean()) > options.cut_threshold:
+            return True
+        return (1.0 - float(prior.valid.float().mean())) - (1.0 - self._key_valid) > options.max_invalid_growth
+
+    def _predicted(self) -> _Prior:
+        """The prior of the next frame: the last result, its depth extrapolated at constant velocity in inverse
+        depth from the frame before where both are valid (``extrapolate``)."""
+        prior, before = self._prior, self._before
+        if not self.temporal.extrapolate or before is None:
+            return prior
+        both = prior.valid & before.valid
+        inverse = 2.0 / prior.depth - 1.0 / before.depth
+        usable = both & (inverse > 0)
+        depth = torch.where(usable, 1.0 / torch.where(usable, inverse, torch.ones_like(inverse)), prior.depth)
+        return _Prior(depth, prior.valid, prior.confidence)
 
     def frames_per_second(self) -> float:
         """Frames per second of the depth computation over the frames so far (0 before any frame).

@@ -98,6 +98,33 @@ def test_stream_torch_and_onnx_agree_and_number_frames(clip, export_once):
     assert torch_stream.frames_per_second() > 0
 
 
+def test_temporal_streams_of_both_backends_agree(clip, tmp_path):
+    from prismstereo.depth.temporal import TemporalOptions
+    from prismstereo.export import export_onnx
+    from prismstereo.model import PrismStereo
+
+    model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0), {"coarse_factor": 2})
+    options = TemporalOptions(band=2)
+    frames = [f.image for f in read_frames(clip / "frames")]
+    torch_stream = DepthStream(model, temporal=options)
+    per_frame = export_onnx(model, tmp_path / "m.onnx")
+    onnx_stream = DepthStream(per_frame, temporal_graph=export_onnx(model, tmp_path / "t.onnx", temporal=options))
+    assert torch_stream.temporal == onnx_stream.temporal == options
+    for k, (frame, z) in enumerate(zip(frames, DEPTHS, strict=True)):
+        a, b = torch_stream.push(frame), onnx_stream.push(frame)
+        assert a.keyframe == b.keyframe and (a.keyframe or k > 0)  # 20 mm steps: some frames need the full model
+        assert (a.valid == b.valid).float().mean() >= 0.995
+        both = a.valid & b.valid
+        torch.testing.assert_close(a.depth[both], b.depth[both], rtol=1e-3, atol=1e-2)
+        assert abs(float(b.depth[b.valid].median()) / z - 1) < 0.01
+    with pytest.raises(OptionError, match="needs temporal_graph"):
+        DepthStream(per_frame, temporal=True)
+    with pytest.raises(OptionError, match="is a per-frame graph"):
+        DepthStream(per_frame, temporal_graph=per_frame)
+    with pytest.raises(OptionError, match="a torch stream builds its own"):
+        DepthStream(model, temporal_graph=per_frame)
+
+
 def test_stream_is_thread_safe_and_checks_its_input():
     from prismstereo.model import PrismStereo
 
@@ -143,6 +170,23 @@ def test_depth_cli_on_a_video_writes_numbered_frames(clip, tmp_path, capsys, bac
     preview = cv2.VideoCapture(str(tmp_path / "preview.mp4"))
     assert preview.isOpened() and int(preview.get(cv2.CAP_PROP_FRAME_COUNT)) == 3
     preview.release()
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_depth_cli_uses_the_temporal_prior_on_videos_unless_told(clip, tmp_path, capsys, backend):
+    common = ["--rig", clip / "small.json", "--z-range", 400, 700, "--downsample", 2, "--full-band", 2,
+              "--backend", backend]
+    assert _depth(clip / "clip.avi", "--out", tmp_path / "a", *common) == 0
+    text = capsys.readouterr().out
+    assert "temporal prior" in text and "1 key frames" in text
+    assert _depth(clip / "clip.avi", "--out", tmp_path / "b", *common, "--no-temporal") == 0
+    text = capsys.readouterr().out
+    assert "temporal prior" not in text and "key frames" not in text
+    first = [read_depth(tmp_path / d / "clip_000000.npy") for d in "ab"]
+    np.testing.assert_array_equal(first[0].numpy(), first[1].numpy())  # the first frame: the full model
+    for k, z in enumerate(DEPTHS):
+        depth = read_depth(tmp_path / "a" / f"clip_{k:06d}.npy").numpy()
+        assert abs(np.nanmedian(depth) / z - 1) < 0.02
 
 
 def test_depth_cli_on_a_directory_and_its_errors(clip, tmp_path, capsys):

@@ -300,7 +300,20 @@ class DepthLevel(nn.Module):
         Returns:
             DepthResult, (B, *, H, W_ref).
         """
-        s, ok, confidence, match, _, sampled = self.estimate(image, placement)
+        return self.finish(self.estimate(image, placement))
+
+    def finish(self, estimate: LevelEstimate) -> DepthResult:
+        """An estimate of this level (:meth:`estimate`, or another placement's band such as
+        :class:`~prismstereo.depth.temporal.TemporalDepth`'s) judged and converted: the smoothing, depth, the
+        validity rules, the occlusion test and the masked confidence of :meth:`depth`.
+
+        Args:
+            estimate: (B, *, H, W_ref) at this level's resolution.
+
+        Returns:
+            DepthResult, (B, *, H, W_ref).
+        """
+        s, ok, confidence, match, _, sampled = estimate
         validity = self.config.validity
         s = s.clamp(-1.0, 1.0)
         if self.config.refinement.smoothing:  # its band returned no match: the series at the smoothed s

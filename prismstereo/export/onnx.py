@@ -41,6 +41,8 @@ __all__ = [
     "DEFAULT_OPSET",
     "DepthGraph",
     "ExportError",
+    "PRIOR_NAMES",
+    "TemporalGraph",
     "OnnxDepth",
     "OnnxDepthResult",
     "cache_directory",
@@ -53,6 +55,7 @@ __all__ = [
 DEFAULT_OPSET = 18
 INPUT_NAME = "image"
 OUTPUT_NAMES = ("depth_mm", "valid", "confidence")
+PRIOR_NAMES = ("prior_depth_mm", "prior_valid", "prior_confidence")
 Optimization = Literal["all", "extended", "basic", "disable"]
 OPTIMIZATIONS: tuple[str, ...] = ("all", "extended", "basic", "disable")
 
@@ -95,6 +98,30 @@ class DepthGraph(nn.Module):
         return result.depth, result.valid, result.confidence
 
 
+class TemporalGraph(nn.Module):
+    """The exported temporal computation: a :class:`~prismstereo.depth.temporal.TemporalDepth` with the inputs
+    ``(image, prior_depth_mm, prior_valid, prior_confidence)`` (the previous frame's outputs, of either graph)
+    and the outputs ``(depth_mm, valid, confidence)``.
+
+    Example:
+        >>> from prismstereo.depth.temporal import TemporalDepth
+        >>> from prismstereo.model import PrismStereo
+        >>> model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0), {"coarse_factor": 2})
+        >>> image = torch.rand(1, 1, 96, 128); prior = model(image)
+        >>> TemporalGraph(TemporalDepth(model))(image, *prior[:3])[0].shape
+        torch.Size([1, 1, 96, 64])
+    """
+
+    def __init__(self, tracker: nn.Module) -> None:
+        super().__init__()
+        self.tracker = tracker
+
+    def forward(self, image: torch.Tensor, prior_depth: torch.Tensor, prior_valid: torch.Tensor,
+                prior_confidence: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        result = self.tracker(image, prior_depth, prior_valid, prior_confidence)
+        return result.depth, result.valid, result.confidence
+
+
 @functools.cache
 def source_digest() -> str:
     """sha256 (16 hex digits) of the package's Python sources: which code built a graph (stored in its metadata
@@ -113,7 +140,7 @@ def source_digest() -> str:
     return digest.hexdigest()[:16]
 
 
-def _metadata(model: nn.Module, channels: int, opset: int) -> dict[str, str]:
+def _metadata(model: nn.Module, channels: int, opset: int, temporal: Any = None) -> dict[str, str]:
     from prismstereo import __version__
 
     rig = model.rig
@@ -127,10 +154,12 @@ def _metadata(model: nn.Module, channels: int, opset: int) -> dict[str, str]:
         "prismstereo.z_range_mm": json.dumps(config["z_range_mm"]),
         "prismstereo.input_shape": json.dumps(["B", channels, rig.image_height, rig.image_width]),
         "prismstereo.opset": str(opset),
+        **({} if temporal is None else {"prismstereo.temporal": json.dumps(temporal.to_dict(), sort_keys=True)}),
     }
 
 
-def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset: int = DEFAULT_OPSET) -> Path:
+def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset: int = DEFAULT_OPSET,
+                temporal: Any = None) -> Path:
     """Export a :class:`~prismstereo.model.PrismStereo` (or a :class:`~prismstereo.learned.LearnedStereo`) to an
     ONNX file (checked with ``onnx.checker``).
 
@@ -139,6 +168,10 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
         path: the ``.onnx`` file to write (parent directories are created).
         channels: C of the graph's input, 1 (grey) or 3 (RGB).
         opset: ONNX opset, >= 16 (GridSample).
+        temporal: None (the per-frame graph) or :class:`~prismstereo.depth.temporal.TemporalOptions`: the
+            temporal graph (:class:`TemporalGraph`: the inputs ``image`` and :data:`PRIOR_NAMES`, (B, 1, H, W_ref)
+            each; its options in the metadata as ``prismstereo.temporal``), run next to the per-frame one by
+            :class:`~prismstereo.stream.DepthStream`.
 
     Returns:
         The written path.
@@ -163,17 +196,30 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
         raise ExportError(f"channels must be 1 or 3, got {channels!r}")
     if not isinstance(opset, int) or not 16 <= opset <= 20:
         raise ExportError(f"opset must be an int in 16..20 (GridSample needs >= 16), got {opset!r}")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     rig = model.rig
     example = torch.rand(1, channels, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(0))
-    graph = DepthGraph(model).eval()
+    inputs, names = (example,), [INPUT_NAME]
+    if temporal is None:
+        graph = DepthGraph(model).eval()
+    else:
+        from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
+
+        if not isinstance(temporal, TemporalOptions):
+            raise ExportError(f"temporal must be None or TemporalOptions, got {type(temporal).__name__}")
+        try:
+            graph = TemporalGraph(TemporalDepth(model, temporal)).eval()
+        except OptionError as exc:
+            raise ExportError(f"no temporal graph for this model: {exc}") from exc
+        with torch.no_grad():
+            inputs, names = (example, *model(example)[:3]), [INPUT_NAME, *PRIOR_NAMES]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")  # tracer warnings about Python ints: shapes are static by design
         try:
-            torch.onnx.export(graph, (example,), str(path), opset_version=opset, input_names=[INPUT_NAME],
+            torch.onnx.export(graph, inputs, str(path), opset_version=opset, input_names=names,
                               output_names=list(OUTPUT_NAMES), dynamo=False,
-                              dynamic_axes={INPUT_NAME: {0: "batch"}, **{n: {0: "batch"} for n in OUTPUT_NAMES}})
+                              dynamic_axes={n: {0: "batch"} for n in (*names, *OUTPUT_NAMES)})
         except Exception as exc:  # the exporter raises many types; report them as one
             raise ExportError(f"ONNX export failed: {exc}") from exc
     proto = onnx.load(str(path))
@@ -187,7 +233,7 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
                 dim.dim_param = size
             else:
                 dim.dim_value = size
-    for key, value in _metadata(model, channels, opset).items():
+    for key, value in _metadata(model, channels, opset, temporal).items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
     try:
@@ -214,6 +260,8 @@ class OnnxDepth:
         metadata: the ``prismstereo.*`` metadata_props (str -> str).
         input_shape: (C, H, W) the graph expects.
         load_seconds: time to build the session.
+        temporal: a temporal graph's :class:`~prismstereo.depth.temporal.TemporalOptions` (it takes a prior),
+            None for the per-frame graph.
 
     Raises:
         ExportError: missing file, not an ONNX model, or not exported by prismstereo.
@@ -257,13 +305,21 @@ class OnnxDepth:
         self.metadata = {k: v for k, v in meta.items() if k.startswith("prismstereo.")}
         if "prismstereo.input_shape" not in self.metadata:
             raise ExportError(f"{self.path} was not exported by prismstereo (no prismstereo.* metadata)")
-        inputs = self.session.get_inputs()
-        if len(inputs) != 1 or inputs[0].name != INPUT_NAME:
-            raise ExportError(f"{self.path} must have one input named {INPUT_NAME!r}")
+        names = [i.name for i in self.session.get_inputs()]
+        if names not in ([INPUT_NAME], [INPUT_NAME, *PRIOR_NAMES]):
+            raise ExportError(f"{self.path} must have the input {INPUT_NAME!r} (and a temporal graph "
+                              f"{', '.join(PRIOR_NAMES)}), got {', '.join(names)}")
         self.input_shape = tuple(int(d) for d in json.loads(self.metadata["prismstereo.input_shape"])[1:])
+        self.temporal = None
+        if len(names) > 1:
+            from prismstereo.depth.temporal import TemporalOptions
 
-    def __call__(self, image: torch.Tensor | np.ndarray) -> OnnxDepthResult:
-        """Depth of a batch ``image`` (B, C, H, W) in [0, 1] (any float dtype; run in float32)."""
+            self.temporal = TemporalOptions(**json.loads(self.metadata.get("prismstereo.temporal", "{}")))
+
+    def __call__(self, image: torch.Tensor | np.ndarray, prior: Any = None) -> OnnxDepthResult:
+        """Depth of a batch ``image`` (B, C, H, W) in [0, 1] (any float dtype; run in float32); a temporal graph
+        needs ``prior``: the previous frame's result (anything with ``depth``, ``valid`` and ``confidence``,
+        (B, 1, H, W_ref) each: an :class:`OnnxDepthResult`, a :class:`~prismstereo.model.DepthResult`)."""
         array = image.detach().cpu().numpy() if isinstance(image, torch.Tensor) else np.asarray(image)
         if array.ndim != 4 or tuple(array.shape[1:]) != self.input_shape:
             c, h, w = self.input_shape
@@ -271,8 +327,19 @@ class OnnxDepth:
                              f"got {tuple(array.shape)}")
         if not np.issubdtype(array.dtype, np.floating):
             raise ShapeError(f"image must be floating point in [0, 1], got dtype {array.dtype}")
-        depth, valid, confidence = self.session.run(
-            list(OUTPUT_NAMES), {INPUT_NAME: np.ascontiguousarray(array, dtype=np.float32)})
+        feed = {INPUT_NAME: np.ascontiguousarray(array, dtype=np.float32)}
+        if (prior is None) != (self.temporal is None):
+            raise OptionError(f"{self.path.name} is a {'temporal' if self.temporal else 'per-frame'} graph: "
+                              f"{'pass' if self.temporal else 'do not pass'} a prior")
+        if prior is not None:
+            for name, t, dtype in zip(PRIOR_NAMES, (prior.depth, prior.valid, prior.confidence),
+                                      (np.float32, np.bool_, np.float32), strict=True):
+                value = t.detach().cpu().numpy() if isinstance(t, torch.Tensor) else np.asarray(t)
+                if value.ndim != 4 or value.shape[:3] != (array.shape[0], 1, array.shape[2]):
+                    raise ShapeError(f"{name} must have shape (B, 1, H, W_ref) with B = {array.shape[0]}, H = "
+                                     f"{array.shape[2]}, got {tuple(value.shape)}")
+                feed[name] = np.ascontiguousarray(value, dtype=dtype)
+        depth, valid, confidence = self.session.run(list(OUTPUT_NAMES), feed)
         return OnnxDepthResult(torch.from_numpy(depth), torch.from_numpy(valid).bool(), torch.from_numpy(confidence))
 
 
@@ -291,13 +358,13 @@ def cache_directory() -> Path:
 _SESSIONS: dict[tuple[str, int], OnnxDepth] = {}
 
 
-def _cache_key(model: nn.Module, channels: int, opset: int) -> str:
-    meta = _metadata(model, channels, opset)
+def _cache_key(model: nn.Module, channels: int, opset: int, temporal: Any = None) -> str:
+    meta = _metadata(model, channels, opset, temporal)
     return hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OPSET, threads: int = 2,
-                 cache_dir: str | Path | None = None, spinning: bool = True) -> OnnxDepth:
+                 cache_dir: str | Path | None = None, spinning: bool = True, temporal: Any = None) -> OnnxDepth:
     """The exported graph of ``model`` in onnxruntime, exported once per rig, options, channels, opset and
     package version (a file ``<hash>.onnx`` in ``cache_dir``, default :func:`cache_directory`) and kept per
     process.
@@ -309,6 +376,8 @@ def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OP
         threads: onnxruntime intra-op threads.
         cache_dir: directory of cached exports.
         spinning: see :class:`OnnxDepth`.
+        temporal: None, or :class:`~prismstereo.depth.temporal.TemporalOptions`: the temporal graph
+            (:func:`export_onnx`).
 
     Returns:
         OnnxDepth.
@@ -321,13 +390,13 @@ def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OP
         True
     """
     directory = Path(cache_dir) if cache_dir is not None else cache_directory()
-    path = directory / f"{_cache_key(model, channels, opset)}.onnx"
+    path = directory / f"{_cache_key(model, channels, opset, temporal)}.onnx"
     key = (str(path), threads, spinning)
     if key in _SESSIONS:
         return _SESSIONS[key]
     if not path.is_file():
         partial = path.with_suffix(f".{os.getpid()}.tmp")
-        export_onnx(model, partial, channels=channels, opset=opset)
+        export_onnx(model, partial, channels=channels, opset=opset, temporal=temporal)
         partial.replace(path)  # atomic: a concurrent reader never sees half a file
     runner = OnnxDepth(path, threads=threads, spinning=spinning)
     _SESSIONS[key] = runner

@@ -216,3 +216,37 @@ def test_session_cache(exported, model, tmp_path, monkeypatch):
     other = PrismStereo(model.rig, (300.0, 900.0), dict(coarse_factor=2, min_confidence=0.6))
     assert onnx_session(other).path != first.path  # other options: another graph
     assert first.path.read_bytes()[:64] == exported.read_bytes()[:64]  # same model, same export
+
+
+def test_temporal_graph_matches_torch_and_checks_its_prior(model, captures, exported, tmp_path):
+    """The temporal graph (image and the previous frame's outputs in, the same outputs out) against
+    TemporalDepth in torch; the runners refuse a prior they do not take and want one they do."""
+    from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
+
+    options = TemporalOptions(band=2)
+    path = export_onnx(model, tmp_path / "temporal.onnx", temporal=options)
+    proto = onnx.load(str(path))
+    assert [i.name for i in proto.graph.input] == ["image", "prior_depth_mm", "prior_valid", "prior_confidence"]
+    assert [o.name for o in proto.graph.output] == ["depth_mm", "valid", "confidence"]
+    runner = OnnxDepth(path)
+    assert runner.temporal == options and OnnxDepth(exported).temporal is None
+    with torch.no_grad():
+        prior = model(captures[:2])
+        want = TemporalDepth(model, options)(captures[:2], *prior[:3])  # a static scene
+    got = runner(captures[:2], prior)
+    both = got.valid & want.valid
+    assert both.float().mean() > 0.3 and (got.valid == want.valid).float().mean() >= 0.999
+    rel = ((got.depth - want.depth).abs() / want.depth)[both]
+    assert float((rel > 1e-4).double().mean()) <= 2e-3 and float(rel.max()) <= 1e-3
+    torch.testing.assert_close(got.confidence[both], want.confidence[both], atol=2e-3, rtol=0)
+    with pytest.raises(OptionError, match="temporal graph: pass a prior"):
+        runner(captures[:1])
+    with pytest.raises(OptionError, match="per-frame graph: do not pass a prior"):
+        OnnxDepth(exported)(captures[:1], prior)
+    with pytest.raises(ShapeError, match="prior_depth_mm must have shape"):
+        runner(captures[:1], prior)  # a prior of 2 images for 1
+    with pytest.raises(ExportError, match="temporal must be None or TemporalOptions"):
+        export_onnx(model, tmp_path / "bad.onnx", temporal={"band": 1})
+    single = PrismStereo(model.rig, (300.0, 900.0), {"coarse_factor": 1})
+    with pytest.raises(ExportError, match="no temporal graph for this model"):
+        export_onnx(single, tmp_path / "bad.onnx", temporal=options)

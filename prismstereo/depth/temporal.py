@@ -1,0 +1,194 @@
+"""The temporal prior: the depth of a video frame searched in a narrow band around the previous frame's depth.
+
+Between two frames of a video most pixels move by a fraction of a hypothesis step. :class:`TemporalDepth` takes a
+:class:`~prismstereo.model.PrismStereo` and places its full-resolution level's band directly on a prior (the
+previous frame's depth, validity and confidence, at full resolution) instead of on the binned level's estimate:
+no coarse search, and a band of 2 ``band`` + 1 hypotheses (default 3, against the pyramid's 5). Prior pixels that
+are invalid take the mean sweep coordinate of valid ones within ``reach`` pixels
+(:func:`~prismstereo.matching.levels.extend_estimate`); where neither exists the pixel is invalid. The calibrated
+confidence sees the prior's confidence where the per-frame model sees the binned level's similarity.
+
+Which frames get the full model instead (the first, every ``keyframe_interval``-th, scene cuts, a prior that lost
+too much of its coverage) is :class:`TemporalOptions`' part, applied by :class:`~prismstereo.stream.DepthStream`;
+the measurements behind the defaults: ``docs/benchmarks.md`` (*Video*).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Literal
+
+import torch
+from torch import nn
+
+from prismstereo.depth.level import LevelEstimate
+from prismstereo.depth.result import DepthResult
+from prismstereo.epipolar.sweep import depth_to_sweep
+from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.matching.aggregate import box_std
+from prismstereo.matching.confidence import CLAMPED_WEIGHTS, ConfidenceModel, confidence_features
+from prismstereo.matching.levels import FineBand, extend_estimate
+
+__all__ = ["TEMPORAL_BAND_EDGES", "TemporalDepth", "TemporalOptions", "supports_temporal"]
+
+BandEdges = Literal["reject", "clamp"]
+TEMPORAL_BAND_EDGES: tuple[str, ...] = ("reject", "clamp")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TemporalOptions:
+    """The temporal prior's options (JSON-friendly; :meth:`to_dict` / ``TemporalOptions(**d)``).
+
+    Attributes:
+        band: R: the band around the prior has 2 R + 1 hypotheses (>= 1).
+        band_edges: a pixel whose best hypothesis is on the band's edge: invalid ('reject') or refined from the
+            edge's inner neighbour ('clamp', default: no winner search, and on small moving sequences more coverage).
+        reach: invalid prior pixels within this many pixels of valid ones take their mean sweep coordinate (>= 0).
+        keyframe_interval: the full model at least every this many frames (>= 1; 1: every frame).
+        cut_threshold: a scene cut: the mean absolute grey difference to the previous frame (8 x 8 block means,
+            grey in [0, 1]) above this; the frame gets the full model.
+        max_invalid_growth: the full model when the share of the reference half invalid in the prior exceeds the
+            last key frame's by more than this (a depth step entering the view, occlusions), in [0, 1].
+        min_valid_ratio: a tracked frame whose valid share falls below this times the last key frame's is
+            computed again by the full model, in [0, 1] (0: never).
+        extrapolate: the prior is the last depth extrapolated at constant velocity in inverse depth from the
+            frame before (where both are valid), not the last depth itself.
+
+    Example:
+        >>> TemporalOptions(band=2).to_dict()["band"]
+        2
+    """
+
+    band: int = 1
+    band_edges: BandEdges = "clamp"
+    reach: int = 4
+    keyframe_interval: int = 10
+    cut_threshold: float = 0.05
+    max_invalid_growth: float = 0.02
+    min_valid_ratio: float = 0.95
+    extrapolate: bool = True
+
+    def __post_init__(self) -> None:
+        check_option(self.band_edges, TEMPORAL_BAND_EDGES, "band_edges")
+        if not isinstance(self.extrapolate, bool):
+            raise OptionError(f"extrapolate must be a bool, got {self.extrapolate!r}")
+        for name, least in (("band", 1), ("reach", 0), ("keyframe_interval", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise OptionError(f"{name} must be an int >= {least}, got {value!r}")
+        for name, high in (("cut_threshold", float("inf")), ("max_invalid_growth", 1.0), ("min_valid_ratio", 1.0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= high:
+                raise OptionError(f"{name} must be a number in [0, {high}], got {value!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The options as a JSON-ready dict."""
+        return dataclasses.asdict(self)
+
+
+def supports_temporal(model: nn.Module) -> bool:
+    """True for a :class:`~prismstereo.model.PrismStereo` whose final level has a full-resolution band (a pyramid
+    or a coarse-to-fine level): what :class:`TemporalDepth` places on a prior.
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> supports_temporal(PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0), {"coarse_factor": 2}))
+        True
+    """
+    from prismstereo.model import PrismStereo
+
+    return isinstance(model, PrismStereo) and model.final.fine is not None and (
+        model.downsample == 1 or model.binned is not None)
+
+
+class TemporalDepth(nn.Module):
+    """Depth of a frame searched in a band around a prior (the previous frame's result), at full resolution.
+
+    Args:
+        model: a :class:`~prismstereo.model.PrismStereo` with a full-resolution band (:func:`supports_temporal`):
+            its final level's sweep, cost, confidence and validity rules are used, its coarse search is not.
+        options: the band (``band``, ``band_edges``, ``reach``); the key-frame rules are the stream's.
+
+    Raises:
+        OptionError: a model without a full-resolution band (a single full-range level, block mode, the learned
+            model).
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0), {"coarse_factor": 2})
+        >>> image = torch.rand(1, 1, 96, 128); first = model(image)
+        >>> TemporalDepth(model)(image, first.depth, first.valid, first.confidence).depth.shape
+        torch.Size([1, 1, 96, 64])
+    """
+
+    def __init__(self, model: nn.Module, options: TemporalOptions | None = None) -> None:
+        super().__init__()
+        if not supports_temporal(model):
+            raise OptionError("the temporal prior needs a PrismStereo with a full-resolution band (a pyramid or "
+                              "coarse_factor > 1), not a single full-range level, block mode or the learned model")
+        self.options = options or TemporalOptions()
+        if not isinstance(self.options, TemporalOptions):
+            raise OptionError(f"options must be TemporalOptions, got {type(self.options).__name__}")
+        self.model = model
+        final = model.final
+        band_options = dataclasses.replace(final.fine.options, band_edges=self.options.band_edges)
+        self.fine = FineBand(band_options, self.options.band, final.step, final.split.split,
+                             with_match=final.fine.with_match)
+        self.calibration = None
+        if final.calibration is not None:  # weights fitted to the band's edge rule
+            clamped = self.options.band_edges == "clamp" and not final.config.validity.dense
+            self.calibration = ConfidenceModel(CLAMPED_WEIGHTS[0] if clamped else None)
+
+    @property
+    def rig(self):
+        """The model's rig."""
+        return self.model.rig
+
+    def forward(self, image: torch.Tensor, prior_depth: torch.Tensor, prior_valid: torch.Tensor,
+                prior_confidence: torch.Tensor) -> DepthResult:
+        """Depth of ``image`` searched around the prior.
+
+        Args:
+            image: (B, C, H, W) the full sensor image in [0, 1].
+            prior_depth: (B, 1, H, W_ref) depth (mm) of the previous frame (any value where not valid).
+            prior_valid: (B, 1, H, W_ref) bool.
+            prior_confidence: (B, 1, H, W_ref) in [0, 1].
+
+        Returns:
+            DepthResult of (B, *, H, W_ref) tensors, as the model's.
+        """
+        check_shape(image, ["B", "C", "H", "W"], "image")
+        final = self.model.final
+        h, w = self.rig.image_height, self.rig.image_width
+        if image.shape[-2:] != (h, w):
+            raise ShapeError(f"image is {image.shape[-1]}x{image.shape[-2]} px but the rig's sensor is {w}x{h}")
+        shape = (image.shape[0], 1, h, self.rig.reference_width)
+        for name, t in (("prior_depth", prior_depth), ("prior_valid", prior_valid),
+                        ("prior_confidence", prior_confidence)):
+            if tuple(t.shape) != shape:
+                raise ShapeError(f"{name} must have shape {shape}, got {tuple(t.shape)}")
+        if prior_valid.dtype != torch.bool:
+            raise ShapeError(f"prior_valid must be bool, got {prior_valid.dtype}")
+        ref, other = final.split(image)
+        config, step = final.config, final.step
+        with torch.no_grad():  # the prior only places the band
+            z_range = torch.tensor(final.z_range, dtype=ref.dtype, device=ref.device)
+            depth = torch.where(prior_valid, prior_depth.to(ref.dtype), z_range[0])  # any finite depth elsewhere
+            s_p = depth_to_sweep(depth, z_range).clamp(-1.0, 1.0)
+            s_c, reach = extend_estimate(s_p, prior_valid, self.options.reach)
+            s0 = s_c.clamp(-1.0, 1.0)
+            similar = prior_confidence.to(ref.dtype) * prior_valid.to(ref.dtype)
+        calibrated = self.calibration is not None
+        texture = None
+        if calibrated or config.aggregation.wide_box > config.aggregation.fine_box:
+            texture = box_std(ref if ref.shape[1] == 1 else ref.mean(1, keepdim=True), config.cost.window).detach()
+        s, ok, confidence, match = self.fine(ref, other, s0, reach, final.series, final.interval, texture)
+        sampled = ok  # the band had a real sample, before the validity rules
+        rejected = ~prior_valid
+        features = None
+        if calibrated:
+            features = confidence_features(confidence, similar, s.detach(), s0, texture, step, rejected)
+            confidence = self.calibration(features)
+        elif config.search.coarse_reach:  # extended from a neighbour: a stricter match, as the model's
+            ok = ok & (~rejected | (confidence >= config.validity.reach_confidence))
+        return final.finish(LevelEstimate(s, ok, confidence, match, features, sampled))

@@ -1,0 +1,126 @@
+"""The temporal prior (prismstereo.depth.temporal) and its use by DepthStream: options and errors, the first frame
+equal to per-frame processing, accuracy and coverage on a small moving sequence, key frames on cuts and on a depth
+step entering the view."""
+
+import statistics
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from prismstereo import thesis_setup1
+from prismstereo.depth.temporal import TemporalDepth, TemporalOptions, supports_temporal
+from prismstereo.errors import OptionError, ShapeError
+from prismstereo.model import PrismStereo
+from prismstereo.stream import DepthStream
+from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, slanted_plane, step_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+from onnx_speed import score  # noqa: E402
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+FRAMES = 8
+
+
+@pytest.fixture(scope="module")
+def model():
+    """The default pyramid (a binned level placing a full-resolution band of 5) on a 256 x 192 sensor."""
+    return PrismStereo(thesis_setup1().downscaled(4), (228.0, 1374.0), {"downsample": 2, "full_band": 2}).eval()
+
+
+@pytest.fixture(scope="module")
+def moving(model):
+    """A slanted plane moving away and turning, then a cut to another plane."""
+    rig, last = model.rig, FRAMES - 1
+    scenes = [slanted_plane(rig, 525.0 + 20.0 * k / last, 25.0 + 4.0 * k / last, seed=11) for k in range(FRAMES)]
+    scenes.append(fronto_parallel_plane(rig, 800.0, seed=21))
+    return render(rig, scenes, ImageFormation(supersample=1, noise_sigma=1 / 255, seed=3))
+
+
+def _scores(stream, caps, count):
+    split = stream.width // 2
+    out = []
+    for k in range(count):
+        res = stream.push(caps.image[k])
+        capture = type("C", (), {"depth": caps.depth[k:k + 1], "covisible": caps.covisible[k:k + 1]})
+        mean, _, cover = score(res.depth, res.valid, capture, split)
+        out.append((mean, cover, res.keyframe))
+    return out
+
+
+def test_options_and_their_errors():
+    assert TemporalOptions().band == 1 and TemporalOptions(band=2).to_dict()["band"] == 2
+    assert TemporalOptions(**TemporalOptions(reach=2).to_dict()) == TemporalOptions(reach=2)
+    with pytest.raises(OptionError, match="Unknown band_edges 'wrap'. Choose from: 'reject', 'clamp'"):
+        TemporalOptions(band_edges="wrap")
+    with pytest.raises(OptionError, match="band must be an int >= 1"):
+        TemporalOptions(band=0)
+    with pytest.raises(OptionError, match="keyframe_interval must be an int >= 1"):
+        TemporalOptions(keyframe_interval=True)
+    with pytest.raises(OptionError, match=r"min_valid_ratio must be a number in \[0, 1.0\]"):
+        TemporalOptions(min_valid_ratio=1.5)
+    with pytest.raises(OptionError, match="extrapolate must be a bool"):
+        TemporalOptions(extrapolate="yes")
+
+
+def test_supported_models_and_errors(model):
+    small = thesis_setup1().downscaled(8)
+    assert supports_temporal(model) and not supports_temporal(PrismStereo(small, (400.0, 700.0)))
+    with pytest.raises(OptionError, match="full-resolution band"):
+        TemporalDepth(PrismStereo(small, (400.0, 700.0)))  # one full-range level
+    with pytest.raises(OptionError, match="full-resolution band"):
+        TemporalDepth(PrismStereo(small, (400.0, 700.0), {"downsample": 2}))  # block mode
+    with pytest.raises(OptionError, match="options must be TemporalOptions"):
+        TemporalDepth(model, {"band": 1})
+    tracker = TemporalDepth(model)
+    image = torch.rand(1, 1, 192, 256)
+    shape = (1, 1, 192, 128)
+    prior = torch.full(shape, 500.0), torch.ones(shape, dtype=torch.bool), torch.ones(shape)
+    with pytest.raises(ShapeError, match="prior_depth must have shape"):
+        tracker(image, prior[0][..., :64], *prior[1:])
+    with pytest.raises(ShapeError, match="prior_valid must be bool"):
+        tracker(image, prior[0], prior[2], prior[2])
+    with pytest.raises(ShapeError, match="rig's sensor"):
+        tracker(torch.rand(1, 1, 96, 128), *prior)
+    with pytest.raises(OptionError, match="temporal must be a bool or TemporalOptions"):
+        DepthStream(model, temporal="on")
+
+
+def test_shapes_dtype_and_no_prior(model):
+    tracker = TemporalDepth(model, TemporalOptions(band=2, band_edges="clamp"))
+    image = torch.rand(2, 1, 192, 256, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    with torch.no_grad():
+        prior = model(image[:1].float())
+        none = torch.zeros(2, 1, 192, 128, dtype=torch.bool)
+        res = tracker(image, prior.depth.expand(2, -1, -1, -1), none, prior.confidence.expand(2, -1, -1, -1))
+    assert res.depth.shape == (2, 1, 192, 128) and res.depth.dtype == torch.float64
+    assert not bool(res.valid.any())  # no valid prior pixel: no band anywhere
+
+
+def test_first_frame_equals_per_frame_and_moving_sequence_within_tolerance(model, moving):
+    per = _scores(DepthStream(model), moving, FRAMES)
+    stream = DepthStream(model, temporal=True)
+    first = stream.push(moving.image[0])
+    want = model(moving.image[:1])
+    assert first.keyframe and torch.equal(first.depth, want.depth) and torch.equal(first.valid, want.valid)
+    assert torch.equal(first.confidence, want.confidence)
+    stream.reset()
+    tracked = _scores(stream, moving, FRAMES)
+    assert [k for _, _, k in tracked] == [True] + [False] * (FRAMES - 1)  # one key frame, then the prior
+    err, cov = (statistics.mean(s[i] for s in per) for i in (0, 1))
+    t_err, t_cov = (statistics.mean(s[i] for s in tracked) for i in (0, 1))
+    assert t_err <= err + 0.02 and t_cov >= cov - 0.5, (err, cov, t_err, t_cov)
+
+
+def test_key_frames_on_interval_cut_and_a_depth_step(model, moving):
+    stream = DepthStream(model, temporal=TemporalOptions(keyframe_interval=3))
+    keys = [stream.push(image).keyframe for image in moving.image]
+    assert keys == [True, False, False, True, False, False, True, False, True]  # every 3rd, and the cut (last)
+    assert stream.keyframes == 4 and stream.frames == 9
+    rig = model.rig
+    steps = render(rig, [step_scene(rig, 450.0, 600.0, edge_x_mm=x, seed=5) for x in (80.0, 80.0, 0.0)],
+                   ImageFormation(supersample=1, noise_sigma=1 / 255, seed=3))
+    stream = DepthStream(model, temporal=True)
+    keys = [stream.push(image).keyframe for image in steps.image]
+    assert keys == [True, False, True]  # the near plane covers what the prior saw far: the full model again
