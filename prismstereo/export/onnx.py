@@ -29,13 +29,17 @@ import os
 import time
 import warnings
 from pathlib import Path
-from typing import Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 import torch
 from torch import nn
 
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_option
+
+if TYPE_CHECKING:
+    from prismstereo.depth.result import DepthResult
+    from prismstereo.depth.temporal import TemporalOptions
 
 __all__ = [
     "DEFAULT_OPSET",
@@ -140,7 +144,7 @@ def source_digest() -> str:
     return digest.hexdigest()[:16]
 
 
-def _metadata(model: nn.Module, channels: int, opset: int, temporal: Any = None) -> dict[str, str]:
+def _metadata(model: nn.Module, channels: int, opset: int, temporal: TemporalOptions | None = None) -> dict[str, str]:
     from prismstereo import __version__
 
     rig = model.rig
@@ -159,7 +163,7 @@ def _metadata(model: nn.Module, channels: int, opset: int, temporal: Any = None)
 
 
 def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset: int = DEFAULT_OPSET,
-                temporal: Any = None) -> Path:
+                temporal: TemporalOptions | None = None) -> Path:
     """Export a :class:`~prismstereo.model.PrismStereo` (or a :class:`~prismstereo.learned.LearnedStereo`) to an
     ONNX file (checked with ``onnx.checker``).
 
@@ -316,7 +320,8 @@ class OnnxDepth:
 
             self.temporal = TemporalOptions(**json.loads(self.metadata.get("prismstereo.temporal", "{}")))
 
-    def __call__(self, image: torch.Tensor | np.ndarray, prior: Any = None) -> OnnxDepthResult:
+    def __call__(self, image: torch.Tensor | np.ndarray,
+                 prior: OnnxDepthResult | DepthResult | None = None) -> OnnxDepthResult:
         """Depth of a batch ``image`` (B, C, H, W) in [0, 1] (any float dtype; run in float32); a temporal graph
         needs ``prior``: the previous frame's result (anything with ``depth``, ``valid`` and ``confidence``,
         (B, 1, H, W_ref) each: an :class:`OnnxDepthResult`, a :class:`~prismstereo.model.DepthResult`)."""
@@ -358,13 +363,14 @@ def cache_directory() -> Path:
 _SESSIONS: dict[tuple[str, int], OnnxDepth] = {}
 
 
-def _cache_key(model: nn.Module, channels: int, opset: int, temporal: Any = None) -> str:
+def _cache_key(model: nn.Module, channels: int, opset: int, temporal: TemporalOptions | None = None) -> str:
     meta = _metadata(model, channels, opset, temporal)
     return hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OPSET, threads: int = 2,
-                 cache_dir: str | Path | None = None, spinning: bool = True, temporal: Any = None) -> OnnxDepth:
+                 cache_dir: str | Path | None = None, spinning: bool = True,
+                 temporal: TemporalOptions | None = None) -> OnnxDepth:
     """The exported graph of ``model`` in onnxruntime, exported once per rig, options, channels, opset and
     package version (a file ``<hash>.onnx`` in ``cache_dir``, default :func:`cache_directory`) and kept per
     process.
