@@ -124,3 +124,24 @@ def test_key_frames_on_interval_cut_and_a_depth_step(model, moving):
     stream = DepthStream(model, temporal=True)
     keys = [stream.push(image).keyframe for image in steps.image]
     assert keys == [True, False, True]  # the near plane covers what the prior saw far: the full model again
+
+
+def test_a_band_left_behind_by_a_cut_is_judged_unsure(model, moving):
+    """A cut the thumbnail test misses (``cut_threshold`` off): the band's own evidence, not the prior's confidence,
+    feeds the calibrated confidence, so few pixels stay valid and the stream computes the frame with the full model."""
+    first, cut, near_image = moving.image[:1], moving.image[FRAMES:FRAMES + 1], moving.image[1:2]
+    with torch.no_grad():
+        prior = model(first)
+        tracked = TemporalDepth(model)(cut, prior.depth, prior.valid, prior.confidence)
+        near = TemporalDepth(model)(near_image, prior.depth, prior.valid, prior.confidence)
+    assert float(tracked.valid.float().mean()) < 0.25 * float(prior.valid.float().mean())
+    assert float(near.valid.float().mean()) > 0.9 * float(prior.valid.float().mean())
+    stream = DepthStream(model, temporal=TemporalOptions(cut_threshold=1e9))
+    assert stream.push(first[0]).keyframe and stream.push(cut[0]).keyframe  # recomputed: the tracking lost its pixels
+    # a prior whose confidence is below min_prior_confidence places no band of its own
+    unsure = TemporalDepth(model, TemporalOptions(min_prior_confidence=1.0, reach=0))
+    with torch.no_grad():
+        none = unsure(near_image, prior.depth, prior.valid, prior.confidence * 0.5)
+    assert not bool(none.valid.any())
+    with pytest.raises(OptionError, match=r"min_prior_confidence must be a number in \[0, 1.0\]"):
+        TemporalOptions(min_prior_confidence=2.0)
