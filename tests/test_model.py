@@ -205,7 +205,7 @@ def test_model_buffers_batch_and_errors(setup1_model):
     rig, model = setup1_model
     buffers = dict(model.named_buffers())
     assert {f"levels.0.{name}" for name in ("series", "reference_valid", "other_valid", "depths")} <= set(buffers)
-    assert ("levels.0.search.coefficients" in buffers) == (model.final.config.search.sampling == "sweep")
+    assert ("levels.0.search.sampler.coefficients" in buffers) == (model.final.config.search.sampling == "sweep")
     assert (model.final.fine is not None) == (model.final.factor > 1)
     assert model.depths.shape == (model.num_hypotheses,)
     x = torch.rand(2, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(0))
