@@ -29,7 +29,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from prismstereo.errors import OptionError, check_option
+from prismstereo.errors import OptionError, check_int, check_number, check_option
 from prismstereo.matching.cost import COSTS
 
 __all__ = [
@@ -51,25 +51,6 @@ def _odd(name: str, value: object, zero: bool = False, least: int = 1) -> None:
     if not ok:
         what = f"an odd int >= {least}" if least > 1 else "a positive odd int"
         raise OptionError(f"{name} must be {'0 (off) or ' if zero else ''}{what}, got {value!r}")
-
-
-def _int(name: str, value: object, least: int, none: bool = False) -> None:
-    if value is None and none:
-        return
-    if isinstance(value, bool) or not isinstance(value, int) or value < least:
-        raise OptionError(f"{name} must be an int >= {least}{' or None' if none else ''}, got {value!r}")
-
-
-def _number(name: str, value: object, low: float, high: float, what: str, none: bool = False,
-            open_low: bool = False) -> None:
-    """``value`` is a number in [low, high] ((low, high] with ``open_low``; finite when ``high`` is inf), or None
-    with ``none``; else the error says it must be ``what``."""
-    if value is None and none:
-        return
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and (
-        low < value if open_low else low <= value) and (value < high if high == math.inf else value <= high)
-    if not ok:
-        raise OptionError(f"{name} must be {what}{' or None' if none else ''}, got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -119,13 +100,13 @@ class SearchConfig:
         check_option(self.band_edges, BAND_EDGES, "band_edges")
         if self.sampling is not None:
             check_option(self.sampling, SAMPLINGS, "sampling")
-        _int("num_hypotheses", self.num_hypotheses, 2, none=True)
-        _int("downsample", self.downsample, 1, none=True)
-        _int("full_band", self.full_band, 0, none=True)
-        _int("coarse_factor", self.coarse_factor, 1, none=True)
-        _int("band", self.band, 1, none=True)
-        _int("coarse_reach", self.coarse_reach, 0)
-        _number("lr_threshold", self.lr_threshold, 0.0, math.inf, "> 0", none=True, open_low=True)
+        check_int(self.num_hypotheses, "num_hypotheses", 2, none=True)
+        check_int(self.downsample, "downsample", 1, none=True)
+        check_int(self.full_band, "full_band", 0, none=True)
+        check_int(self.coarse_factor, "coarse_factor", 1, none=True)
+        check_int(self.band, "band", 1, none=True)
+        check_int(self.coarse_reach, "coarse_reach", 0)
+        check_number(self.lr_threshold, "lr_threshold", 0.0, math.inf, "> 0", none=True, open_low=True)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -150,7 +131,7 @@ class CostConfig:
         check_option(self.cost, COSTS, "cost")
         check_option(self.fine_cost, COSTS, "fine_cost")
         _odd("window", self.window)
-        _number("census_threshold", self.census_threshold, 0.0, math.inf, "a number >= 0")
+        check_number(self.census_threshold, "census_threshold", 0.0, math.inf, "a number >= 0")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -182,7 +163,7 @@ class AggregationConfig:
         _odd("box", self.box)
         _odd("fine_box", self.fine_box)
         _odd("wide_box", self.wide_box, zero=True)
-        _number("weak_texture", self.weak_texture, 0.0, math.inf, "a finite number > 0", open_low=True)
+        check_number(self.weak_texture, "weak_texture", 0.0, math.inf, "a finite number > 0", open_low=True)
         if self.directions not in (2, 4, 8):
             raise OptionError(f"directions must be 2, 4 or 8, got {self.directions!r}")
 
@@ -210,7 +191,7 @@ class RefinementConfig:
         if self.refinement is not None:
             check_option(self.refinement, REFINEMENTS, "refinement")
         _odd("smoothing", self.smoothing, zero=True, least=3)
-        _number("smoothing_tolerance", self.smoothing_tolerance, 0.0, math.inf, "a finite number > 0",
+        check_number(self.smoothing_tolerance, "smoothing_tolerance", 0.0, math.inf, "a finite number > 0",
                 open_low=True)
 
 
@@ -252,9 +233,9 @@ class ValidityConfig:
             check_option(self.validity, VALIDITIES, "validity")
         if not isinstance(self.dense, bool):
             raise OptionError(f"dense must be a bool, got {self.dense!r}")
-        _int("dense_fill", self.dense_fill, 0)
-        _number("occluder_confidence", self.occluder_confidence, 0.0, 1.0, "in [0, 1]", none=True)
-        _number("reach_confidence", self.reach_confidence, 0.0, 1.0, "in [0, 1]")
+        check_int(self.dense_fill, "dense_fill", 0)
+        check_number(self.occluder_confidence, "occluder_confidence", 0.0, 1.0, "in [0, 1]", none=True)
+        check_number(self.reach_confidence, "reach_confidence", 0.0, 1.0, "in [0, 1]")
 
 
 _GROUPS: dict[str, type] = {"search": SearchConfig, "cost": CostConfig, "aggregation": AggregationConfig,

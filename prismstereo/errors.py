@@ -7,6 +7,7 @@ with one ``except PrismStereoError``. Library code never uses ``assert`` on user
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -20,6 +21,8 @@ __all__ = [
     "CalibrationError",
     "check_shape",
     "check_option",
+    "check_int",
+    "check_number",
     "check_floating",
 ]
 
@@ -87,6 +90,42 @@ def check_option(value: Any, choices: Iterable[str], name: str) -> str:
     choices = tuple(choices)
     if value not in choices:
         raise OptionError(f"Unknown {name} {value!r}. Choose from: {', '.join(map(repr, choices))}")
+    return value
+
+
+def check_int(value: Any, name: str, least: int, *, none: bool = False) -> Any:
+    """Return ``value`` if it is an int >= ``least`` (not a bool; or None with ``none``), else raise an
+    :class:`OptionError` saying so.
+
+    Example:
+        >>> check_int(3, "band", 1)
+        3
+    """
+    if value is None and none:
+        return value
+    if isinstance(value, bool) or not isinstance(value, int) or value < least:
+        raise OptionError(f"{name} must be an int >= {least}{' or None' if none else ''}, got {value!r}")
+    return value
+
+
+def check_number(value: Any, name: str, low: float, high: float, what: str | None = None, *, none: bool = False,
+                 open_low: bool = False, infinite: bool = False) -> Any:
+    """Return ``value`` if it is a number (not a bool) in [low, high] ((low, high] with ``open_low``; or None with
+    ``none``), else raise an :class:`OptionError` saying it must be ``what`` (default: the interval). With ``high``
+    inf the value must be finite unless ``infinite`` (inf then means "off", e.g. a threshold never reached).
+
+    Example:
+        >>> check_number(0.5, "min_confidence", 0.0, 1.0)
+        0.5
+    """
+    if value is None and none:
+        return value
+    finite_only = high == math.inf and not infinite
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and (
+        low < value if open_low else low <= value) and (value < high if finite_only else value <= high)
+    if not ok:
+        what = what or f"a number in {'(' if open_low else '['}{low:g}, {high:g}]"
+        raise OptionError(f"{name} must be {what}{' or None' if none else ''}, got {value!r}")
     return value
 
 

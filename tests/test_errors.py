@@ -7,6 +7,8 @@ from prismstereo.errors import (
     RigError,
     ShapeError,
     check_floating,
+    check_int,
+    check_number,
     check_option,
     check_shape,
 )
@@ -64,3 +66,25 @@ def test_top_level_exports_the_depth_model_lazily():
     assert {"PrismStereo", "DepthResult", "DepthStream"} <= set(prismstereo.__all__)
     with pytest.raises(AttributeError, match="has no attribute 'Nope'"):
         prismstereo.Nope  # noqa: B018
+
+
+def test_check_int():
+    assert check_int(3, "band", 1) == 3 and check_int(None, "band", 1, none=True) is None
+    for bad in (0, 2.0, True, None):
+        with pytest.raises(OptionError, match=r"band must be an int >= 1, got"):
+            check_int(bad, "band", 1)
+    with pytest.raises(OptionError, match=r"band must be an int >= 1 or None, got 0"):
+        check_int(0, "band", 1, none=True)
+
+
+def test_check_number():
+    assert check_number(0.5, "c", 0.0, 1.0) == 0.5 and check_number(1, "c", 0.0, 1.0) == 1
+    assert check_number(None, "c", 0.0, 1.0, none=True) is None
+    for bad in (-0.1, 1.5, True, "0.5", float("nan")):
+        with pytest.raises(OptionError, match=r"c must be a number in \[0, 1\], got"):
+            check_number(bad, "c", 0.0, 1.0)
+    with pytest.raises(OptionError, match=r"c must be a number in \(0, 1\], got 0"):
+        check_number(0.0, "c", 0.0, 1.0, open_low=True)
+    with pytest.raises(OptionError, match="t must be finite, got inf"):
+        check_number(float("inf"), "t", 0.0, float("inf"), "finite")
+    assert check_number(float("inf"), "t", 0.0, float("inf"), infinite=True) == float("inf")

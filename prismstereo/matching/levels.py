@@ -29,7 +29,7 @@ from prismstereo._graph import fill_invalid, tracing
 from prismstereo.epipolar.row_rectify import RectifiedLevel
 from prismstereo.epipolar.series import series_at, series_band
 from prismstereo.epipolar.sweep_table import column_to_sweep
-from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_number, check_shape
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
 from prismstereo.matching.cost import Warped, grey, sweep_cost, worst_cost
 from prismstereo.matching.select import (
@@ -105,13 +105,13 @@ def similarity(best: torch.Tensor, cost: str, channels: int, window: int) -> tor
 
 
 def _refine(options: SearchOptions, local: torch.Tensor, total: torch.Tensor, index: torch.Tensor | int, cost: str,
-            final: bool) -> torch.Tensor:
+            final: bool, limit: float = 0.5) -> torch.Tensor:
     method = options.refinement if final and options.refinement is not None else None
     if method == "soft_argmin":
         if isinstance(index, int):  # one winner for all pixels
             index = torch.full_like(total[:, :1], index, dtype=torch.long)
         return soft_argmin_local(total, index, radius=2, temperature=_TEMPERATURE[cost])
-    return subpixel_refine(local, index, method or ("parabola" if cost == "zncc" else "equiangular"))
+    return subpixel_refine(local, index, method or ("parabola" if cost == "zncc" else "equiangular"), limit)
 
 
 class _Search(nn.Module):
@@ -264,7 +264,7 @@ class FineBand(nn.Module):
     parabola fits pixel-lock (quarter-res plane at 600 mm: 0.19 % -> 0.49 % mean error). A pixel whose best
     hypothesis is on the band's edge (its match lies beyond the band) is invalid with ``options.band_edges``
     'reject'; with 'clamp' its winner becomes the inner neighbour of that edge hypothesis, refined there (at
-    most half a step further out) and judged by that hypothesis' confidence (with R = 1 that is always the
+    most ``vertex_limit`` steps further out) and judged by that hypothesis' confidence (with R = 1 that is always the
     centre: taken by static slices, without a winner search or gathers). The band runs over horizontal
     strips whose cost and box filters see ``window // 2 + max(fine_box, wide_box) // 2`` rows beyond the strip,
     so the strips give the whole image's numbers (bitwise). Torch eager takes cache-sized strips (~400 k voxels);
@@ -279,6 +279,9 @@ class FineBand(nn.Module):
         step: hypothesis spacing in s.
         split: the other half's first full-sensor column.
         with_match: return each pixel's match (False: ``match`` None, for a caller that moves s afterwards).
+        vertex_limit: the sub-pixel fit's largest move from the winner, in steps (0.5: within half a step of a
+            true minimum; 1.0: up to the band's outer sample, for a band placed on a prior that may lag the
+            motion by a step, :class:`~prismstereo.depth.temporal.TemporalDepth`).
 
     Example:
         >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
@@ -296,10 +299,12 @@ class FineBand(nn.Module):
         torch.Size([1, 1, 96, 64])
     """
 
-    def __init__(self, options: SearchOptions, band: int, step: float, split: int, with_match: bool = True) -> None:
+    def __init__(self, options: SearchOptions, band: int, step: float, split: int, with_match: bool = True, *,
+                 vertex_limit: float = 0.5) -> None:
         super().__init__()
+        check_number(vertex_limit, "vertex_limit", 0.0, 1.0, open_low=True)
         self.options, self.band, self.step, self.split = options, band, step, split
-        self.with_match = with_match
+        self.with_match, self.vertex_limit = with_match, float(vertex_limit)
 
     def forward(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
                 series: torch.Tensor, interval: torch.Tensor, texture: torch.Tensor | None = None) -> LevelResult:
@@ -354,7 +359,7 @@ class FineBand(nn.Module):
             j, _ = winner_take_all(local.detach())
             if o.band_edges == "clamp":  # a winner on the band's edge: refined from its inner neighbour instead
                 j = j.clamp(1, 2 * self.band - 1)
-        refined = _refine(o, local, local, j, o.cost, True)
+        refined = _refine(o, local, local, j, o.cost, True, self.vertex_limit)
         if isinstance(j, int):
             frac, s_j, ok = refined - j, s0 + offsets[j], ok0 & warped.valid[:, j:j + 1]
         else:  # the winner's s and validity by arithmetic on (B, 1, H, W): the numbers of gathers from the band

@@ -19,7 +19,7 @@ from typing import Literal
 
 import torch
 
-from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_number, check_option, check_shape
 
 __all__ = [
     "Subpixel",
@@ -57,23 +57,28 @@ def _neighbours(cost: torch.Tensor, index: torch.Tensor | int) -> tuple[torch.Te
     return cm, c0, cp
 
 
-def subpixel_refine(cost: torch.Tensor, index: torch.Tensor | int, method: Subpixel = "equiangular") -> torch.Tensor:
+def subpixel_refine(cost: torch.Tensor, index: torch.Tensor | int, method: Subpixel = "equiangular",
+                    limit: float = 0.5) -> torch.Tensor:
     """Refine integer winners to fractional indices by fitting the costs at i-1, i, i+1.
 
     parabola: delta = (c- - c+) / (2 (c- - 2 c0 + c+)); equiangular: delta = (c- - c+) / (2 max(c- - c0,
-    c+ - c0)). delta is clamped to [-0.5, 0.5]; winners at the first or last hypothesis stay integer.
+    c+ - c0)). delta is clamped to [-limit, limit]; winners at the first or last hypothesis stay integer.
+    ``limit`` 0.5 (default) keeps a true minimum's fit within half a step of it; 1.0 lets a fit around a
+    hypothesis that is not the minimum (a band's clamped edge winner) reach the outer sample (for a parabolic
+    cost with its minimum on that sample the fit gives it exactly).
 
     Args:
         cost: (B, D, H, W).
         index: (B, 1, H, W) long winners (:func:`winner_take_all`), or one int, the winner of every pixel (the
             three costs are then static slices: no gathers in an exported graph; the same values).
         method: 'equiangular' or 'parabola'.
+        limit: the largest |delta|, in (0, 1].
 
     Returns:
         (B, 1, H, W) fractional index, dtype of ``cost``.
 
     Raises:
-        OptionError: unknown method, or an int index outside [0, D).
+        OptionError: unknown method, an int index outside [0, D), or a limit outside (0, 1].
 
     Example:
         >>> c = torch.tensor([2.0, 0.0, 1.0]).view(1, 3, 1, 1)
@@ -81,6 +86,7 @@ def subpixel_refine(cost: torch.Tensor, index: torch.Tensor | int, method: Subpi
         (1.25, 1.25)
     """
     check_option(method, ("equiangular", "parabola"), "method")
+    check_number(limit, "limit", 0.0, 1.0, open_low=True)
     d = cost.shape[1]
     if isinstance(index, int) and not 0 <= index < d:
         raise OptionError(f"index must be in [0, {d}) for a cost of {d} hypotheses, got {index}")
@@ -88,11 +94,11 @@ def subpixel_refine(cost: torch.Tensor, index: torch.Tensor | int, method: Subpi
     den = cm - 2 * c0 + cp if method == "parabola" else torch.maximum(cm - c0, cp - c0)
     delta = (cm - cp) / (2 * den).clamp_min(1e-12)
     if isinstance(index, int):
-        return delta.clamp(-0.5, 0.5) + index if 0 < index < d - 1 else torch.full_like(delta, float(index))
+        return delta.clamp(-limit, limit) + index if 0 < index < d - 1 else torch.full_like(delta, float(index))
     # winners at the first or last hypothesis stay integer: the delta times the mask (finite costs give a finite
     # delta; onnxruntime runs a Where on one thread: 0.3 ms on a 768 x 512 plane, the product ~0.05 ms)
     inner = ((index > 0) & (index < d - 1)).to(cost.dtype)
-    return index.to(cost.dtype) + delta.clamp(-0.5, 0.5) * inner
+    return index.to(cost.dtype) + delta.clamp(-limit, limit) * inner
 
 
 def subpixel_refine_guarded(

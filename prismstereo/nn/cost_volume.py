@@ -28,7 +28,7 @@ from torch import nn
 
 from prismstereo.epipolar.row_rectify import level_coverage
 from prismstereo.epipolar.sweep import fit_sweep, positions_at, sweep_coefficients, sweep_to_depth
-from prismstereo.errors import OptionError, RigError, ShapeError, check_option, check_shape
+from prismstereo.errors import OptionError, RigError, ShapeError, check_int, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
 from prismstereo.matching.sweep_sampler import SweepSampler, block_centres, sweep_sampler
@@ -67,12 +67,6 @@ def _binned_parameters(p: RigParameters, scale: int) -> RigParameters:
 
 def _detached(p: RigParameters) -> RigParameters:
     return p._replace(**{k: v.detach() for k, v in p._asdict().items() if isinstance(v, torch.Tensor)})
-
-
-def _check_int(value: object, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise OptionError(f"{name} must be an int >= {low}, got {value!r}")
-    return value
 
 
 def _binned_size(rig: BiPrismRig | RigParameters, scale: int) -> tuple[int, int, int]:
@@ -159,8 +153,8 @@ def sweep_grid(
         >>> g.grid.shape, g.valid.shape, g.depths.shape
         (torch.Size([16, 48, 32, 2]), torch.Size([16, 48, 32]), torch.Size([16]))
     """
-    _check_int(num_hypotheses, "num_hypotheses", 2)
-    _check_int(scale, "scale", 1)
+    check_int(num_hypotheses, "num_hypotheses", 2)
+    check_int(scale, "scale", 1)
     built = _build(rig, z_range_mm, num_hypotheses, scale)
     c = built.coefficients
     s = torch.linspace(-1.0, 1.0, num_hypotheses, dtype=c.dtype, device=c.device)
@@ -244,11 +238,11 @@ class PrismCostVolume(nn.Module):
         if isinstance(rig, BiPrismRig):
             check_rig_images(rig)
         self.mode = check_option(mode, MODES, "mode")
-        self.groups = _check_int(groups, "groups", 1)
+        self.groups = check_int(groups, "groups", 1)
         if mode == "concat" and groups != 1:
             raise OptionError(f"groups must be 1 with mode 'concat', got {groups}")
-        self.scale = _check_int(scale, "scale", 1)
-        self.num_hypotheses = _check_int(num_hypotheses, "num_hypotheses", 2)
+        self.scale = check_int(scale, "scale", 1)
+        self.num_hypotheses = check_int(num_hypotheses, "num_hypotheses", 2)
         self.z_range_mm = tuple(float(z) for z in z_range_mm)
         self.rig = rig
         self.rig_gradients = isinstance(rig, RigParameters) and any(

@@ -135,6 +135,21 @@ def test_subpixel_fits_exact_models():
         subpixel_refine(v_cost, winner_take_all(v_cost)[0], "cubic")
 
 
+@pytest.mark.parametrize("index", [4, "tensor"])
+def test_subpixel_limit_lets_a_fit_reach_the_outer_sample(index):
+    """Around a hypothesis one step from a parabolic cost's minimum the fit finds the minimum with limit 1 (what a
+    clamped band on a prior one step behind uses); the default half step stops half way."""
+    x = torch.arange(10, dtype=F64).view(1, 10, 1, 1)
+    cost = (x - 4.8) ** 2  # the winner would be 5: refine around 4 instead
+    j = 4 if index == 4 else torch.full((1, 1, 1, 1), 4, dtype=torch.long)
+    assert float(subpixel_refine(cost, j, "parabola", limit=1.0)) == pytest.approx(4.8)
+    assert float(subpixel_refine(cost, j, "parabola")) == pytest.approx(4.5)
+    assert float(subpixel_refine((x - 5.7) ** 2, j, "parabola", limit=1.0)) == pytest.approx(5.0)  # beyond: the edge
+    for bad in (0.0, 1.5, True):
+        with pytest.raises(OptionError, match=r"limit must be a number in \(0, 1\]"):
+            subpixel_refine(cost, j, "parabola", limit=bad)
+
+
 @pytest.mark.parametrize("method", ["parabola", "equiangular"])
 def test_subpixel_refine_with_one_winner_for_all_pixels(method):
     """An int winner (static slices) gives bitwise the numbers of the same winner as an index tensor,

@@ -77,6 +77,9 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     # without the match (a smoothing model computes it after moving s): the same estimate, whole or in strips
     fine = model.final.fine
     bare = FineBand(fine.options, fine.band, fine.step, fine.split, with_match=False)
+    for bad in (0.0, 1.5):
+        with pytest.raises(OptionError, match=r"vertex_limit must be a number in \(0, 1\]"):
+            FineBand(fine.options, fine.band, fine.step, fine.split, vertex_limit=bad)
     assert PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2)).final.fine.with_match is False
     with torch.no_grad():
         for voxels in (10**9, 1):
