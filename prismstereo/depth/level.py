@@ -232,7 +232,6 @@ class DepthLevel(nn.Module):
             raise OptionError("a placed level needs the coarser level's result, a level with its own search none")
         ref, other = self.split(image)
         h, w_ref = ref.shape[-2:]
-        features = None
         if self.factor == 1:
             s, ok, confidence, match = self.search(ref, other, final=True)
             return LevelEstimate(s, ok, confidence, match, None, ok)
@@ -256,23 +255,60 @@ class DepthLevel(nn.Module):
             return t[..., :h, :w_ref]
 
         s0 = up(s_c, "bilinear").detach().clamp(-1.0, 1.0)
+        calibrated = config.validity.validity == "calibrated"
+        if calibrated or config.validity.dense:  # beyond the reach: the coarse level's own estimate
+            ok0 = torch.ones_like(s0, dtype=torch.bool)
+        else:
+            ok0 = up(reach) > 0.5
+        similarity = up(similar_c, "bilinear") if calibrated else None
+        return self.search_band(ref, other, s0, ok0, up(valid_c) < 0.5, similarity)
+
+    def search_band(self, ref: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
+                    rejected: torch.Tensor, similarity: torch.Tensor | None, *, fine: FineBand | None = None,
+                    calibration: ConfidenceModel | None = None, free_offset: float = 0.0) -> LevelEstimate:
+        """The final band around a placement, judged: the band (:class:`~prismstereo.matching.levels.FineBand`),
+        then the calibrated confidence, or the stricter match of pixels the placement only reached from a
+        neighbour. :meth:`estimate` places it by a coarser estimate, :class:`~prismstereo.depth.temporal.TemporalDepth`
+        by the previous frame.
+
+        Args:
+            ref, other: (B, C, H, W_ref) and (B, C, H, W_o) the two halves.
+            s0: (B, 1, H, W_ref) the placement (detached, in [-1, 1]).
+            ok0: (B, 1, H, W_ref) bool, where the placement holds.
+            rejected: (B, 1, H, W_ref) bool, pixels the placement had no estimate of its own for (extended from a
+                neighbour, or none).
+            similarity: (B, 1, H, W_ref) the placement's similarity (a feature of the calibrated confidence); None:
+                the band's own NCC where not ``rejected``.
+            fine: the band (default: this level's).
+            calibration: the calibrated confidence (default: this level's).
+            free_offset: moves of the band's fit from s0 up to this many steps count as no move in the
+                confidence's offset feature (a prior that lags a moving scene, :mod:`~prismstereo.depth.temporal`).
+
+        Returns:
+            LevelEstimate.
+        """
+        config = self.config
+        fine = self.fine if fine is None else fine
+        calibration = self.calibration if calibration is None else calibration
         # the reference's texture (grey std over the cost window): the wide box's weight and a feature
         calibrated = config.validity.validity == "calibrated"
         texture = None
         if calibrated or config.aggregation.wide_box > config.aggregation.fine_box:
             texture = box_std(ref if ref.shape[1] == 1 else ref.mean(1, keepdim=True), config.cost.window).detach()
-        if calibrated or config.validity.dense:  # beyond the reach: the coarse level's own estimate
-            ok0 = torch.ones_like(s0, dtype=torch.bool)
-        else:
-            ok0 = up(reach) > 0.5
-        s, ok, confidence, match = self.fine(ref, other, s0, ok0, self.series, self.interval, texture)
-        rejected = up(valid_c) < 0.5
+        s, ok, confidence, match = fine(ref, other, s0, ok0, self.series, self.interval, texture)
         sampled = ok  # the band had a real sample (a dense model's depths), before the validity rules
+        features = None
         if calibrated:  # the probability of a depth within 1 % (matching.confidence)
-            features = confidence_features(confidence, up(similar_c, "bilinear"), s.detach(), s0, texture, self.step,
+            if similarity is None:
+                similarity = confidence.detach().clamp(0.0, 1.0) * (~rejected).to(confidence.dtype)
+            placed_at = s0
+            if free_offset:
+                free = free_offset * self.step
+                placed_at = s0 + (s.detach() - s0).clamp(-free, free)
+            features = confidence_features(confidence, similarity, s.detach(), placed_at, texture, self.step,
                                            rejected)
-            confidence = self.calibration(features)
-        elif config.search.coarse_reach:  # pixels the coarse level only reached from a neighbour: a stricter match
+            confidence = calibration(features)
+        elif config.search.coarse_reach:  # pixels the placement only reached from a neighbour: a stricter match
             ok = ok & (~rejected | (confidence >= config.validity.reach_confidence))
         return LevelEstimate(s, ok, confidence, match, features, sampled)
 

@@ -29,12 +29,10 @@ from typing import Any, Literal
 import torch
 from torch import nn
 
-from prismstereo.depth.level import LevelEstimate
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep
 from prismstereo.errors import OptionError, ShapeError, check_int, check_number, check_option, check_shape
-from prismstereo.matching.aggregate import box_std
-from prismstereo.matching.confidence import CLAMPED_WEIGHTS, ConfidenceModel, confidence_features
+from prismstereo.matching.confidence import CLAMPED_WEIGHTS, ConfidenceModel
 from prismstereo.matching.levels import FineBand, extend_estimate
 
 __all__ = ["TEMPORAL_BAND_EDGES", "TemporalDepth", "TemporalOptions", "supports_temporal"]
@@ -182,7 +180,6 @@ class TemporalDepth(nn.Module):
         if prior_valid.dtype != torch.bool:
             raise ShapeError(f"prior_valid must be bool, got {prior_valid.dtype}")
         ref, other = final.split(image)
-        config, step = final.config, final.step
         with torch.no_grad():  # the prior only places the band
             placed = prior_valid & (prior_confidence >= self.options.min_prior_confidence)
             z_range = torch.tensor(final.z_range, dtype=ref.dtype, device=ref.device)
@@ -190,25 +187,11 @@ class TemporalDepth(nn.Module):
             s_p = depth_to_sweep(depth, z_range).clamp(-1.0, 1.0)
             s_c, reach = extend_estimate(s_p, placed, self.options.reach)
             s0 = s_c.clamp(-1.0, 1.0)
-        calibrated = self.calibration is not None
-        texture = None
-        if calibrated or config.aggregation.wide_box > config.aggregation.fine_box:
-            texture = box_std(ref if ref.shape[1] == 1 else ref.mean(1, keepdim=True), config.cost.window).detach()
-        s, ok, confidence, match = self.fine(ref, other, s0, reach, final.series, final.interval, texture)
-        sampled = ok  # the band had a real sample, before the validity rules
-        rejected = ~placed
-        features = None
-        if calibrated:
-            # the coarse similarity of the per-frame model is evidence of this frame: here the band's own NCC (the
-            # prior's confidence would vouch for a band a scene cut or fast motion has left, see the module docstring)
-            similar = confidence.detach().clamp(0.0, 1.0) * placed.to(confidence.dtype)
-            # the offset feature sees the move beyond the half step that a prior in the right place leaves: on a moving
-            # scene a prior one step behind is expected, and the per-frame weights would judge it a misplaced band
-            # (a 256 x 192 plane moved by one step: coverage 95.1 % -> 97.8 %, per-frame 97.6 %)
-            half = 0.5 * step
-            placed_at = s0 + (s.detach() - s0).clamp(-half, half)
-            features = confidence_features(confidence, similar, s.detach(), placed_at, texture, step, rejected)
-            confidence = self.calibration(features)
-        elif config.search.coarse_reach:  # extended from a neighbour: a stricter match, as the model's
-            ok = ok & (~rejected | (confidence >= config.validity.reach_confidence))
-        return final.finish(LevelEstimate(s, ok, confidence, match, features, sampled))
+        # the band's own NCC is the similarity feature where the per-frame model has the binned level's: evidence
+        # of this frame (the prior's confidence would vouch for a band a scene cut or fast motion has left, see the
+        # module docstring); moves up to half a step from the prior count as none in the offset feature: on a moving
+        # scene a prior one step behind is expected, and the per-frame weights would judge it a misplaced band
+        # (a 256 x 192 plane moved by one step: coverage 95.1 % -> 97.8 %, per-frame 97.6 %)
+        estimate = final.search_band(ref, other, s0, reach, ~placed, None, fine=self.fine,
+                                     calibration=self.calibration, free_offset=0.5)
+        return final.finish(estimate)
