@@ -8,6 +8,9 @@ from prismstereo.cli import main
 from prismstereo.geometry.rig import BiPrismRig
 from tests.calibration.conftest import NOMINAL, board_captures
 
+# xdist: one worker runs this module, so its rendered `bench` is built once
+pytestmark = pytest.mark.xdist_group("test_cli_calibrate")
+
 
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):

@@ -6,7 +6,8 @@ from prismstereo.baselines import ZhangResult, calibrate_zhang, check_image_size
 from prismstereo.calibration import ViewDetection
 from tests.baselines.conftest import BOARD, RIG, SIZE
 
-pytestmark = pytest.mark.usefixtures("one_thread")
+# xdist: one worker runs this module, so the session fixture `board_views` is rendered once
+pytestmark = [pytest.mark.usefixtures("one_thread"), pytest.mark.xdist_group("board_views")]
 
 F64 = torch.float64
 
