@@ -69,6 +69,41 @@ def _xdist_worker() -> bool:
     return "PYTEST_XDIST_WORKER" in os.environ
 
 
+# Tests sharing an expensive module or session fixture (built once per worker process): under pytest-xdist each
+# group runs on one worker, so the fixture is built once. Keys: a module's path, or a test's module::name.
+# (pytest-xdist's own xdist_group marks are ignored with pytest 9.2: xdist 3.8 renames item._nodeid, which
+# pytest 9 no longer reads, so the groups are declared here for the scheduler below.)
+XDIST_GROUPS = {
+    "tests/analysis/test_pinhole_rectify.py": "rectified cameras (setup1)",
+    "tests/baselines/test_targets.py": "board_views",
+    "tests/baselines/test_tsai.py": "board_views",
+    "tests/baselines/test_zhang.py": "board_views",
+    **{f"tests/calibration/test_fit.py::{name}": "calibrated" for name in (
+        "test_result_report_and_plot", "test_outlier_view_is_flagged", "test_initial_poses_triangulate_the_boards",
+        "test_diverged_fit_is_an_error")},
+    "tests/depth/test_temporal.py": "temporal model and sequences",
+    "tests/export/test_onnx.py": "exported graph and captures",
+    "tests/test_cli_calibrate.py": "calibration bench",
+    "tests/test_dense.py": "weak-texture models (weak)",
+}
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """``-n N`` (pyproject's addopts): tests are handed out one by one to whichever worker is free, except the
+    groups of :data:`XDIST_GROUPS`, each handed out whole. Another ``--dist`` mode keeps pytest-xdist's own."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedFixtureScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module, _, test = nodeid.partition("::")
+            group = XDIST_GROUPS.get(module) or XDIST_GROUPS.get(f"{module}::{test.split('[')[0]}")
+            return f"group: {group}" if group else nodeid
+
+    return SharedFixtureScheduling(config, log)
+
+
 def pytest_collection_modifyitems(config, items):
     """Under pytest-xdist the executed notebooks, the longest single tests (20-50 s each on a quiet machine), are
     handed out first (longest first): the tail of the run is then many short tests, not one worker finishing

@@ -10,9 +10,6 @@ from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, height_field_scene, render
 from tests.conftest import scaled_rig
 
-# xdist: one worker runs this module, so its weak-texture models and capture (`weak`) are built once
-pytestmark = pytest.mark.xdist_group("test_dense")
-
 FORM = ImageFormation(supersample=2, noise_sigma=2 / 255, seed=3)
 Z_RANGE = (350.0, 900.0)
 

@@ -5,9 +5,6 @@ import torch.nn.functional as F
 from prismstereo import RigError, thesis_setup1, thesis_setup2, virtual_cameras
 from prismstereo.analysis.pinhole_rectify import full_image_grid, rectification_residual, rectify_virtual_cameras
 
-# xdist: one worker runs this module, so its rectified cameras (`setup1`) are built once
-pytestmark = pytest.mark.xdist_group("test_pinhole_rectify")
-
 F64 = torch.float64
 
 

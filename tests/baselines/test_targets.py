@@ -7,8 +7,7 @@ from prismstereo.calibration import ViewDetection
 from prismstereo.synthetic import checkerboard_target, fronto_parallel_plane
 from tests.baselines.conftest import BOARD, RIG
 
-# xdist: one worker runs this module, so the session fixture `board_views` is rendered once
-pytestmark = [pytest.mark.usefixtures("one_thread"), pytest.mark.xdist_group("board_views")]
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 F64 = torch.float64
 

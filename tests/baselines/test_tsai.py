@@ -6,8 +6,7 @@ from prismstereo import CalibrationError, virtual_cameras
 from prismstereo.baselines import TsaiResult, calibrate_tsai, pinhole_from_opencv, project_pinhole, tsai_camera
 from tests.baselines.conftest import RIG, SIZE
 
-# xdist: one worker runs this module, so the session fixture `board_views` is rendered once
-pytestmark = [pytest.mark.usefixtures("one_thread"), pytest.mark.xdist_group("board_views")]
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 F64 = torch.float64
 

@@ -6,8 +6,7 @@ from prismstereo.baselines import ZhangResult, calibrate_zhang, check_image_size
 from prismstereo.calibration import ViewDetection
 from tests.baselines.conftest import BOARD, RIG, SIZE
 
-# xdist: one worker runs this module, so the session fixture `board_views` is rendered once
-pytestmark = [pytest.mark.usefixtures("one_thread"), pytest.mark.xdist_group("board_views")]
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 F64 = torch.float64
 

@@ -115,10 +115,6 @@ def test_single_perturbed_parameter_is_recovered(name):
     assert "prism_offset_x_mm" in result.weak  # the views barely see d: the report says so
 
 
-# xdist: the tests of the fixture `calibrated` run on one worker, so it is calibrated once
-CALIBRATED = pytest.mark.xdist_group("test_fit_calibrated")
-
-
 @pytest.fixture(scope="module")
 def calibrated():
     true = NOMINAL.replace(prism_tilt_deg=(0.2, -0.3, 0.2), prism_offset_x_mm=0.3, alpha_deg=6.45,
@@ -127,7 +123,6 @@ def calibrated():
     return true, cap, calibrate_board(NOMINAL, list(cap.image), BOARD, fix=["p1", "p2"], tolerances={"k2": 0.05})
 
 
-@CALIBRATED
 def test_result_report_and_plot(calibrated, tmp_path):
     true, cap, result = calibrated
     assert "p1" not in result.free and "k2" in result.free
@@ -141,7 +136,6 @@ def test_result_report_and_plot(calibrated, tmp_path):
     assert (tmp_path / "r.png").stat().st_size > 10_000
 
 
-@CALIBRATED
 def test_outlier_view_is_flagged(calibrated):
     true, cap, result = calibrated
     dets = [detect_board(im, NOMINAL, BOARD) for im in cap.image]
@@ -153,7 +147,6 @@ def test_outlier_view_is_flagged(calibrated):
     assert "warning: view 3 has an outlier" in format_report(bad)
 
 
-@CALIBRATED
 def test_initial_poses_triangulate_the_boards(calibrated):
     """Poses from corners triangulated with the true rig put the board's centre where the scene has it."""
     true, cap, result = calibrated
@@ -180,7 +173,6 @@ def test_calibration_errors():
         calibrate_board(NOMINAL, [torch.zeros(1, 192, 256)] * 3, BOARD, fix=["zoom"])
 
 
-@CALIBRATED
 def test_diverged_fit_is_an_error(calibrated):
     """A wrong nominal rig (setup 1's prism called 4.4 deg) cannot explain the corners: a clear error."""
     true, cap, result = calibrated

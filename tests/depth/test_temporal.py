@@ -19,8 +19,7 @@ from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render,
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from onnx_speed import score  # noqa: E402
 
-# xdist: one worker runs this module, so its model and rendered sequences are built once
-pytestmark = [pytest.mark.usefixtures("one_thread"), pytest.mark.xdist_group("test_temporal")]
+pytestmark = pytest.mark.usefixtures("one_thread")
 FRAMES = 8
 
 

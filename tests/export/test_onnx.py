@@ -15,9 +15,6 @@ from prismstereo.export import DepthGraph, ExportError, OnnxDepth, describe, exp
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, step_scene
 
-# xdist: one worker runs this module, so its exported graph and captures are built once
-pytestmark = pytest.mark.xdist_group("test_onnx")
-
 DEPTHS = (320.0, 450.0, 610.0, 830.0)
 
 
