@@ -71,7 +71,7 @@ def _xdist_worker() -> bool:
 
 # Tests sharing an expensive module or session fixture (built once per worker process): under pytest-xdist each
 # group runs on one worker, so the fixture is built once. Keys: a module's path, or a test's module::name.
-# (pytest-xdist's own xdist_group marks are ignored with pytest 9.2: xdist 3.8 renames item._nodeid, which
+# (pytest-xdist's own xdist_group marks are ignored with pytest 9.2: xdist 3.8 writes item._nodeid, which
 # pytest 9 no longer reads, so the groups are declared here for the scheduler below.)
 XDIST_GROUPS = {
     "tests/analysis/test_pinhole_rectify.py": "rectified cameras (setup1)",
