@@ -108,7 +108,7 @@ def pytest_collection_modifyitems(config, items):
     """Under pytest-xdist the executed notebooks, the longest single tests (20-50 s each on a quiet machine), are
     handed out first (longest first): the tail of the run is then many short tests, not one worker finishing
     a notebook while the other idles. The order within each group stays the collection order."""
-    if config.getoption("numprocesses", None):
+    if _xdist_worker():  # (collection runs on the workers, where xdist sets numprocesses to None)
         items.sort(key=lambda item: not item.nodeid.startswith("tests/test_notebooks.py::test_notebook_executes"))
 
 
