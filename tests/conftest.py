@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 import torch
+from filelock import FileLock
 
 from prismstereo import BiPrismRig, thesis_setup1, thesis_setup2
 
@@ -63,12 +65,82 @@ def one_thread():
     torch.set_num_threads(threads)
 
 
+def _xdist_worker() -> bool:
+    return "PYTEST_XDIST_WORKER" in os.environ
+
+
+# Tests sharing an expensive module or session fixture (built once per worker process): under pytest-xdist each
+# group runs on one worker, so the fixture is built once. Keys: a module's path, or a test's module::name.
+# (pytest-xdist's own xdist_group marks are ignored with pytest 9.2: xdist 3.8 writes item._nodeid, which
+# pytest 9 no longer reads, so the groups are declared here for the scheduler below.)
+XDIST_GROUPS = {
+    "tests/analysis/test_pinhole_rectify.py": "rectified cameras (setup1)",
+    "tests/baselines/test_targets.py": "board_views",
+    "tests/baselines/test_tsai.py": "board_views",
+    "tests/baselines/test_zhang.py": "board_views",
+    **{f"tests/calibration/test_fit.py::{name}": "calibrated" for name in (
+        "test_result_report_and_plot", "test_outlier_view_is_flagged", "test_initial_poses_triangulate_the_boards",
+        "test_diverged_fit_is_an_error")},
+    "tests/depth/test_temporal.py": "temporal model and sequences",
+    "tests/export/test_onnx.py": "exported graph and captures",
+    "tests/test_cli_calibrate.py": "calibration bench",
+    "tests/test_dense.py": "weak-texture models (weak)",
+}
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """``-n N`` (pyproject's addopts): tests are handed out one by one to whichever worker is free, except the
+    groups of :data:`XDIST_GROUPS`, each handed out whole. Another ``--dist`` mode keeps pytest-xdist's own."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedFixtureScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module, _, test = nodeid.partition("::")
+            group = XDIST_GROUPS.get(module) or XDIST_GROUPS.get(f"{module}::{test.split('[')[0]}")
+            return f"group: {group}" if group else nodeid
+
+    return SharedFixtureScheduling(config, log)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist the executed notebooks, the longest single tests (20-50 s each on a quiet machine), are
+    handed out first (longest first): the tail of the run is then many short tests, not one worker finishing
+    a notebook while the other idles. The order within each group stays the collection order."""
+    if _xdist_worker():  # (collection runs on the workers, where xdist sets numprocesses to None)
+        items.sort(key=lambda item: not item.nodeid.startswith("tests/test_notebooks.py::test_notebook_executes"))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def one_thread_per_worker():
+    """Under pytest-xdist (``-n 2`` in pyproject's addopts) each worker process runs torch on one intra-op
+    thread, and so do the processes it starts (notebook kernels): two workers of two threads each on a 2-core
+    machine only contend. Tests that need more threads set them themselves (``two_threads``). Without xdist
+    nothing changes."""
+    if not _xdist_worker():
+        yield
+        return
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("OMP_NUM_THREADS", "1")
+        yield
+    torch.set_num_threads(threads)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def onnx_cache(tmp_path_factory) -> Path:
     """:func:`~prismstereo.export.onnx_session`'s cache (``$PRISMSTEREO_CACHE``) in a directory of this session:
     no test reads or writes the user's ``~/.cache/prismstereo``, so a run here exports what one on a clean CI
-    machine does, and tests of the same graph export it once (see ``export_once``)."""
-    root = tmp_path_factory.mktemp("prismstereo_cache")
+    machine does, and tests of the same graph export it once (see ``export_once``). Under pytest-xdist the
+    workers share one directory of this run (the parent of their base temp dirs): a graph one worker exported,
+    another loads; both write a graph to a temporary name and rename it, so none reads half a file."""
+    if _xdist_worker():
+        root = tmp_path_factory.getbasetemp().parent / "prismstereo_cache"
+        root.mkdir(exist_ok=True)
+    else:
+        root = tmp_path_factory.mktemp("prismstereo_cache")
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("PRISMSTEREO_CACHE", str(root))
         yield root
@@ -79,14 +151,22 @@ def export_once(onnx_cache):
     """``export_once(model)``: the path of ``model``'s ONNX graph (1 channel, default opset), exported once per
     session for each rig, range and options, under the name and in the directory where
     :func:`~prismstereo.export.onnx_session` looks for it (the key is the graph's metadata, which rebuilds the
-    model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export."""
+    model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export. A file lock
+    per graph makes a second xdist worker wait for the first one's export instead of exporting it again; the
+    graph appears under its name only once complete (atomic rename, as in ``onnx_session``)."""
     from prismstereo.export import export_onnx
     from prismstereo.export.onnx import DEFAULT_OPSET, _cache_key
 
     def export(model) -> Path:
         path = onnx_cache / "onnx" / f"{_cache_key(model, 1, DEFAULT_OPSET)}.onnx"
-        if not path.is_file():
-            export_onnx(model.eval(), path)
+        if path.is_file():
+            return path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with FileLock(path.with_suffix(".lock")):
+            if not path.is_file():
+                partial = path.with_suffix(f".{os.getpid()}.tmp")
+                export_onnx(model.eval(), partial)
+                partial.replace(path)
         return path
 
     return export
