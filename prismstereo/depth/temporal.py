@@ -7,8 +7,8 @@ no coarse search, and a band of 2 ``band`` + 1 hypotheses (default 3, against th
 ``band_edges='clamp'`` the sub-pixel fit may move the estimate up to the band's outer sample (``vertex_limit`` 1
 of :class:`~prismstereo.matching.levels.FineBand`, not the search's half step): a plane moving by one hypothesis
 step per frame is then followed in the frame it moves, where a half-step limit left the first tracked frames
-0.25 % off until the extrapolation caught up (1024 x 768 moving plane: mean error 0.25 % -> 0.016 % in the first
-tracked frame, 0.009 % -> 0.008 % after). Prior pixels that
+0.25 % off until the extrapolation caught up (1024 x 768 moving plane: mean error 0.25 % -> 0.017 % in the first
+tracked frame, ~0.010 % after it as per frame). Prior pixels that
 are invalid or less confident than ``min_prior_confidence`` take the mean sweep coordinate of the others within
 ``reach`` pixels (:func:`~prismstereo.matching.levels.extend_estimate`); where neither exists the pixel is invalid.
 The calibrated confidence sees the band's own NCC where the per-frame model sees the binned level's similarity:
