@@ -106,7 +106,7 @@ def pytest_xdist_make_scheduler(config, log):
 
 def pytest_collection_modifyitems(config, items):
     """Under pytest-xdist the executed notebooks, the longest single tests (20-50 s each on a quiet machine), are
-    handed out first (longest first): the tail of the run is then many short tests, not one worker finishing
+    handed out first (in collection order): the tail of the run is then many short tests, not one worker finishing
     a notebook while the other idles. The order within each group stays the collection order."""
     if _xdist_worker():  # (collection runs on the workers, where xdist sets numprocesses to None)
         items.sort(key=lambda item: not item.nodeid.startswith("tests/test_notebooks.py::test_notebook_executes"))
@@ -154,19 +154,14 @@ def export_once(onnx_cache):
     model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export. A file lock
     per graph makes a second xdist worker wait for the first one's export instead of exporting it again; the
     graph appears under its name only once complete (atomic rename, as in ``onnx_session``)."""
-    from prismstereo.export import export_onnx
-    from prismstereo.export.onnx import DEFAULT_OPSET, _cache_key
+    from prismstereo.export.onnx import DEFAULT_OPSET, _cache_key, export_cached
 
     def export(model) -> Path:
         path = onnx_cache / "onnx" / f"{_cache_key(model, 1, DEFAULT_OPSET)}.onnx"
-        if path.is_file():
-            return path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with FileLock(path.with_suffix(".lock")):
-            if not path.is_file():
-                partial = path.with_suffix(f".{os.getpid()}.tmp")
-                export_onnx(model.eval(), partial)
-                partial.replace(path)
+        if not path.is_file():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with FileLock(path.with_suffix(".lock")):
+                export_cached(model.eval(), path)
         return path
 
     return export

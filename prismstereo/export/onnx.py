@@ -51,6 +51,7 @@ __all__ = [
     "OnnxDepthResult",
     "cache_directory",
     "describe",
+    "export_cached",
     "export_onnx",
     "onnx_session",
     "source_digest",
@@ -368,6 +369,25 @@ def _cache_key(model: nn.Module, channels: int, opset: int, temporal: TemporalOp
     return hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def export_cached(model: nn.Module, path: Path, *, channels: int = 1, opset: int = DEFAULT_OPSET,
+                  temporal: TemporalOptions | None = None) -> Path:
+    """``model``'s graph at ``path`` (a cache file of :func:`onnx_session`), exported unless the file exists: written
+    under a temporary name and renamed, so a concurrent reader never sees half a file.
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> import tempfile; path = Path(tempfile.mkdtemp()) / "onnx" / "graph.onnx"
+        >>> export_cached(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), path).is_file()
+        True
+    """
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_suffix(f".{os.getpid()}.tmp")
+        export_onnx(model, partial, channels=channels, opset=opset, temporal=temporal)
+        partial.replace(path)
+    return path
+
+
 def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OPSET, threads: int = 2,
                  cache_dir: str | Path | None = None, spinning: bool = True,
                  temporal: TemporalOptions | None = None) -> OnnxDepth:
@@ -400,10 +420,7 @@ def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OP
     key = (str(path), threads, spinning)
     if key in _SESSIONS:
         return _SESSIONS[key]
-    if not path.is_file():
-        partial = path.with_suffix(f".{os.getpid()}.tmp")
-        export_onnx(model, partial, channels=channels, opset=opset, temporal=temporal)
-        partial.replace(path)  # atomic: a concurrent reader never sees half a file
+    export_cached(model, path, channels=channels, opset=opset, temporal=temporal)
     runner = OnnxDepth(path, threads=threads, spinning=spinning)
     _SESSIONS[key] = runner
     return runner

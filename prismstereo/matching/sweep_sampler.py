@@ -29,7 +29,7 @@ import torch
 from torch import nn
 
 from prismstereo.epipolar.sweep import SweepFit, positions_at, sweep_coefficients
-from prismstereo.errors import OptionError, ShapeError
+from prismstereo.errors import OptionError, ShapeError, check_int
 from prismstereo.matching.cost import Warped
 from prismstereo.matching.sweep_cost import sample_slices, warp_slices
 
@@ -67,8 +67,7 @@ class SweepSampler(nn.Module):
         super().__init__()
         if (valid is None) == (other_valid is None):
             raise OptionError("a sweep sampler needs either its samples' validity or the other half's mask")
-        if isinstance(num_hypotheses, bool) or not isinstance(num_hypotheses, int) or num_hypotheses < 2:
-            raise OptionError(f"num_hypotheses must be an int >= 2, got {num_hypotheses!r}")
+        check_int(num_hypotheses, "num_hypotheses", 2)
         if coefficients.dim() != 4 or coefficients.shape[-1] != 2:
             raise ShapeError(f"coefficients must be (N, h, w, 2), got {tuple(coefficients.shape)}")
         if valid is not None and tuple(valid.shape) != (num_hypotheses, *coefficients.shape[1:3]):
@@ -161,8 +160,7 @@ def sweep_sampler(
         >>> sampler.grid().shape, sampler.valid.shape
         (torch.Size([6, 48, 32, 2]), torch.Size([6, 48, 32]))
     """
-    if isinstance(factor, bool) or not isinstance(factor, int) or factor < 1:
-        raise OptionError(f"factor must be an int >= 1, got {factor!r}")
+    check_int(factor, "factor", 1)
     like = fit.coefficients
     h, w = reference_size or (math.ceil(fit.height / factor), math.ceil(fit.reference_width / factor))
     if coefficients is None:
