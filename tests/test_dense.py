@@ -152,7 +152,7 @@ def test_confidence_inputs_reproduce_the_models_confidence(weak):
         p = model.final.smoothed_calibration(inputs.smoothed_features)
     res = results["calibrated"]
     assert inputs.features.shape == (1, 6, rig.image_height, rig.reference_width)
-    assert inputs.smoothed_features.shape == (1, 3, rig.image_height, rig.reference_width)
+    assert inputs.smoothed_features.shape == (1, 4, rig.image_height, rig.reference_width)
     torch.testing.assert_close(res.depth[res.valid], inputs.smoothed_depth[res.valid].to(res.depth.dtype))
     torch.testing.assert_close(res.confidence[res.valid], p[res.valid])
     # the first stage's confidence is the smoothing's weight, the first smoothed feature

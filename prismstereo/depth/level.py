@@ -46,6 +46,7 @@ from prismstereo.matching.confidence import (
     SMOOTHED_FEATURES,
     ConfidenceModel,
     confidence_features,
+    local_spread,
     smoothed_features,
 )
 from prismstereo.matching.levels import FineBand, SearchOptions, extend_estimate
@@ -323,7 +324,8 @@ class DepthLevel(nn.Module):
         smoothed = robust_mean(s, weight, refinement.smoothing, refinement.smoothing_tolerance * self.step)
         if self.smoothed_calibration is None:
             return smoothed.values, confidence, None
-        features = smoothed_features(weight, smoothed.agreement, smoothed.support)
+        spread = local_spread(smoothed.values.detach() / self.step, weight > 0, refinement.smoothing)
+        features = smoothed_features(weight, smoothed.agreement, smoothed.support, spread)
         return smoothed.values, self.smoothed_calibration(features), features
 
     def depth(self, image: torch.Tensor, placement: Placement | None = None) -> DepthResult:

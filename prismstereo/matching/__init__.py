@@ -15,6 +15,7 @@ from prismstereo.matching.confidence import (
     ConfidenceModel,
     confidence_features,
     fit_confidence,
+    local_spread,
     smoothed_features,
 )
 from prismstereo.matching.cost import (
@@ -75,6 +76,7 @@ __all__ = [
     "SMOOTHED_FEATURES",
     "ConfidenceModel",
     "confidence_features",
+    "local_spread",
     "smoothed_features",
     "fit_confidence",
     "COSTS",

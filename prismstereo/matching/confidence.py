@@ -14,7 +14,9 @@ fitted on renders of this package with :func:`fit_confidence` (``benchmarks/fit_
 of ``benchmarks/dense_depth.py``, which report the reliability curve: how often pixels with p >= c are wrong).
 A model that smooths its estimate (:func:`~prismstereo.matching.postprocess.robust_mean`, weighted by p)
 re-scores every pixel with a second logistic model of the evidence around it (:data:`SMOOTHED_FEATURES`: p,
-the share of the window's confidence that agrees with its mean, the window's mean confidence):
+the share of the window's confidence that agrees with its mean, the window's mean confidence, and the spread of
+the smoothed estimates in the window: wrong estimates in weak texture and the band fattened along a depth edge sit
+among estimates that jump, right ones on a surface whose estimates change smoothly):
 
     p' = sigmoid(w' . f' + b')
 """
@@ -27,6 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo._graph import box_max
 from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.matching.aggregate import box_std
 
@@ -40,6 +43,7 @@ __all__ = [
     "ConfidenceModel",
     "confidence_features",
     "fit_confidence",
+    "local_spread",
     "smoothed_features",
 ]
 
@@ -49,20 +53,21 @@ FEATURES: tuple[str, ...] = ("ncc", "coarse", "roughness", "offset", "texture", 
 # fitted by benchmarks/fit_confidence.py (the last entry is the bias)
 DEFAULT_WEIGHTS: tuple[float, ...] = (4.045, 2.071, -2.178, -1.673, 0.051, -0.090, -1.167)
 
-SMOOTHED_FEATURES: tuple[str, ...] = ("confidence", "agreement", "support")
+SMOOTHED_FEATURES: tuple[str, ...] = ("confidence", "agreement", "support", "spread")
 """The feature channels of :func:`smoothed_features`, in order."""
 
 # fitted by benchmarks/fit_confidence.py (the last entry is the bias)
-SMOOTHED_WEIGHTS: tuple[float, ...] = (0.597, 15.508, 7.162, -18.231)
+SMOOTHED_WEIGHTS: tuple[float, ...] = (0.195, 7.214, 6.699, -0.558, -8.913)
 
 CLAMPED_WEIGHTS: tuple[tuple[float, ...], tuple[float, ...]] = (
     (2.528, 3.101, -5.274, -4.406, 0.156, 0.140, 0.464),
-    (-2.731, 8.155, 11.142, -12.317),
+    (-2.638, -0.622, 9.668, -0.941, -1.785),
 )
 """(stage 1, stage 2) weights of models whose final band clamps its edges instead of rejecting them
 (``band_edges='clamp'``, the ``'fast'`` preset: ``PrismStereo.clamped_band``; fitted by
 ``benchmarks/fit_confidence.py --presets fast``): their wrong estimates agree with their neighbours more often,
-and the default weights trusted them too much."""
+and the default weights trusted them too much. In stage 2 the spread carries what the agreement did (the two
+describe the same window; the fit leaves the agreement a small negative weight)."""
 
 # the thresholds of the coarse level (the binned model of a pyramid) whose validity the features "coarse" and
 # "rejected" describe: those of the renders DEFAULT_WEIGHTS were fitted on (the model's defaults), whatever the
@@ -124,30 +129,67 @@ def confidence_features(
     return torch.cat([ncc.to(s.dtype), coarse.to(s.dtype), roughness, offset, texture, rejected.to(s.dtype)], 1)
 
 
-def smoothed_features(confidence: torch.Tensor, agreement: torch.Tensor, support: torch.Tensor) -> torch.Tensor:
+def local_spread(values: torch.Tensor, mask: torch.Tensor, window: int) -> torch.Tensor:
+    """max - min of the ``values`` of the ``mask``ed pixels in a ``window`` x ``window`` box around every pixel
+    (0 where the box holds none), by separable max pools.
+
+    Args:
+        values: (B, 1, H, W) finite values.
+        mask: (B, 1, H, W) bool, the pixels that count.
+        window: odd int >= 1.
+
+    Returns:
+        (B, 1, H, W) >= 0, dtype of ``values``.
+
+    Example:
+        >>> x = torch.tensor([[[[0.0, 0.0, 3.0, 3.0]]]]); m = torch.tensor([[[[True, True, True, False]]]])
+        >>> local_spread(x, m, 3)[0, 0, 0].tolist()
+        [0.0, 3.0, 3.0, 0.0]
+    """
+    check_shape(values, ["B", 1, "H", "W"], "values")
+    if mask.shape != values.shape or mask.dtype != torch.bool:
+        raise ShapeError(f"mask must be a bool tensor of the shape of values {tuple(values.shape)}, got "
+                         f"{mask.dtype} {tuple(mask.shape)}")
+    if isinstance(window, bool) or not isinstance(window, int) or window < 1 or window % 2 == 0:
+        raise OptionError(f"window must be a positive odd int, got {window!r}")
+    if window == 1:
+        return torch.zeros_like(values)
+    # unmasked pixels take the extreme of all values on the other side: they never set a box's max or min, and a
+    # box without masked pixels gets max - min <= 0
+    low, high = values.amin().detach(), values.amax().detach()
+    top = box_max(torch.where(mask, values, low), window)
+    bottom = -box_max(-torch.where(mask, values, high), window)
+    return (top - bottom).clamp_min(0.0)
+
+
+def smoothed_features(confidence: torch.Tensor, agreement: torch.Tensor, support: torch.Tensor,
+                      spread: torch.Tensor) -> torch.Tensor:
     """The features of :data:`SMOOTHED_FEATURES` per pixel, after a
     :func:`~prismstereo.matching.postprocess.robust_mean` of the estimate weighted by ``confidence``: the pixel's
     own confidence, the share of its window's confidence that agrees with the window's mean
-    (:class:`~prismstereo.matching.postprocess.RobustMean` ``agreement``) and the window's mean confidence
-    (``support``).
+    (:class:`~prismstereo.matching.postprocess.RobustMean` ``agreement``), the window's mean confidence
+    (``support``) and log(1 + ``spread``), the range of the smoothed estimates in the window in hypothesis steps
+    (:func:`local_spread`).
 
     Args:
         confidence, agreement, support: (B, 1, H, W) in [0, 1].
+        spread: (B, 1, H, W) >= 0.
 
     Returns:
-        (B, 3, H, W) features, dtype of ``confidence``.
+        (B, 4, H, W) features, dtype of ``confidence``.
 
     Example:
         >>> z = torch.full((1, 1, 4, 4), 0.5)
-        >>> smoothed_features(z, z, z).shape
-        torch.Size([1, 3, 4, 4])
+        >>> smoothed_features(z, z, z, z).shape
+        torch.Size([1, 4, 4, 4])
     """
     check_shape(confidence, ["B", 1, "H", "W"], "confidence")
-    for name, t in (("agreement", agreement), ("support", support)):
+    for name, t in (("agreement", agreement), ("support", support), ("spread", spread)):
         if t.shape != confidence.shape:
             raise ShapeError(f"{name} must have the shape of confidence {tuple(confidence.shape)}, got "
                              f"{tuple(t.shape)}")
-    return torch.cat([confidence, agreement.to(confidence), support.to(confidence)], 1)
+    return torch.cat([confidence, agreement.to(confidence), support.to(confidence),
+                      torch.log1p(spread.to(confidence).clamp_min(0.0))], 1)
 
 
 class ConfidenceModel(nn.Module):

@@ -11,6 +11,7 @@ from prismstereo.matching.confidence import (
     ConfidenceModel,
     confidence_features,
     fit_confidence,
+    local_spread,
     smoothed_features,
 )
 
@@ -105,24 +106,63 @@ def test_features_and_model_gradcheck():
 def test_smoothed_features_and_model():
     g = torch.Generator().manual_seed(2)
     p, agreement, support = (torch.rand(1, 1, 5, 6, generator=g, dtype=torch.float64) for _ in range(3))
-    f = smoothed_features(p, agreement, support)
+    spread = 4 * torch.rand(1, 1, 5, 6, generator=g, dtype=torch.float64)
+    f = smoothed_features(p, agreement, support, spread)
     assert f.shape == (1, len(SMOOTHED_FEATURES), 5, 6) and f.dtype == torch.float64
     assert torch.equal(f[:, 0:1], p) and torch.equal(f[:, 1:2], agreement) and torch.equal(f[:, 2:3], support)
+    torch.testing.assert_close(f[:, 3:4], torch.log1p(spread))
     model = ConfidenceModel(names=SMOOTHED_FEATURES)
     q = model(f.float())
     assert q.shape == (1, 1, 5, 6) and bool(((q > 0) & (q < 1)).all())
     w = SMOOTHED_WEIGHTS
     assert w[SMOOTHED_FEATURES.index("confidence")] > 0 and w[SMOOTHED_FEATURES.index("agreement")] > 0
-    more = smoothed_features(p, (agreement + 0.1).clamp(max=1.0), support)
+    more = smoothed_features(p, (agreement + 0.1).clamp(max=1.0), support, spread)
     assert bool((model(more.float()) >= q).all())  # more agreement around a pixel: more trust
+    for weights in (SMOOTHED_WEIGHTS, CLAMPED_WEIGHTS[1]):  # estimates that jump around a pixel: less trust
+        jumpy = ConfidenceModel(weights, SMOOTHED_FEATURES)(smoothed_features(p, agreement, support, spread + 2))
+        assert bool((jumpy < ConfidenceModel(weights, SMOOTHED_FEATURES)(f)).all())
     reference = torch.sigmoid((f * torch.tensor(w[:-1], dtype=f.dtype).view(1, -1, 1, 1)).sum(1, keepdim=True) + w[-1])
     torch.testing.assert_close(ConfidenceModel(names=SMOOTHED_FEATURES).double()(f), reference, rtol=1e-5, atol=1e-6)
     with pytest.raises(ShapeError, match="support must have the shape"):
-        smoothed_features(p, agreement, support[..., :2])
+        smoothed_features(p, agreement, support[..., :2], spread)
+    with pytest.raises(ShapeError, match="spread must have the shape"):
+        smoothed_features(p, agreement, support, spread[..., :2])
     with pytest.raises(OptionError, match="names must be FEATURES"):
         ConfidenceModel(names=("ncc",))
-    with pytest.raises(OptionError, match="weights must be 4 finite numbers"):
+    with pytest.raises(OptionError, match="weights must be 5 finite numbers"):
         ConfidenceModel(DEFAULT_WEIGHTS, SMOOTHED_FEATURES)
+
+
+def test_local_spread():
+    g = torch.Generator().manual_seed(3)
+    x = torch.rand(2, 1, 9, 11, generator=g, dtype=torch.float64)
+    mask = torch.rand(2, 1, 9, 11, generator=g) > 0.3
+    out = local_spread(x, mask, 5)
+    assert out.shape == x.shape and out.dtype == x.dtype
+    # reference: a loop over the boxes (clipped at the image borders)
+    ref = torch.zeros_like(x)
+    for b in range(2):
+        for i in range(9):
+            for j in range(11):
+                rows, cols = slice(max(0, i - 2), i + 3), slice(max(0, j - 2), j + 3)
+                box = x[b, 0, rows, cols][mask[b, 0, rows, cols]]
+                ref[b, 0, i, j] = box.max() - box.min() if box.numel() else 0.0
+    torch.testing.assert_close(out, ref)
+    # a plane's estimates spread by its slope only; a step by its height near the step
+    plane = torch.arange(12.0).view(1, 1, 1, 12).expand(1, 1, 6, 12) * 0.1
+    torch.testing.assert_close(local_spread(plane, torch.ones_like(plane, dtype=torch.bool), 3)[..., 1:-1],
+                               torch.full((1, 1, 6, 10), 0.2))
+    step = torch.zeros(1, 1, 4, 8)
+    step[..., 4:] = 5.0
+    assert local_spread(step, torch.ones_like(step, dtype=torch.bool), 3)[0, 0, 0].tolist() == [0, 0, 0, 5, 5, 0, 0, 0]
+    assert float(local_spread(step, torch.zeros_like(step, dtype=torch.bool), 3).abs().max()) == 0.0  # nothing counts
+    assert torch.autograd.gradcheck(lambda v: local_spread(v, mask, 3), (x.requires_grad_(),))
+    with pytest.raises(ShapeError, match="mask must be a bool tensor"):
+        local_spread(x, mask.double(), 3)
+    with pytest.raises(ShapeError, match="values must"):
+        local_spread(x[0], mask[0], 3)
+    with pytest.raises(OptionError, match="window must be a positive odd int"):
+        local_spread(x, mask, 4)
 
 
 def test_clamped_band_models_have_their_own_weights():
@@ -143,4 +183,28 @@ def test_clamped_band_models_have_their_own_weights():
     stage1 = dict(zip(FEATURES, CLAMPED_WEIGHTS[0], strict=False))
     assert stage1["coarse"] > 0 and stage1["roughness"] < 0 and stage1["offset"] < 0
     stage2 = dict(zip(SMOOTHED_FEATURES, CLAMPED_WEIGHTS[1], strict=False))
-    assert stage2["agreement"] > 0 and stage2["support"] > 0
+    # the spread and the agreement describe the same neighbourhood: with the spread, the clamped fit leaves the
+    # agreement a small negative weight
+    assert stage2["support"] > 0 and stage2["spread"] < 0 and stage2["spread"] < stage2["agreement"]
+
+
+def test_local_spread_exported_graph_matches_eager(tmp_path):
+    """The exported form (two MaxPools per extreme) computes what the eager form (shifted maxima) computes, and
+    the gradient path (max_pool2d) the same numbers."""
+    ort = pytest.importorskip("onnxruntime")
+    g = torch.Generator().manual_seed(4)
+    x = torch.rand(2, 1, 20, 17, generator=g)
+    mask = torch.rand(2, 1, 20, 17, generator=g) > 0.4
+
+    class Graph(torch.nn.Module):
+        def forward(self, values: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+            return local_spread(values, valid, 15)
+
+    path = tmp_path / "spread.onnx"
+    torch.onnx.export(Graph(), (x, mask), str(path), input_names=["values", "valid"], opset_version=18, dynamo=False)
+    assert sum(node.op_type == "MaxPool" for node in __import__("onnx").load(str(path)).graph.node) == 4
+    out = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(
+        None, {"values": x.numpy(), "valid": mask.numpy()})[0]
+    eager = local_spread(x, mask, 15)
+    torch.testing.assert_close(torch.from_numpy(out), eager)
+    torch.testing.assert_close(local_spread(x.clone().requires_grad_(), mask, 15).detach(), eager)
