@@ -30,7 +30,7 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 
-from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_int, check_shape
 from prismstereo.matching.aggregate import box_filter
 
 __all__ = ["RobustMean", "median_filter", "fill_background", "robust_mean", "weighted_median"]
@@ -248,8 +248,7 @@ def weighted_median(
         raise ShapeError(f"guide {tuple(guide.shape)} must match the disparity {tuple(disparity.shape)} in H, W "
                          "and batch")
     for name, value in (("radius", radius), ("step", step)):
-        if not isinstance(value, int) or value < 1:
-            raise OptionError(f"{name} must be an int >= 1, got {value!r}")
+        check_int(value, name, 1)
     if not (sigma_space > 0 and sigma_colour > 0):
         raise OptionError(f"sigma_space and sigma_colour must be > 0, got {sigma_space}, {sigma_colour}")
     r = radius

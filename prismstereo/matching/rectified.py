@@ -17,7 +17,7 @@ from typing import Literal, NamedTuple
 import torch
 import torch.nn.functional as F
 
-from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_int, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter, sgm_aggregate, sgm_aggregate_guided
 from prismstereo.matching.cost import COSTS, ad_gradient_volume, cost_volume
 from prismstereo.matching.postprocess import fill_background, median_filter, weighted_median
@@ -157,9 +157,7 @@ class MatchOptions:
                 raise OptionError(f"{name} must be a positive odd int, got {value!r}")
         for name, low in (("guided_radius", 1), ("guided_subsample", 1), ("weighted_median", 0),
                           ("weighted_median_step", 1)):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < low:
-                raise OptionError(f"{name} must be an int >= {low}, got {value!r}")
+            check_int(getattr(self, name), name, low)
         if not 0 <= self.p1 <= self.p2:
             raise OptionError(f"need 0 <= p1 <= p2, got {self.p1}, {self.p2}")
         if not self.census_threshold >= 0:
@@ -248,8 +246,7 @@ def guided_filter(
         raise ShapeError(f"guide {tuple(guide.shape)} must match the volume {tuple(volume.shape)} in H, W and "
                          "batch")
     for name, value in (("radius", radius), ("subsample", subsample)):
-        if not isinstance(value, int) or value < 1:
-            raise OptionError(f"{name} must be an int >= 1, got {value!r}")
+        check_int(value, name, 1)
     if not eps > 0:
         raise OptionError(f"eps must be > 0, got {eps!r}")
     guide = guide.to(volume.dtype)
