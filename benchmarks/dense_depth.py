@@ -21,8 +21,11 @@ Models: ``thresholds`` = ``{'validity': 'thresholds', 'smoothing': 0}`` (NCC >= 
 >= 0.3: the earlier default), ``unsmoothed`` = the calibrated confidence without the smoothing of the estimate
 (``smoothing=0``), ``default`` = the model's defaults (calibrated confidence >= 0.5, smoothing), ``fast`` = the
 ``'fast'`` preset (a full-resolution band of 3 with clamped edges, its own confidence weights), ``dense`` = the
-``'dense'`` preset (``dense=True``, ``coarse_factor=2``; coverage counts every pixel with a depth, and its
-``valid`` mask is reported as ``dense valid``).
+``'dense'`` preset (``dense=True``, ``coarse_factor=2``, the coarse level matched by cost-volume filtering:
+``cost='ad_gradient', aggregation='guided', box=1``; coverage counts every pixel with a depth, and its ``valid``
+mask is reported as ``dense valid``), ``dense sgm`` = the previous 'dense' preset (the default's semi-global ZNCC
+coarse level), ``dense cf1`` = the 'dense' preset with ``coarse_factor=1`` (in the pyramid: the binned model
+filters the whole range at its own resolution; ~5x the time; not on sensors without a pyramid).
 
 Run: .venv/bin/python benchmarks/dense_depth.py [--z-range ZMIN ZMAX] [--scale K] [--cache DIR]
 """
@@ -52,7 +55,10 @@ from prismstereo.synthetic import (  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
 MODELS = {"thresholds": {"validity": "thresholds", "smoothing": 0}, "unsmoothed": {"smoothing": 0}, "default": {},
-          "fast": preset("fast").to_kwargs(), "dense": preset("dense").to_kwargs()}
+          "fast": preset("fast").to_kwargs(), "dense": preset("dense").to_kwargs(),
+          "dense sgm": {"dense": True, "coarse_factor": 2},
+          "dense cf1": preset("dense").with_options(coarse_factor=1).to_kwargs()}
+DENSE = ("dense", "dense sgm", "dense cf1")  # models whose coverage counts every pixel with a depth
 LEVELS = (0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95)
 
 
@@ -97,10 +103,12 @@ def main() -> None:
     torch.set_num_threads(2)
     rig = thesis_setup1() if args.scale == 1 else thesis_setup1().downscaled(args.scale)
     caps = captures(rig, args.cache)
-    models = {k: PrismStereo(rig, tuple(args.z_range), v) for k, v in MODELS.items()}
+    pyramid = PrismStereo.default_downsample(rig) > 1  # 'dense cf1' needs the binned model (a single level has
+    models = {k: PrismStereo(rig, tuple(args.z_range), v) for k, v in MODELS.items()  # no band after a factor 1)
+              if pyramid or k != "dense cf1"}
     print(f"thesis_setup1 {rig.image_width}x{rig.image_height}, searched {args.z_range[0]:g}-{args.z_range[1]:g} mm; "
           f"{models['default'].summary()}")
-    print(f"{'capture':26s} {'model':11s} {'cover %':>8s} {'bad>1% %':>9s} {'mean %':>8s} {'ms':>6s}")
+    print(f"{'capture':26s} {'model':15s} {'cover %':>8s} {'bad>1% %':>9s} {'mean %':>8s} {'ms':>6s}")
     w = rig.reference_width
     pooled_p, pooled_ok = [], []
     for name, cap in caps.items():
@@ -111,10 +119,10 @@ def main() -> None:
                 res = model(cap["image"])
             ms = 1e3 * (time.perf_counter() - t0)
             rel = (res.depth.double() - gt).abs() / gt
-            rows = [(key, res.valid)] if key != "dense" else [(key, res.confidence > 0), ("dense valid", res.valid)]
+            rows = [(key, res.valid)] if key not in DENSE else [(key, res.confidence > 0), (f"{key} valid", res.valid)]
             for label, has in rows:
                 cover, bad, mean = scores(rel, has, covisible)
-                print(f"{name:26s} {label:11s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:6.0f}")
+                print(f"{name:26s} {label:15s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:6.0f}")
             if key == "dense":  # every co-visible pixel with a depth
                 sel = (res.confidence > 0) & covisible
                 pooled_p.append(res.confidence[sel])

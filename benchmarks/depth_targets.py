@@ -54,11 +54,14 @@ import time
 import torch
 
 from prismstereo import thesis_setup1, thesis_setup2
+from prismstereo.config import PRESETS
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, slanted_plane, step_scene
 
 THESIS_DEPTHS = (228.0, 312.0, 353.0, 418.0, 525.0, 625.0, 780.0, 936.0, 1192.0, 1374.0)
 Z_RANGE = (205.0, 1511.0)
+# the command line's values of options it was not given (left to a --preset)
+DEFAULTS = {"sampling": "rectified", "band_edges": "reject", "directions": 4, "dense": False}
 SETUPS = {"1": thesis_setup1, "2": thesis_setup2}
 
 
@@ -116,6 +119,9 @@ def main() -> None:
                         help="option validity=...: the calibrated confidence (default) or the NCC thresholds")
     parser.add_argument("--dense", action="store_true",
                         help="option dense=True: coverage and errors of every pixel with a depth")
+    parser.add_argument("--preset", choices=tuple(PRESETS), default=None,
+                        help="a named preset under the options above (e.g. 'dense': its own coarse cost and "
+                             "aggregation)")
     parser.add_argument("--smoothing", type=int, default=None, metavar="N",
                         help="option smoothing=N: the robust mean's window (0: off; default: the model's)")
     parser.add_argument("--z-range", type=float, nargs=2, default=Z_RANGE, metavar=("ZMIN", "ZMAX"),
@@ -140,6 +146,10 @@ def main() -> None:
                            directions=args.directions, validity=args.validity, dense=args.dense)
             if args.smoothing is not None:
                 options["smoothing"] = args.smoothing
+            if args.preset is not None:  # the options given explicitly on top of the preset
+                base = PRESETS[args.preset]
+                options = {k: v for k, v in options.items() if v is not None and v != DEFAULTS.get(k)}
+                options = base.with_options(**options)
             model = models[sampling] = PrismStereo(rig, z_range, options)
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.summary()}; model built in "
                   f"{time.perf_counter() - t0:.1f} s")

@@ -214,10 +214,20 @@ class DepthLevel(nn.Module):
 
     def placement(self, image: torch.Tensor) -> Placement:
         """This level's estimate of ``image`` (B, C, h, w) as the placement of a finer level's band: its depth,
-        extended twice as far as its own coarse level reached."""
+        extended twice as far as its own coarse level reached. A level that searches the whole range at its own
+        resolution (``coarse_factor=1``) with the 'guided' aggregation passes its search's estimates unsmoothed,
+        unfilled and without the similarity threshold (valid where the search had a real winner): its weakly
+        textured pixels are placed by their own estimates, which the filter carries there, and the final band and
+        its confidence judge them (the semi-global search's estimates placed that way gave the thesis planes larger
+        errors: ``docs/design.md``)."""
+        reach = 2 * self.config.search.coarse_reach * self.factor
+        if self.factor == 1 and self.config.aggregation.aggregation == "guided":  # its estimates as they are
+            ref, other = self.split(image)
+            s, ok, confidence, _ = self.search(ref, other, final=False)
+            ok = ok & self.reference_valid
+            return Placement(s.clamp(-1.0, 1.0), ok, confidence * ok.to(confidence.dtype), reach)
         low = self.depth(image)
-        return Placement(low.index * self.step - 1.0, low.valid, low.confidence,
-                         2 * self.config.search.coarse_reach * self.factor)
+        return Placement(low.index * self.step - 1.0, low.valid, low.confidence, reach)
 
     def estimate(self, image: torch.Tensor, placement: Placement | None = None) -> LevelEstimate:
         """The final band's estimate of ``image`` (B, C, H, W) at this level's resolution.

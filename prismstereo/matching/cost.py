@@ -17,6 +17,9 @@ Costs (lower is better), all (B, D, H, W):
   threshold) of the reference and of each view, in [0, bits].
 * ``'zncc'``: 1 - zero-normalised cross-correlation of the grey windows, in [0, 2], each window's variance
   floored at ~ the variance of 8-bit read noise (:func:`ncc_cost`); differentiable.
+* ``'ad_gradient'``: Rhemann et al.'s truncated colour + gradient difference per pixel (:func:`ad_gradient_cost`,
+  the cost of :func:`ad_gradient_volume` on any views), in [0, 1]; no window: meant for an edge-aware
+  aggregation (:func:`~prismstereo.matching.rectified.guided_filter`).
 
 Views that are not valid get the cost's worst value (:func:`worst_cost`).
 """
@@ -34,11 +37,13 @@ from prismstereo._graph import fill_invalid
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter
 
-__all__ = ["Cost", "COSTS", "CostVolume", "Warped", "ad_gradient_volume", "census_transform", "cost_volume", "grey",
-           "ncc_cost", "shifted", "sweep_cost", "window_moments", "worst_cost", "zncc_cost"]
+__all__ = ["Cost", "COSTS", "CostVolume", "Warped", "ad_gradient_cost", "ad_gradient_volume", "census_transform",
+           "cost_volume", "grey", "ncc_cost", "shifted", "sweep_cost", "window_moments", "worst_cost", "zncc_cost"]
 
-Cost = Literal["sad", "zncc", "census"]
-COSTS: tuple[str, ...] = ("sad", "zncc", "census")
+Cost = Literal["sad", "zncc", "census", "ad_gradient"]
+COSTS: tuple[str, ...] = ("sad", "zncc", "census", "ad_gradient")
+# 'ad_gradient' truncations and weight: ad_gradient_volume's defaults, MatchOptions' (chosen on Middlebury)
+AD_THRESHOLD, GRADIENT_THRESHOLD, GRADIENT_WEIGHT = 7.0 / 255.0, 2.0 / 255.0, 0.95
 
 _VAR_FLOOR = 1e-5  # (0.8 / 255)^2: below the variance of 8-bit read noise of 1 level
 
@@ -125,7 +130,7 @@ def worst_cost(cost: Cost, channels: int, window: int) -> float:
         24.0
     """
     check_option(cost, COSTS, "cost")
-    return {"sad": 1.0, "zncc": 2.0, "census": float(channels * (window * window - 1))}[cost]
+    return {"sad": 1.0, "zncc": 2.0, "census": float(channels * (window * window - 1)), "ad_gradient": 1.0}[cost]
 
 
 def census_cost(reference: torch.Tensor, views: torch.Tensor, window: int, threshold: float) -> torch.Tensor:
@@ -210,7 +215,7 @@ def sweep_cost(
         reference: (B, C, H, W) reference in [0, 1].
         warped: the views, image (B, C, D, H, W) (e.g.
             :func:`~prismstereo.matching.sweep_cost.warp_slices` of the other half).
-        cost: 'sad', 'zncc' or 'census'.
+        cost: 'sad', 'zncc', 'census' or 'ad_gradient' (its gradients along W of each view).
         window: census / ZNCC window (odd; census >= 3).
         census_threshold: a census bit is set where the neighbour is darker than the centre by more than this
             (>= 0). A threshold that is not a multiple of 1/255 keeps 8-bit ties (equal neighbours) from
@@ -241,9 +246,13 @@ def sweep_cost(
         volume = census_cost(reference, warped.image, window, census_threshold)
     elif cost == "sad":
         volume = (reference.unsqueeze(2) - warped.image).abs().mean(1)
+    elif cost == "ad_gradient":
+        ad = (reference.unsqueeze(2) - warped.image).abs().mean(1)
+        gd = (_x_gradient(reference).unsqueeze(2) - _x_gradient(warped.image.mean(1, keepdim=True))).abs()[:, 0]
+        volume = ad_gradient_cost(ad, gd)
     else:
         volume = zncc_cost(reference, warped.image, window)
-    # ZNCC (1 - a clamped NCC) and census counts lie in [0, worst]; SAD only for images in [0, 1]
+    # ZNCC (1 - a clamped NCC), census counts and 'ad_gradient' lie in [0, worst]; SAD only for images in [0, 1]
     return fill_invalid(volume, warped.valid, worst_cost(cost, reference.shape[1], window), bounded=cost != "sad")
 
 
@@ -286,7 +295,7 @@ def cost_volume(
         other: (B, C, H, W_o) the other image, row-aligned with the reference.
         offsets: (D,) column offsets (px, fractional allowed), e.g. ``-torch.arange(D)`` for the disparities
             of a rectified pair.
-        cost: 'sad', 'zncc' or 'census'.
+        cost: 'sad', 'zncc', 'census' or 'ad_gradient'.
         window: census / ZNCC window (odd; census >= 3).
         census_threshold: see :func:`sweep_cost`.
 
@@ -319,18 +328,49 @@ def cost_volume(
 
 
 def _x_gradient(image: torch.Tensor) -> torch.Tensor:
-    """(B, 1, H, W) central difference along W of the channel mean (edges replicated: one-sided halves)."""
-    grey = F.pad(image.mean(1, keepdim=True), (1, 1, 0, 0), mode="replicate")
+    """(B, 1, ..., W) central difference along W of the channel mean (axis 1; edges replicated: one-sided
+    halves)."""
+    grey = image.mean(1, keepdim=True)
+    grey = torch.cat([grey[..., :1], grey, grey[..., -1:]], -1)
     return 0.5 * (grey[..., 2:] - grey[..., :-2])
+
+
+def ad_gradient_cost(
+    colour_difference: torch.Tensor,
+    gradient_difference: torch.Tensor,
+    ad_threshold: float = AD_THRESHOLD,
+    gradient_threshold: float = GRADIENT_THRESHOLD,
+    gradient_weight: float = GRADIENT_WEIGHT,
+) -> torch.Tensor:
+    """Rhemann et al.'s (2011) truncated mix of a colour and a gradient difference, in [0, 1]:
+    ((1 - a) min(AD, t_ad) + a min(GD, t_g)) / ((1 - a) t_ad + a t_g).
+
+    Args:
+        colour_difference: (...) mean absolute colour difference, >= 0.
+        gradient_difference: (...) absolute difference of the horizontal gradients (same shape).
+        ad_threshold, gradient_threshold: the truncations t_ad, t_g (image units, > 0).
+        gradient_weight: a, in [0, 1].
+
+    Returns:
+        (...) cost in [0, 1].
+
+    Example:
+        >>> ad_gradient_cost(torch.tensor([0.0, 1.0]), torch.tensor([0.0, 1.0])).tolist()  # equal; both saturated
+        [0.0, 1.0]
+    """
+    scale = 1.0 / ((1 - gradient_weight) * ad_threshold + gradient_weight * gradient_threshold)
+    mix = ((1 - gradient_weight) * colour_difference.clamp_max(ad_threshold)
+           + gradient_weight * gradient_difference.clamp_max(gradient_threshold))
+    return (mix * scale).clamp_max(1.0)  # the scale's rounding left saturated costs at 1 + 1e-7
 
 
 def ad_gradient_volume(
     reference: torch.Tensor,
     other: torch.Tensor,
     offsets: torch.Tensor,
-    ad_threshold: float = 7.0 / 255.0,
-    gradient_threshold: float = 2.0 / 255.0,
-    gradient_weight: float = 0.95,
+    ad_threshold: float = AD_THRESHOLD,
+    gradient_threshold: float = GRADIENT_THRESHOLD,
+    gradient_weight: float = GRADIENT_WEIGHT,
 ) -> CostVolume:
     """Truncated colour + gradient difference cost (Rhemann et al. 2011, "Fast cost-volume filtering").
 
@@ -374,16 +414,15 @@ def ad_gradient_volume(
     if not 0 <= gradient_weight <= 1:
         raise OptionError(f"gradient_weight must be in [0, 1], got {gradient_weight}")
     width = reference.shape[-1]
-    scale = 1.0 / ((1 - gradient_weight) * ad_threshold + gradient_weight * gradient_threshold)
     stack = torch.cat([other, _x_gradient(other)], dim=1)  # one shifted view per offset serves both terms
     grad_ref = _x_gradient(reference)
     channels = reference.shape[1]
     slices, valid = [], []
     for off in offsets.tolist():
         view, ok = shifted(stack, off, width)
-        ad = (reference - view[:, :channels]).abs().mean(1).clamp_max(ad_threshold)
-        gd = (grad_ref[:, 0] - view[:, channels]).abs().clamp_max(gradient_threshold)
-        cost = ((1 - gradient_weight) * ad + gradient_weight * gd) * scale
+        colour = (reference - view[:, :channels]).abs().mean(1)
+        cost = ad_gradient_cost(colour, (grad_ref[:, 0] - view[:, channels]).abs(), ad_threshold, gradient_threshold,
+                                gradient_weight)
         slices.append(torch.where(ok, cost, torch.ones_like(cost)))
         valid.append(ok)
     return CostVolume(torch.stack(slices, dim=1), torch.stack(valid).view(1, len(valid), 1, width))

@@ -32,6 +32,7 @@ from prismstereo.epipolar.sweep_table import column_to_sweep
 from prismstereo.errors import OptionError, ShapeError, check_number, check_shape
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
 from prismstereo.matching.cost import Warped, grey, sweep_cost, worst_cost
+from prismstereo.matching.rectified import guided_filter
 from prismstereo.matching.select import (
     left_right_check,
     soft_argmin_local,
@@ -44,13 +45,17 @@ from prismstereo.matching.sweep_sampler import SweepSampler
 
 __all__ = ["Extended", "FineBand", "LevelResult", "RectifiedSearch", "SearchOptions", "SweepSearch", "extend_estimate"]
 
-_TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05}  # soft-argmin temperature per cost's units
+# soft-argmin temperature per cost's units
+_TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05, "ad_gradient": 0.05}
 # the cost of an entry of the rectified shift volume that is not a real sample, as a share of the worst cost (ZNCC:
 # 1.5, between uncorrelated and anti-correlated): the worst cost made the shifts whose windows reach past the other
 # half's edge lose to shorter ones there, a margin of about the aggregated window (the binned coarse level of the
 # narrow-range pyramid with factor 4: coverage of setup 2's step scene 93.7 -> 95.1 %); measurements in
 # docs/design.md (*How the model picks its defaults*, ``coarse_factor``)
 _SHIFT_FILL = 0.75
+# 'guided' aggregation: the guided filter's radius (level px), regularisation and subsampling (MatchOptions'
+# defaults, chosen on Middlebury)
+GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE = 13, 1e-4, 2
 _STRIP_VOXELS = 400_000  # fine band voxels per strip in torch eager (~1.6 MB per float32 volume: cache-sized)
 _EXPORT_STRIP_VOXELS = 2_000_000  # per strip of an exported graph (the pyramid's bands: one piece; see FineBand)
 
@@ -121,15 +126,30 @@ class _Search(nn.Module):
         super().__init__()
         self.options = options
 
-    def decide(self, volume: torch.Tensor, channels: int, final: bool):
-        """(index (B, 1, H, W) long, refined index, confidence, unique, aggregated volume)."""
+    def decide(self, volume: torch.Tensor, channels: int, final: bool, guide: torch.Tensor | None = None):
+        """(index (B, 1, H, W) long, refined index, confidence, unique, aggregated volume).
+
+        ``guide`` (B, 1, H, W), the level's grey reference in the volume's layout, steers the 'guided'
+        aggregation (:func:`~prismstereo.matching.rectified.guided_filter`); its confidence is the similarity of
+        the filtered cost (a window's evidence spread over its region of similar grey), the others' that of the
+        box-averaged cost."""
         o = self.options
         local = box_filter(volume, o.box)
-        total = sgm_aggregate(local, o.p1, o.p2, o.directions) if o.aggregation == "sgm" else local
+        if o.aggregation == "sgm":
+            total = sgm_aggregate(local, o.p1, o.p2, o.directions)
+        elif o.aggregation == "guided":
+            total = guided_filter(local, guide, GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE)
+        else:
+            total = local
         index, _ = winner_take_all(total.detach())
-        refined = _refine(o, local, total, index, o.cost, final)
-        confidence = similarity(local.gather(1, index), o.cost, channels, o.window)
-        unique = uniqueness(total.detach(), index, 1.0, nonnegative=True)[1] >= o.min_uniqueness  # costs are >= 0
+        guided = o.aggregation == "guided"
+        refined = _refine(o, total if guided else local, total, index, o.cost, final)
+        scored = total if guided else local
+        confidence = similarity(scored.gather(1, index), o.cost, channels, o.window)
+        if guided and not final:  # a placement: the band after it judges it (the filtered cost is flat in weak
+            unique = torch.ones_like(index, dtype=torch.bool)  # texture, where the ratio test rejects right winners)
+        else:
+            unique = uniqueness(total.detach(), index, 1.0, nonnegative=True)[1] >= o.min_uniqueness  # costs >= 0
         return index, refined, confidence, unique, total
 
 
@@ -159,7 +179,7 @@ class SweepSearch(_Search):
         warped = self.sampler(other)
         o = self.options
         volume = sweep_cost(reference, warped, o.cost, o.window, o.census_threshold)
-        index, refined, confidence, unique, _ = self.decide(volume, reference.shape[1], final)
+        index, refined, confidence, unique, _ = self.decide(volume, reference.shape[1], final, grey(reference))
         ok = warped.valid.gather(1, index) & unique
         return LevelResult(-1.0 + refined * (2.0 / (self.num_hypotheses - 1)), ok, confidence)
 
@@ -220,10 +240,12 @@ class RectifiedSearch(_Search):
         b, o, t = reference.shape[0], self.options, self.transposed
         ref_r = sample_slices(reference, self.reference_grid.to(reference)[None, None], shared=True)[:, :, 0]
         oth_r = sample_slices(other, self.other_grid.to(other)[None, None], shared=True)[:, :, 0]
-        fill = _SHIFT_FILL * worst_cost(o.cost, reference.shape[1], o.window)
+        # 'ad_gradient' saturates at its worst on mismatches (truncated): a fill below it would win there
+        fill = (1.0 if o.cost == "ad_gradient" else _SHIFT_FILL) * worst_cost(o.cost, reference.shape[1], o.window)
         volume = shift_cost(ref_r, oth_r, self.index, self.valid.unsqueeze(0), o.cost, o.window,
                             o.census_threshold, transposed=t, fill=fill)
-        index, refined, confidence, unique, total = self.decide(volume, reference.shape[1], final)
+        guide = grey(ref_r).transpose(-1, -2) if t else grey(ref_r)
+        index, refined, confidence, unique, total = self.decide(volume, reference.shape[1], final, guide)
         ok = self.valid.unsqueeze(0).expand(b, -1, -1, -1).gather(1, index) & unique
         if t:
             refined, ok, confidence = refined.transpose(-1, -2), ok.transpose(-1, -2), confidence.transpose(-1, -2)

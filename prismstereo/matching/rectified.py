@@ -32,7 +32,7 @@ from prismstereo.matching.select import (
 __all__ = ["MatchOptions", "MatchResult", "match_rectified", "right_view_volume", "guided_filter"]
 
 RectifiedCost = Literal["census", "sad", "zncc", "ad_gradient"]
-RECTIFIED_COSTS: tuple[str, ...] = (*COSTS, "ad_gradient")
+RECTIFIED_COSTS: tuple[str, ...] = COSTS
 Aggregation = Literal["box", "sgm", "guided"]
 OutOfRange = Literal["worst", "replicate"]
 SubpixelCost = Literal["local", "sad"]
@@ -251,26 +251,30 @@ def guided_filter(
         raise OptionError(f"eps must be > 0, got {eps!r}")
     guide = guide.to(volume.dtype)
     full = guide
-    if subsample > 1:
-        guide = F.avg_pool2d(guide, subsample, ceil_mode=True)
-        volume = F.avg_pool2d(volume, subsample, ceil_mode=True)
+    if subsample > 1:  # block means; the last blocks of an odd size are means of the pixels they hold (exported,
+        # count_include_pad=False: onnxruntime's AveragePool counted the blocks' overhang with the default)
+        guide = F.avg_pool2d(guide, subsample, ceil_mode=True, count_include_pad=False)
+        volume = F.avg_pool2d(volume, subsample, ceil_mode=True, count_include_pad=False)
     window = 2 * max(1, round(radius / subsample)) + 1
     b, d, h, w = volume.shape
     c = guide.shape[1]
     mean_i = box_filter(guide, window)  # (Bg, C, h, w)
-    pairs = [(i, j) for i in range(c) for j in range(i, c)]
-    corr = box_filter(torch.cat([guide[:, i:i + 1] * guide[:, j:j + 1] for i, j in pairs], 1), window)
-    sigma = guide.new_empty(guide.shape[0], h, w, c, c)
-    for k, (i, j) in enumerate(pairs):
-        cov = corr[:, k] - mean_i[:, i] * mean_i[:, j] + (eps if i == j else 0.0)
-        sigma[..., i, j] = cov
-        sigma[..., j, i] = cov
-    inverse = torch.linalg.inv(sigma) if c > 1 else 1.0 / sigma  # (Bg, h, w, C, C)
     mean_p = box_filter(volume, window)
     mean_ip = box_filter(torch.cat([guide[:, i:i + 1] * volume for i in range(c)], 1), window).view(b, c, d, h, w)
     cov_ip = mean_ip - mean_i.unsqueeze(2) * mean_p.unsqueeze(1)  # (B, C, D, h, w)
-    inverse = inverse.permute(0, 3, 4, 1, 2).unsqueeze(3)  # (Bg, C, C, 1, h, w)
-    a = torch.stack([sum(inverse[:, i, j] * cov_ip[:, j] for j in range(c)) for i in range(c)], 1)
+    if c == 1:  # a grey guide: a = cov / (var + eps), no matrix (and no tensor whose shape a traced graph fixes)
+        var_i = box_filter(guide * guide, window) - mean_i * mean_i + eps  # (Bg, 1, h, w)
+        a = cov_ip / var_i.unsqueeze(2)
+    else:
+        pairs = [(i, j) for i in range(c) for j in range(i, c)]
+        corr = box_filter(torch.cat([guide[:, i:i + 1] * guide[:, j:j + 1] for i, j in pairs], 1), window)
+        sigma = guide.new_empty(guide.shape[0], h, w, c, c)
+        for k, (i, j) in enumerate(pairs):
+            cov = corr[:, k] - mean_i[:, i] * mean_i[:, j] + (eps if i == j else 0.0)
+            sigma[..., i, j] = cov
+            sigma[..., j, i] = cov
+        inverse = torch.linalg.inv(sigma).permute(0, 3, 4, 1, 2).unsqueeze(3)  # (Bg, C, C, 1, h, w)
+        a = torch.stack([sum(inverse[:, i, j] * cov_ip[:, j] for j in range(c)) for i in range(c)], 1)
     coefficients = torch.cat([box_filter(a.reshape(b, c * d, h, w), window),
                               box_filter(mean_p - (a * mean_i.unsqueeze(2)).sum(1), window)], 1)
     if subsample > 1:

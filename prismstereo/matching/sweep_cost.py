@@ -22,6 +22,8 @@ from prismstereo.matching.cost import (
     COSTS,
     Cost,
     Warped,
+    _x_gradient,
+    ad_gradient_cost,
     grey,
     ncc_cost,
     sweep_cost,
@@ -179,7 +181,7 @@ def shift_cost(
         other: (B, C, H, W_o) rectified other image.
         index: (D, W) long, columns of ``other`` (in [0, W_o)).
         valid: (B or 1, D, H, W) bool, real samples ((B or 1, D, W, H) with ``transposed``).
-        cost: 'sad', 'zncc' or 'census'.
+        cost: 'sad', 'zncc', 'census' or 'ad_gradient' (its horizontal gradients taken before the gather).
         window: census / ZNCC window (odd).
         census_threshold: see :func:`sweep_cost`.
         transposed: return (B, D, W, H).
@@ -218,6 +220,12 @@ def shift_cost(
 
     if fill is not None and not (isinstance(fill, (int, float)) and fill >= 0):
         raise OptionError(f"fill must be a number >= 0 or None, got {fill!r}")
+    if cost == "ad_gradient":  # its gradients run along the rows of the transposed images (W): before the gather
+        grad_r, grad_o = (_x_gradient(x.transpose(-1, -2)).transpose(-1, -2) for x in (ref_t, other_t))
+        colour = (ref_t.unsqueeze(2) - gather(other_t)).abs().mean(1)  # (B, D, W, H)
+        volume = ad_gradient_cost(colour, (grad_r.unsqueeze(2) - gather(grad_o)).abs()[:, 0])
+        volume = fill_invalid(volume, valid_t, 1.0 if fill is None else float(fill), bounded=fill is None or fill >= 1)
+        return volume if transposed else volume.transpose(-1, -2)
     if cost != "zncc":
         volume = sweep_cost(ref_t, Warped(gather(other_t), valid_t), cost, window, census_threshold)
         if fill is not None:  # sweep_cost filled the worst cost

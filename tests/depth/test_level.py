@@ -47,6 +47,46 @@ def test_the_pyramid_is_a_binned_level_placing_a_full_resolution_level(capture):
     assert torch.equal(res.depth, model(capture).depth)  # the model is exactly this composition
 
 
+def test_a_guided_binned_level_searching_the_whole_range_places_by_its_search_as_it_is(capture):
+    """A pyramid's binned level with coarse_factor 1 and the guided aggregation passes its search's estimate
+    unsmoothed and without the similarity threshold: s, and valid where the search had a real winner; its depth()
+    output (smoothed, thresholded) is stricter. (The semi-global one places by its depth():
+    test_the_pyramid_is_a_binned_level_placing_a_full_resolution_level.)"""
+    options = {"cost": "ad_gradient", "aggregation": "guided", "box": 1}
+    model = PrismStereo(RIG, Z, {"downsample": 2, "full_band": 2, "coarse_factor": 1, **options})
+    binned = model.binned
+    assert binned.factor == 1
+    image = torch.nn.functional.avg_pool2d(capture, 2)
+    with torch.no_grad():
+        placement = binned.placement(image)
+        raw = binned.search(*binned.split(image), final=False)
+        low = binned.depth(image)
+    assert placement.reach == 2 * binned.config.search.coarse_reach
+    torch.testing.assert_close(placement.s, raw.s.clamp(-1.0, 1.0))
+    assert torch.equal(placement.valid, raw.valid & binned.reference_valid)
+    torch.testing.assert_close(placement.similarity, raw.confidence * placement.valid)
+    assert float(placement.valid.float().mean()) > float(low.valid.float().mean())
+    s_true = depth_to_sweep(torch.tensor(600.0), torch.tensor(Z))
+    assert float((placement.s - s_true)[placement.valid].abs().median()) < binned.step
+    with torch.no_grad():
+        res = model(capture)
+    rel = ((res.depth - 600.0).abs() / 600.0)[res.valid]
+    assert res.valid.float().mean() > 0.75 and float(rel.mean()) < 1e-3  # measured 78.6 % (the field of view)
+
+
+@pytest.mark.parametrize("options", [{"fine_cost": "ad_gradient"}, {"cost": "ad_gradient", "aggregation": "guided",
+                                                                    "box": 1, "sampling": "sweep"}],
+                         ids=["fine-band", "sweep-guided"])
+def test_the_ad_gradient_cost_serves_any_level(capture, options):
+    """'ad_gradient' is one of the costs: as the fine band's (its gradients along each band slice's rows) and on
+    the exact-sweep coarse level with the guided filter, the plane comes out within 0.1 % (median)."""
+    level = DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=2, validity="thresholds", **options))
+    with torch.no_grad():
+        res = level.depth(capture)
+    rel = ((res.depth - 600.0).abs() / 600.0)[res.valid]
+    assert res.valid.float().mean() > 0.65 and float(rel.median()) < 1e-3  # measured 72.6 / 78.8 %, 0.06 / 0.04 %
+
+
 def test_level_errors(capture):
     with pytest.raises(OptionError, match="validity 'calibrated' needs a coarse-to-fine model"):
         DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=1, validity="calibrated"))

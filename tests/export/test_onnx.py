@@ -92,12 +92,15 @@ def test_onnxruntime_matches_torch(exported, model, captures, batch):
 @pytest.mark.parametrize("options", [dict(sampling="sweep"), dict(lr_threshold=1.0), dict(downsample=2),
                                      dict(downsample=2, full_band=2),
                                      dict(downsample=2, full_band=1, band_edges="clamp"),
-                                     dict(validity="thresholds"), dict(dense=True)],
-                         ids=["sweep", "lr-check", "downsample", "pyramid", "fast-pyramid", "thresholds", "dense"])
+                                     dict(validity="thresholds"),
+                                     dict(dense=True, cost="ad_gradient", aggregation="guided", box=1)],
+                         ids=["sweep", "lr-check", "downsample", "pyramid", "fast-pyramid", "thresholds",
+                              "dense-guided"])
 def test_other_graphs_match_torch(model, captures, options, export_once):
     """The coarse level's other forms export too: the exact-sweep sampling (one GridSample of every
     hypothesis), the rectified level's left-right check, matching on the 2 x 2-binned capture, and the pyramid
-    (the binned model placing a full-resolution band), also with a band of 3 that keeps its edge pixels."""
+    (the binned model placing a full-resolution band), also with a band of 3 that keeps its edge pixels, and the
+    dense output with the 'dense' preset's coarse level (the 'ad_gradient' cost and the guided filter)."""
     variant = PrismStereo(model.rig, (300.0, 900.0), {"coarse_factor": 2, **options}).eval()
     got = OnnxDepth(export_once(variant))(captures[:2])
     with torch.no_grad():

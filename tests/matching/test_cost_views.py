@@ -8,7 +8,7 @@ import torch
 from prismstereo import OptionError, ShapeError
 from prismstereo._graph import fill_invalid, scan_eager, scan_traced
 from prismstereo.matching import box_filter, census_transform, cost_volume, shifted
-from prismstereo.matching.cost import Warped, sweep_cost
+from prismstereo.matching.cost import Warped, ad_gradient_cost, ad_gradient_volume, sweep_cost, worst_cost
 from prismstereo.matching.sweep_cost import shift_cost, warp_slices
 from tests.matching.test_cost_select import shifted_pair
 
@@ -121,3 +121,55 @@ def test_eager_and_exported_sgm_scans_agree_bitwise(shift, penalties, monkeypatc
     assert torch.equal(scan_traced(volume, 0.1, 0.6, shift, p2s), eager)  # the Concat / Maximum form
     _export_forms(monkeypatch)
     assert torch.equal(scan_traced(volume, 0.1, 0.6, shift, p2s), eager)  # with the MaxPool of an export
+
+
+def test_ad_gradient_is_one_cost_by_shifts_warps_and_gathers():
+    """'ad_gradient' (Rhemann et al.'s truncated grey + gradient difference) of the same views built three ways:
+    the rectified matcher's volume (gradients shifted with the image), sweep_cost on shifted and on warped views
+    (gradients of each view) and the model's column gather (gradients before the gather) agree wherever the
+    view's gradient does not reach an edge of the image or of the view; the true shift costs 0."""
+    gen = torch.Generator().manual_seed(6)
+    other = torch.rand(1, 1, 16, 30, generator=gen, dtype=F64)
+    ref = other[..., 3:27]  # reference column u shows other column u + 3
+    shifts = [0, 1, 3, 4]
+    matcher = ad_gradient_volume(ref, other[..., :24], torch.tensor(shifts, dtype=F64))
+    by_shift = cost_volume(ref, other[..., :24], torch.tensor(shifts, dtype=F64), "ad_gradient")
+    index = (torch.arange(24) + torch.tensor(shifts).view(-1, 1)).clamp(max=23)  # other column u + s
+    gathered = shift_cost(ref, other[..., :24], index, by_shift.valid.expand(1, -1, 16, -1), "ad_gradient")
+    u = torch.arange(24).view(1, 1, 1, -1)
+    s = torch.tensor(shifts).view(1, -1, 1, 1)
+    interior = by_shift.valid & (u >= 1) & (u <= 22) & (u + s <= 22)
+    interior = interior.expand_as(by_shift.cost)
+    for vol in (matcher.cost, gathered):
+        torch.testing.assert_close(vol[interior], by_shift.cost[interior], rtol=0, atol=1e-12)
+    full = shift_cost(ref, other, (torch.arange(24) + torch.tensor(shifts).view(-1, 1)).clamp(max=29),
+                      torch.ones(1, 4, 16, 24, dtype=torch.bool), "ad_gradient")
+    # a batch is its images side by side (the gradients broadcast per image)
+    pair = torch.cat([other, torch.rand(1, 1, 16, 30, generator=gen, dtype=F64)])
+    refs = pair[..., 3:27]
+    index_b = (torch.arange(24) + torch.tensor(shifts).view(-1, 1)).clamp(max=29)
+    ones = torch.ones(1, 4, 16, 24, dtype=torch.bool)
+    both = shift_cost(refs, pair, index_b, ones, "ad_gradient")
+    for k in range(2):
+        one = shift_cost(refs[k:k + 1], pair[k:k + 1], index_b, ones, "ad_gradient")
+        torch.testing.assert_close(both[k:k + 1], one)
+    views = Warped(pair[..., index_b].permute(0, 1, 3, 2, 4), ones)
+    swept = sweep_cost(refs, views, "ad_gradient")
+    for k in range(2):
+        one = Warped(views.image[k:k + 1], ones)
+        torch.testing.assert_close(swept[k:k + 1], sweep_cost(refs[k:k + 1], one, "ad_gradient"))
+    # (the reference's edge columns have one-sided gradients where the other image's are central)
+    assert float(full[:, 2, :, 1:-1].abs().max()) < 1e-12 and bool((full.argmin(1) == 2).float().mean() > 0.97)
+    assert worst_cost("ad_gradient", 3, 5) == 1.0 and float(full.max()) <= 1.0
+
+
+def test_ad_gradient_cost_reference_values_and_gradients():
+    """((1 - a) min(AD, t_ad) + a min(GD, t_g)) / ((1 - a) t_ad + a t_g): 0 for equal views, 1 when both terms
+    saturate, the weights in between; differentiable below the truncations."""
+    assert float(ad_gradient_cost(torch.tensor(0.0), torch.tensor(0.0))) == 0.0
+    assert float(ad_gradient_cost(torch.tensor(1.0), torch.tensor(1.0))) == pytest.approx(1.0)
+    # only the colour term, half its truncation: (1 - a) t / 2 / ((1 - a) t + a t) = (1 - a) / 2 with equal t
+    assert float(ad_gradient_cost(torch.tensor(0.05), torch.tensor(0.0), 0.1, 0.1, 0.3)) == pytest.approx(0.35)
+    ad = torch.rand(5, generator=torch.Generator().manual_seed(7), dtype=F64).mul(0.02).requires_grad_(True)
+    gd = torch.rand(5, generator=torch.Generator().manual_seed(8), dtype=F64).mul(0.005).requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda a, g: ad_gradient_cost(a, g), (ad, gd))

@@ -27,13 +27,19 @@ def plane():
     return rig, cap
 
 
-@pytest.mark.parametrize("sampling, directions", [("rectified", 4), ("rectified", 2), ("sweep", 4)])
-def test_searches_share_one_interface_and_find_the_plane(plane, sampling, directions):
+GUIDED = dict(cost="ad_gradient", aggregation="guided", box=1)
+
+
+@pytest.mark.parametrize("sampling, directions, extra", [("rectified", 4, {}), ("rectified", 2, {}), ("sweep", 4, {}),
+                                                         ("rectified", 4, GUIDED), ("sweep", 4, GUIDED)],
+                         ids=["rectified", "rectified-rows", "sweep", "rectified-guided", "sweep-guided"])
+def test_searches_share_one_interface_and_find_the_plane(plane, sampling, directions, extra):
     """Both coarse searches: the same call, a LevelResult at the level's resolution, the plane's sweep
     coordinate at most pixels the other half sees (the rectified volume stays transposed except with
-    2-direction SGM, which scans rows only)."""
+    2-direction SGM, which scans rows only), also with the per-pixel 'ad_gradient' cost aggregated by the guided
+    filter."""
     rig, cap = plane
-    model = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, sampling=sampling, directions=directions))
+    model = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, sampling=sampling, directions=directions, **extra))
     search = model.final.search
     assert isinstance(search, RectifiedSearch if sampling == "rectified" else SweepSearch)
     if sampling == "rectified":
@@ -213,3 +219,34 @@ def test_fine_band_wide_box_blends_only_in_weak_texture(plane):
     torch.testing.assert_close(wide.s, boxed.s, atol=1e-5, rtol=0)
     assert torch.equal(wide.valid, boxed.valid)
     assert model.final.fine.options.wide_box == 21  # the model's default
+
+
+def test_guided_aggregation_carries_a_shift_through_a_flat_band_and_stops_at_edges():
+    """The guided filter spreads the cost of the textured rows into a flat band of even grey between them
+    (box aggregation has nothing there: every shift costs the same), and does not blend two regions of
+    different grey: a left half at one shift and a right half of another grey at another keep their own. Its
+    placement (final=False) keeps every winner; as a final level the ratio test still applies."""
+    gen = torch.Generator().manual_seed(12)
+    h, w, d = 48, 64, 12
+    other = torch.rand(1, 1, h, w + d, generator=gen) * 0.5
+    other[..., 18:30, :] = 0.3  # a flat band: no texture, no evidence of its own
+    reference = other[..., 5:5 + w].clone()  # shift 5 everywhere
+    other[..., w // 2 + 2:] = torch.rand(1, 1, h, w + d - w // 2 - 2, generator=gen) * 0.5 + 0.5  # brighter
+    reference[..., w // 2:] = other[..., 2 + w // 2:2 + w]  # texture at shift 2 in the right half
+    index = (torch.arange(w) + torch.arange(d).view(-1, 1)).clamp(max=w + d - 1)
+    valid = torch.ones(1, d, h, w, dtype=torch.bool)
+    volume = levels.shift_cost(reference, other, index, valid, "ad_gradient")
+    from prismstereo.matching.cost import grey
+    for aggregation, expect_band in (("guided", True), ("box", False)):
+        search = levels._Search(levels.SearchOptions(cost="ad_gradient", aggregation=aggregation, box=1))
+        index_w, _, confidence, unique, _ = search.decide(volume, 1, final=False, guide=grey(reference))
+        band = index_w[0, 0, 20:28, 14:w // 2 - 14]
+        assert bool((band == 5).all()) == expect_band, band
+        if aggregation == "guided":
+            assert bool(unique.all())  # a placement: no ratio test
+            assert float((index_w[0, 0, :, 14:w // 2 - 14] == 5).float().mean()) > 0.98
+            right_half = index_w[0, 0, :, w // 2 + 14:w - 3]
+            assert float((right_half == 2).float().mean()) > 0.95
+            assert float(confidence.min()) >= 0 and float(confidence.max()) <= 1
+            _, _, _, unique_final, _ = search.decide(volume, 1, final=True, guide=grey(reference))
+            assert not bool(unique_final.all())
