@@ -35,7 +35,8 @@ onnxruntime and OpenCV much less, so only trust runs where that is ~0.
    half the lateral resolution; the narrow range also with coarse factor 4 on the binned image, where the default
    picks 2) and, for context, StereoSGBM on the same binned halves (numDisparities halved, depth converted with the
    binned rig's exact sweep and given to each pixel of the block as the model does); SGBM on the full-resolution
-   halves stays the reference of the "x SGBM" column.
+   halves stays the reference of the "x SGBM" column. Both ranges also time the ``'dense'`` preset (its error and
+   coverage columns score its ``valid`` mask).
 2. **Narrow range** 600-1450 mm: the same with ``PrismStereo(rig, (600, 1450))`` (its default coarse factor,
    printed; ``--narrow-coarse-factor F`` forces one, for the binned model of the pyramid and ``downsample=1``),
    numDisparities 96 / K and ``slanted_plane(rig, 900, 30)`` (Z 878-923 mm). (A single full-resolution level,
@@ -352,6 +353,8 @@ def run_case(case: Case, rig: BiPrismRig, scale: int, repeats: int, coarse_facto
         fast = PrismStereo(rig, case.z_range, dict(coarse_factor=coarse_factor, downsample=model.downsample,
                                                    full_band=1, band_edges="clamp"))
         others.append(("full_band 1, band edges clamped", fast))
+    # the 'dense' preset (a depth on every co-visible pixel; its coarse level by the guided filter): what it costs
+    others.append(("'dense' preset", PrismStereo(rig, case.z_range, "dense")))
     if model.downsample != 1:  # the full-resolution coarse level (the default on smaller sensors)
         others.append(("downsample 1", PrismStereo(rig, case.z_range, dict(downsample=1, coarse_factor=coarse_factor))))
     # the speed knob: matching on the 2 x 2-binned capture, each pixel its block's depth (its default coarse factor,
