@@ -251,10 +251,9 @@ def guided_filter(
         raise OptionError(f"eps must be > 0, got {eps!r}")
     guide = guide.to(volume.dtype)
     full = guide
-    if subsample > 1:  # block means; the last blocks of an odd size are means of the pixels they hold (exported,
-        # count_include_pad=False: onnxruntime's AveragePool counted the blocks' overhang with the default)
-        guide = F.avg_pool2d(guide, subsample, ceil_mode=True, count_include_pad=False)
-        volume = F.avg_pool2d(volume, subsample, ceil_mode=True, count_include_pad=False)
+    if subsample > 1:
+        guide = F.avg_pool2d(guide, subsample, ceil_mode=True)
+        volume = F.avg_pool2d(volume, subsample, ceil_mode=True)
     window = 2 * max(1, round(radius / subsample)) + 1
     b, d, h, w = volume.shape
     c = guide.shape[1]
@@ -262,7 +261,7 @@ def guided_filter(
     mean_p = box_filter(volume, window)
     mean_ip = box_filter(torch.cat([guide[:, i:i + 1] * volume for i in range(c)], 1), window).view(b, c, d, h, w)
     cov_ip = mean_ip - mean_i.unsqueeze(2) * mean_p.unsqueeze(1)  # (B, C, D, h, w)
-    if c == 1:  # a grey guide: a = cov / (var + eps), no matrix (and no tensor whose shape a traced graph fixes)
+    if c == 1:  # a grey guide: a = cov / (var + eps), no matrix to build and invert
         var_i = box_filter(guide * guide, window) - mean_i * mean_i + eps  # (Bg, 1, h, w)
         a = cov_ip / var_i.unsqueeze(2)
     else:
