@@ -244,12 +244,11 @@ def sweep_cost(
         raise OptionError(f"census_threshold must be >= 0, got {census_threshold}")
     if cost == "census":
         volume = census_cost(reference, warped.image, window, census_threshold)
-    elif cost == "sad":
+    elif cost in ("sad", "ad_gradient"):
         volume = (reference.unsqueeze(2) - warped.image).abs().mean(1)
-    elif cost == "ad_gradient":
-        ad = (reference.unsqueeze(2) - warped.image).abs().mean(1)
-        gd = (_x_gradient(reference).unsqueeze(2) - _x_gradient(warped.image.mean(1, keepdim=True))).abs()[:, 0]
-        volume = ad_gradient_cost(ad, gd)
+        if cost == "ad_gradient":  # SAD, truncated and mixed with the views' gradient difference
+            gd = (_x_gradient(reference).unsqueeze(2) - _x_gradient(warped.image)).abs()[:, 0]
+            volume = ad_gradient_cost(volume, gd)
     else:
         volume = zncc_cost(reference, warped.image, window)
     # ZNCC (1 - a clamped NCC), census counts and 'ad_gradient' lie in [0, worst]; SAD only for images in [0, 1]

@@ -134,17 +134,17 @@ class _Search(nn.Module):
         the filtered cost (a window's evidence spread over its region of similar grey), the others' that of the
         box-averaged cost."""
         o = self.options
+        guided = o.aggregation == "guided"
         local = box_filter(volume, o.box)
         if o.aggregation == "sgm":
             total = sgm_aggregate(local, o.p1, o.p2, o.directions)
-        elif o.aggregation == "guided":
+        elif guided:
             total = guided_filter(local, guide, GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE)
         else:
             total = local
         index, _ = winner_take_all(total.detach())
-        guided = o.aggregation == "guided"
-        refined = _refine(o, total if guided else local, total, index, o.cost, final)
-        scored = total if guided else local
+        scored = total if guided else local  # the cost the sub-pixel fit and the confidence read
+        refined = _refine(o, scored, total, index, o.cost, final)
         confidence = similarity(scored.gather(1, index), o.cost, channels, o.window)
         if guided and not final:  # a placement: the band after it judges it (the filtered cost is flat in weak
             unique = torch.ones_like(index, dtype=torch.bool)  # texture, where the ratio test rejects right winners)

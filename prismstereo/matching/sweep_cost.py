@@ -220,11 +220,12 @@ def shift_cost(
 
     if fill is not None and not (isinstance(fill, (int, float)) and fill >= 0):
         raise OptionError(f"fill must be a number >= 0 or None, got {fill!r}")
-    if cost == "ad_gradient":  # its gradients run along the rows of the transposed images (W): before the gather
-        grad_r, grad_o = (_x_gradient(x.transpose(-1, -2)).transpose(-1, -2) for x in (ref_t, other_t))
+    if cost == "ad_gradient":  # its gradients along W, taken on the images before the gather
+        grad_r, grad_o = (_x_gradient(x).transpose(-1, -2) for x in (reference, other))
         colour = (ref_t.unsqueeze(2) - gather(other_t)).abs().mean(1)  # (B, D, W, H)
         volume = ad_gradient_cost(colour, (grad_r.unsqueeze(2) - gather(grad_o)).abs()[:, 0])
-        volume = fill_invalid(volume, valid_t, 1.0 if fill is None else float(fill), bounded=fill is None or fill >= 1)
+        value = worst_cost(cost, 1, window) if fill is None else float(fill)
+        volume = fill_invalid(volume, valid_t, value, bounded=value >= worst_cost(cost, 1, window))
         return volume if transposed else volume.transpose(-1, -2)
     if cost != "zncc":
         volume = sweep_cost(ref_t, Warped(gather(other_t), valid_t), cost, window, census_threshold)
