@@ -10,9 +10,11 @@ static scene.
      moves 60 mm over the sequence);
    * ``cut``: the moving plane for the first half, then a cut to another texture on a plane at 800 -> 780 mm.
 
-   Every frame goes through two ``DepthStream`` s of the default ``PrismStereo`` over 228-1374 mm, exported once
-   (onnxruntime, 2 intra-op threads): per frame, and with the temporal prior (its own temporal graph,
-   ``TemporalOptions()``; key frames by its rules), and through OpenCV's ``StereoSGBM`` (numDisparities covering
+   Every frame goes through three ``DepthStream`` s of the default ``PrismStereo`` over 228-1374 mm, exported once
+   (onnxruntime, 2 intra-op threads): per frame, with the temporal prior (its own temporal graph,
+   ``TemporalOptions()``, whose band runs on the 2 x 2-binned frame for the 1024 x 768 pyramid and at full
+   resolution for the one-level 640 x 480 model; key frames by its rules) and with the band at the other of the
+   two resolutions (``temporal k=1`` / ``k=2``), and through OpenCV's ``StereoSGBM`` (numDisparities covering
    the range's correspondence spread, blockSize 5, else defaults) and ``StereoBM`` (same) on the two 8-bit halves,
    one method after the other per frame, 0.1 s apart (``cv2.setNumThreads(2)``). Printed per method: median and
    95th-percentile ms per frame, frames/s, the median over frames of the same-frame ratio to SGBM, the mean
@@ -42,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from onnx_speed import opencv_depth, opencv_halves, pixel_sweep, score, spread_report  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
-from prismstereo.depth.temporal import TemporalOptions  # noqa: E402
+from prismstereo.depth.temporal import TemporalOptions, temporal_downsample  # noqa: E402
 from prismstereo.export import export_onnx  # noqa: E402
 from prismstereo.model import PrismStereo  # noqa: E402
 from prismstereo.stream import DepthStream  # noqa: E402
@@ -91,12 +93,19 @@ def sequences(rig, frames: int) -> dict[str, list]:
 
 
 def streams(rig, tmp: Path, name: str) -> tuple[PrismStereo, dict[str, DepthStream]]:
-    """The default model and its per-frame and temporal ONNX streams."""
+    """The default model and its per-frame and temporal ONNX streams: the default temporal graph
+    (``TemporalOptions()``: its band binned by 2 for a pyramid, at full resolution for one level) and the band at
+    the other resolution."""
     model = PrismStereo(rig, Z_RANGE).eval()
     graph = export_onnx(model, tmp / f"{name}_{rig.image_width}.onnx")
-    temporal = export_onnx(model, tmp / f"{name}_{rig.image_width}_temporal.onnx", temporal=TemporalOptions())
-    return model, {"per-frame ONNX": DepthStream(graph, threads=2),
-                   "temporal ONNX": DepthStream(graph, temporal_graph=temporal, threads=2)}
+    default = temporal_downsample(model)
+    runs = {"per-frame ONNX": DepthStream(graph, threads=2)}
+    for k in (default, 3 - default):
+        temporal = export_onnx(model, tmp / f"{name}_{rig.image_width}_temporal_{k}.onnx",
+                               temporal=TemporalOptions() if k == default else TemporalOptions(downsample=k))
+        label = "temporal ONNX" if k == default else f"temporal k={k} ONNX"
+        runs[label] = DepthStream(graph, temporal_graph=temporal, threads=2)
+    return model, runs
 
 
 def moving(rig, frames: int, model: PrismStereo, runs: dict[str, DepthStream]) -> None:
@@ -105,7 +114,7 @@ def moving(rig, frames: int, model: PrismStereo, runs: dict[str, DepthStream]) -
     nd = disparities(sweep)
     print(f"\n{rig.image_width} x {rig.image_height}, {frames} frames per sequence, range {Z_RANGE[0]:g}-"
           f"{Z_RANGE[1]:g} mm, model: {model.summary()}; OpenCV numDisparities {nd}")
-    print(f"{'sequence':9s}{'method':16s} {'median ms':>9s} {'p95 ms':>7s} {'frames/s':>8s} {'x SGBM':>7s} "
+    print(f"{'sequence':9s}{'method':18s} {'median ms':>9s} {'p95 ms':>7s} {'frames/s':>8s} {'x SGBM':>7s} "
           f"{'mean err %':>10s} {'coverage %':>10s} {'key frames':>10s}")
     for sequence, scenes in sequences(rig, frames).items():
         caps = render(rig, scenes, ImageFormation(supersample=2, noise_sigma=1 / 255, seed=3))
@@ -145,7 +154,7 @@ def moving(rig, frames: int, model: PrismStereo, runs: dict[str, DepthStream]) -
             mean = statistics.mean(e[0] for e in errors[name])
             cover = statistics.mean(e[1] for e in errors[name])
             key = f"{keys[name]:10d}" if name in keys else f"{'':10s}"
-            print(f"{sequence:9s}{name:16s} {statistics.median(t):9.1f} {percentile(t, 95):7.1f} "
+            print(f"{sequence:9s}{name:18s} {statistics.median(t):9.1f} {percentile(t, 95):7.1f} "
                   f"{1e3 / statistics.median(t):8.1f} {ratio:7.2f} {mean:10.3f} {cover:10.1f} {key}")
 
 

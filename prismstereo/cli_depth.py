@@ -312,12 +312,15 @@ def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig, pose: torch.T
         inputs = {p.resolve() for p in sequence_files(source)}
     stem = sequence_name(source)
     model, summary = _build_model(args, rig)
-    from prismstereo.depth.temporal import TemporalOptions, supports_temporal
+    from prismstereo.depth.temporal import TemporalOptions, supports_temporal, temporal_downsample
 
     temporal = None
     if args.temporal and supports_temporal(model):
         temporal = TemporalOptions()
-        summary += f", temporal prior (a band +-{temporal.band} around the previous depth between key frames)"
+        k = temporal_downsample(model, temporal)
+        binned = f" on the {k}x{k}-binned frame" if k > 1 else ""
+        summary += (f", temporal prior (a band +-{temporal.band}{binned} around the previous depth between key "
+                    "frames)")
     elif args.temporal:
         summary += ", every frame on its own (this model has no full-resolution band for the temporal prior)"
     if args.backend == "onnx":

@@ -194,7 +194,8 @@ class DepthStream:
             t0 = time.perf_counter()
             thumb = None
             if self.temporal is not None:
-                thumb = F.avg_pool2d(image.mean(1, keepdim=True), 8) if min(image.shape[-2:]) >= 8 else image
+                grey = image if image.shape[1] == 1 else image.mean(1, keepdim=True)
+                thumb = F.avg_pool2d(grey, 8) if min(image.shape[-2:]) >= 8 else grey
             key = self._keyframe(thumb)
             res = self._run(image) if key else self._run(image, self._predicted())
             if not key and float(res.valid.float().mean()) < self.temporal.min_valid_ratio * self._key_valid:
@@ -241,10 +242,10 @@ class DepthStream:
         prior, before = self._prior, self._before
         if not self.temporal.extrapolate or before is None:
             return prior
-        both = prior.valid & before.valid
-        inverse = 2.0 / prior.depth - 1.0 / before.depth
-        usable = both & (inverse > 0)
-        depth = torch.where(usable, 1.0 / torch.where(usable, inverse, torch.ones_like(inverse)), prior.depth)
+        inverse = before.depth.reciprocal().neg_().add_(prior.depth.reciprocal(), alpha=2.0)  # 2 / z_1 - 1 / z_0
+        usable = (inverse > 0).logical_and_(prior.valid).logical_and_(before.valid)
+        # (where not usable the reciprocal may be anything, the prior's depth is taken)
+        depth = torch.where(usable, inverse.reciprocal_(), prior.depth)
         return _Prior(depth, prior.valid, prior.confidence)
 
     def frames_per_second(self) -> float:

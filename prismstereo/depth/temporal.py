@@ -1,9 +1,10 @@
 """The temporal prior: the depth of a video frame searched in a narrow band around the previous frame's depth.
 
 Between two frames of a video most pixels move by a fraction of a hypothesis step. :class:`TemporalDepth` takes a
-:class:`~prismstereo.model.PrismStereo` and places its full-resolution level's band directly on a prior (the
-previous frame's depth, validity and confidence, at full resolution) instead of on the binned level's estimate:
-no coarse search, and a band of 2 ``band`` + 1 hypotheses (default 3, against the pyramid's 5). With
+:class:`~prismstereo.model.PrismStereo` and places a band directly on a prior (the previous frame's depth,
+validity and confidence, at full resolution) instead of on the binned level's estimate: its full-resolution
+level's band, or one on the binned frame (``downsample``, below); no coarse search, and a band of 2 ``band`` + 1
+hypotheses (default 3, against the pyramid's 5). With
 ``band_edges='clamp'`` the sub-pixel fit may move the estimate up to the band's outer sample (``vertex_limit`` 1
 of :class:`~prismstereo.matching.levels.FineBand`, not the search's half step): a plane moving by one hypothesis
 step per frame is then followed in the frame it moves, where a half-step limit left the first tracked frames
@@ -16,6 +17,13 @@ evidence of the frame itself, so that a band that a scene cut or fast motion has
 (after a cut to a plane 250 mm further, 7 % of the pixels stay valid instead of 76 % at 31 % error; the stream
 then computes the frame with the full model).
 
+With ``downsample`` k > 1 (by default 2 for a pyramid model) the band runs on the capture binned by k x k instead,
+in a level of its own on the binned rig with the model's options (its sweep, calibrated confidence and
+smoothing): the prior is binned (the mean sweep coordinate of each block's usable pixels, where at least half of
+them are), and the estimate comes back to full resolution by a validity-weighted bilinear interpolation of the
+sweep coordinate (valid pixels interpolate valid neighbours only), with validity and confidence per block: k^2
+times fewer voxels for the binned level's accuracy (``docs/benchmarks.md``, *Video*).
+
 Which frames get the full model instead (the first, every ``keyframe_interval``-th, scene cuts, a prior that lost
 too much of its coverage) is :class:`TemporalOptions`' part, applied by :class:`~prismstereo.stream.DepthStream`;
 the measurements behind the defaults: ``docs/benchmarks.md`` (*Video*).
@@ -27,15 +35,18 @@ import dataclasses
 from typing import Any, Literal
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
+from prismstereo.depth.level import DepthLevel
 from prismstereo.depth.result import DepthResult
-from prismstereo.epipolar.sweep import depth_to_sweep
+from prismstereo.epipolar.series import series_at
+from prismstereo.epipolar.sweep import depth_to_sweep, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_int, check_number, check_option, check_shape
 from prismstereo.matching.confidence import CLAMPED_WEIGHTS, ConfidenceModel
 from prismstereo.matching.levels import FineBand, extend_estimate
 
-__all__ = ["TEMPORAL_BAND_EDGES", "TemporalDepth", "TemporalOptions", "supports_temporal"]
+__all__ = ["TEMPORAL_BAND_EDGES", "TemporalDepth", "TemporalOptions", "supports_temporal", "temporal_downsample"]
 
 BandEdges = Literal["reject", "clamp"]
 TEMPORAL_BAND_EDGES: tuple[str, ...] = ("reject", "clamp")
@@ -61,6 +72,11 @@ class TemporalOptions:
             computed again by the full model, in [0, 1] (0: never).
         extrapolate: the prior is the last depth extrapolated at constant velocity in inverse depth from the
             frame before (where both are valid), not the last depth itself.
+        downsample: k: the band runs on the capture binned by k x k and its estimate is interpolated back to full
+            resolution (>= 1; 1: the model's full-resolution band; see the module docstring). None (default): 2 for
+            a pyramid (the resolution of its binned level: at 1024 x 768 about a third of the full-resolution band's
+            time, its mean error within 0.01 points, ``docs/benchmarks.md``), 1 for a one-level model (smaller
+            sensors, where the binned frame costs more accuracy).
 
     Example:
         >>> TemporalOptions(band=2).to_dict()["band"]
@@ -76,13 +92,14 @@ class TemporalOptions:
     max_invalid_growth: float = 0.02
     min_valid_ratio: float = 0.95
     extrapolate: bool = True
+    downsample: int | None = None
 
     def __post_init__(self) -> None:
         check_option(self.band_edges, TEMPORAL_BAND_EDGES, "band_edges")
         if not isinstance(self.extrapolate, bool):
             raise OptionError(f"extrapolate must be a bool, got {self.extrapolate!r}")
-        for name, least in (("band", 1), ("reach", 0), ("keyframe_interval", 1)):
-            check_int(getattr(self, name), name, least)
+        for name, least in (("band", 1), ("reach", 0), ("keyframe_interval", 1), ("downsample", 1)):
+            check_int(getattr(self, name), name, least, none=name == "downsample")
         check_number(self.cut_threshold, "cut_threshold", 0.0, float("inf"), "a number in [0, inf] (inf: never a cut)",
                      infinite=True)
         for name in ("max_invalid_growth", "min_valid_ratio", "min_prior_confidence"):
@@ -108,17 +125,39 @@ def supports_temporal(model: nn.Module) -> bool:
         model.downsample == 1 or model.binned is not None)
 
 
+def temporal_downsample(model: nn.Module, options: TemporalOptions | None = None) -> int:
+    """The binning of the temporal band's capture for ``model``: ``options.downsample``, or when it is None 2 for a
+    pyramid (:attr:`~prismstereo.model.PrismStereo.binned` set) and 1 for a one-level model.
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> temporal_downsample(PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0), {"coarse_factor": 2}))
+        1
+    """
+    options = options or TemporalOptions()
+    if options.downsample is not None:
+        return options.downsample
+    return 2 if getattr(model, "binned", None) is not None else 1
+
+
 class TemporalDepth(nn.Module):
-    """Depth of a frame searched in a band around a prior (the previous frame's result), at full resolution.
+    """Depth of a frame searched in a band around a prior (the previous frame's result), at full resolution or on
+    the binned frame (``options.downsample``), returned at full resolution.
 
     Args:
         model: a :class:`~prismstereo.model.PrismStereo` with a full-resolution band (:func:`supports_temporal`):
             its final level's sweep, cost, confidence and validity rules are used, its coarse search is not.
-        options: the band (``band``, ``band_edges``, ``reach``); the key-frame rules are the stream's.
+        options: the band (``band``, ``band_edges``, ``reach``, ``downsample``); the key-frame rules are the
+            stream's.
+
+    Attributes:
+        downsample: the binning of the band's capture (``options.downsample`` resolved).
+        level: the :class:`~prismstereo.depth.level.DepthLevel` whose sweep, confidence and rules the band uses:
+            the model's final level, or with ``downsample`` > 1 a level of the binned rig.
 
     Raises:
         OptionError: a model without a full-resolution band (a single full-range level, block mode, the learned
-            model).
+            model); a ``downsample`` that leaves the binned rig too few rows for a level.
 
     Example:
         >>> from prismstereo.model import PrismStereo
@@ -138,6 +177,21 @@ class TemporalDepth(nn.Module):
             raise OptionError(f"options must be TemporalOptions, got {type(self.options).__name__}")
         self.model = model
         final = model.final
+        k = self.downsample = temporal_downsample(model, self.options)
+        if k > 1:  # a level of its own on the k x k-binned capture, with the model's options (its coarse search,
+            # which the band does not use, at the smallest factor that gives the level a band)
+            config = final.config.replace(search={"num_hypotheses": None, "coarse_factor": 2, "band": None})
+            try:
+                final = DepthLevel(model.rig.binned(k), final.z_range, config)
+            except OptionError as exc:
+                raise OptionError(f"downsample {k} leaves no level for the temporal band: {exc}") from exc
+        self.level = final
+        inside = None  # the full-resolution pixels of a binned pixel, when some are not (beyond its last row / column)
+        rows, cols = k * final.rig.image_height, k * final.rig.reference_width
+        if (rows, cols) != (model.rig.image_height, model.rig.reference_width):
+            inside = torch.zeros(1, 1, model.rig.image_height, model.rig.reference_width)
+            inside[..., :rows, :cols] = 1.0
+        self.register_buffer("inside", inside, persistent=False)
         band_options = dataclasses.replace(final.fine.options, band_edges=self.options.band_edges)
         # 'clamp': the fit may reach the band's outer sample (a prior one step behind the motion is followed within
         # the frame, not over several: see the module docstring)
@@ -179,19 +233,65 @@ class TemporalDepth(nn.Module):
                 raise ShapeError(f"{name} must have shape {shape}, got {tuple(t.shape)}")
         if prior_valid.dtype != torch.bool:
             raise ShapeError(f"prior_valid must be bool, got {prior_valid.dtype}")
-        ref, other = final.split(image)
+        level, k = self.level, self.downsample
         with torch.no_grad():  # the prior only places the band
             placed = prior_valid & (prior_confidence >= self.options.min_prior_confidence)
-            z_range = torch.tensor(final.z_range, dtype=ref.dtype, device=ref.device)
-            depth = torch.where(placed, prior_depth.to(ref.dtype), z_range[0])  # any finite depth elsewhere
+            z_range = torch.tensor(final.z_range, dtype=image.dtype, device=image.device)
+            depth = torch.where(placed, prior_depth.to(image.dtype), z_range[0])  # any finite depth elsewhere
             s_p = depth_to_sweep(depth, z_range).clamp(-1.0, 1.0)
+            if k > 1:  # the binned prior: each block's mean over its placed pixels, where half of them are
+                s_p, placed = _binned_prior(s_p, placed, k, level.rig.image_height, level.rig.reference_width)
             s_c, reach = extend_estimate(s_p, placed, self.options.reach)
             s0 = s_c.clamp(-1.0, 1.0)
+        if k > 1:
+            binned = F.avg_pool2d(image, k)[..., :level.rig.image_height, :level.rig.image_width]
+            ref, other = level.split(binned)
+        else:
+            ref, other = level.split(image)
         # the band's own NCC is the similarity feature where the per-frame model has the binned level's: evidence
         # of this frame (the prior's confidence would vouch for a band a scene cut or fast motion has left, see the
         # module docstring); moves up to half a step from the prior count as none in the offset feature: on a moving
         # scene a prior one step behind is expected, and the per-frame weights would judge it a misplaced band
         # (a 256 x 192 plane moved by one step: coverage 95.1 % -> 97.8 %, per-frame 97.6 %)
-        estimate = final.search_band(ref, other, s0, reach, ~placed, None, fine=self.fine,
+        estimate = level.search_band(ref, other, s0, reach, ~placed, None, fine=self.fine,
                                      calibration=self.calibration, free_offset=0.5)
-        return final.finish(estimate)
+        result = level.finish(estimate)
+        return result if k == 1 else self._full_resolution(result, z_range)
+
+    def _full_resolution(self, result: DepthResult, z_range: torch.Tensor) -> DepthResult:
+        """A binned level's result (B, *, h, w) at the model's full resolution (B, *, H, W_ref): the sweep
+        coordinate interpolated bilinearly, after each binned pixel without a depth (not valid; dense: not
+        covered) took the mean of its neighbours with one (so valid pixels interpolate valid neighbours only);
+        validity and confidence per block, none beyond the binned level's last row and column."""
+        final, k = self.model.final, self.downsample
+        h, w = self.rig.image_height, self.rig.reference_width
+        dense = final.config.validity.dense
+        has = (result.confidence > 0 if dense else result.valid).to(result.depth.dtype)
+        s = depth_to_sweep(result.depth, z_range) * has  # (a depth where none is may be anything: dropped here)
+        total = F.avg_pool2d(torch.cat([s, has], 1), 3, 1, 1, count_include_pad=False)
+        neighbours = total[:, :1] / total[:, 1:].clamp_min(1e-6)
+        s = s + (1.0 - has) * neighbours
+
+        def up(t: torch.Tensor, mode: str) -> torch.Tensor:
+            corners = {"align_corners": False} if mode == "bilinear" else {}
+            t = F.interpolate(t, scale_factor=k, mode=mode, **corners)
+            if t.shape[-2] < h or t.shape[-1] < w:  # (a static size: no graph node when the binning divides it)
+                t = F.pad(t, (0, w - t.shape[-1], 0, h - t.shape[-2]), mode="replicate")
+            return t
+
+        s = up(s, "bilinear").clamp(-1.0, 1.0)
+        shown, confidence = up(torch.cat([has, result.confidence], 1), "nearest").split(1, 1)
+        if self.inside is not None:
+            shown, confidence = shown * self.inside, confidence * self.inside
+        valid = shown > 0.5 if not dense else (up(result.valid.to(s.dtype), "nearest") * shown) > 0.5
+        return DepthResult(sweep_to_depth(s, z_range), valid, confidence * shown, (s + 1.0) / final.step,
+                           torch.cat(series_at(final.series, s), 1))
+
+
+def _binned_prior(s: torch.Tensor, placed: torch.Tensor, k: int, h: int, w: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, 1, H, W_ref) sweep coordinates and usable-prior mask binned by k x k to the binned level's (B, 1, h, w):
+    the mean over each block's usable pixels, usable where at least half of them are."""
+    weight = placed.to(s.dtype)
+    share = F.avg_pool2d(weight, k)[..., :h, :w]
+    mean = F.avg_pool2d(s * weight, k)[..., :h, :w] / share.clamp_min(1e-6)
+    return mean.clamp(-1.0, 1.0), share >= 0.5

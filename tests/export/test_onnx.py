@@ -221,12 +221,14 @@ def test_session_cache(exported, model, tmp_path, monkeypatch):
     assert first.path.read_bytes()[:64] == exported.read_bytes()[:64]  # same model, same export
 
 
-def test_temporal_graph_matches_torch_and_checks_its_prior(model, captures, exported, tmp_path):
+@pytest.mark.parametrize("downsample", [1, 2])
+def test_temporal_graph_matches_torch_and_checks_its_prior(model, captures, exported, tmp_path, downsample):
     """The temporal graph (image and the previous frame's outputs in, the same outputs out) against
-    TemporalDepth in torch; the runners refuse a prior they do not take and want one they do."""
+    TemporalDepth in torch, with the band at full resolution and on the 2 x 2-binned capture; the runners refuse a
+    prior they do not take and want one they do."""
     from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 
-    options = TemporalOptions(band=2)
+    options = TemporalOptions(band=2, downsample=downsample)
     path = export_onnx(model, tmp_path / "temporal.onnx", temporal=options)
     proto = onnx.load(str(path))
     assert [i.name for i in proto.graph.input] == ["image", "prior_depth_mm", "prior_valid", "prior_confidence"]
