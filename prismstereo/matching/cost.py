@@ -42,7 +42,7 @@ __all__ = ["Cost", "COSTS", "CostVolume", "Warped", "ad_gradient_cost", "ad_grad
 
 Cost = Literal["sad", "zncc", "census", "ad_gradient"]
 COSTS: tuple[str, ...] = ("sad", "zncc", "census", "ad_gradient")
-# 'ad_gradient' truncations and weight: ad_gradient_volume's defaults, MatchOptions' (chosen on Middlebury)
+# 'ad_gradient' truncations and weight (chosen on Middlebury): the defaults of ad_gradient_volume and MatchOptions
 AD_THRESHOLD, GRADIENT_THRESHOLD, GRADIENT_WEIGHT = 7.0 / 255.0, 2.0 / 255.0, 0.95
 
 _VAR_FLOOR = 1e-5  # (0.8 / 255)^2: below the variance of 8-bit read noise of 1 level

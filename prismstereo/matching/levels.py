@@ -32,7 +32,7 @@ from prismstereo.epipolar.sweep_table import column_to_sweep
 from prismstereo.errors import OptionError, ShapeError, check_number, check_shape
 from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
 from prismstereo.matching.cost import Warped, grey, sweep_cost, worst_cost
-from prismstereo.matching.rectified import guided_filter
+from prismstereo.matching.rectified import GUIDED_EPS, GUIDED_RADIUS, GUIDED_SUBSAMPLE, guided_filter
 from prismstereo.matching.select import (
     left_right_check,
     soft_argmin_local,
@@ -53,9 +53,6 @@ _TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05, "ad_gradient": 0.05}
 # narrow-range pyramid with factor 4: coverage of setup 2's step scene 93.7 -> 95.1 %); measurements in
 # docs/design.md (*How the model picks its defaults*, ``coarse_factor``)
 _SHIFT_FILL = 0.75
-# 'guided' aggregation: the guided filter's radius (level px), regularisation and subsampling (MatchOptions'
-# defaults, chosen on Middlebury)
-GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE = 13, 1e-4, 2
 _STRIP_VOXELS = 400_000  # fine band voxels per strip in torch eager (~1.6 MB per float32 volume: cache-sized)
 _EXPORT_STRIP_VOXELS = 2_000_000  # per strip of an exported graph (the pyramid's bands: one piece; see FineBand)
 

@@ -19,7 +19,14 @@ import torch.nn.functional as F
 
 from prismstereo.errors import OptionError, ShapeError, check_int, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter, sgm_aggregate, sgm_aggregate_guided
-from prismstereo.matching.cost import COSTS, ad_gradient_volume, cost_volume
+from prismstereo.matching.cost import (
+    AD_THRESHOLD,
+    COSTS,
+    GRADIENT_THRESHOLD,
+    GRADIENT_WEIGHT,
+    ad_gradient_volume,
+    cost_volume,
+)
 from prismstereo.matching.postprocess import fill_background, median_filter, weighted_median
 from prismstereo.matching.select import (
     left_right_check,
@@ -35,6 +42,9 @@ RectifiedCost = Literal["census", "sad", "zncc", "ad_gradient"]
 RECTIFIED_COSTS: tuple[str, ...] = COSTS
 Aggregation = Literal["box", "sgm", "guided"]
 OutOfRange = Literal["worst", "replicate"]
+# the guided filter's radius, regularisation and subsampling (chosen on Middlebury): MatchOptions' defaults and the
+# depth model's 'guided' aggregation (prismstereo.matching.levels)
+GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE = 13, 1e-4, 2
 SubpixelCost = Literal["local", "sad"]
 
 
@@ -121,14 +131,14 @@ class MatchOptions:
     window: int = 7
     census_threshold: float = 2.0 / 255.0
     grey: bool = True
-    ad_threshold: float = 7.0 / 255.0
-    gradient_threshold: float = 2.0 / 255.0
-    gradient_weight: float = 0.95
+    ad_threshold: float = AD_THRESHOLD
+    gradient_threshold: float = GRADIENT_THRESHOLD
+    gradient_weight: float = GRADIENT_WEIGHT
     box: int = 1
     aggregation: Aggregation = "guided"
-    guided_radius: int = 13
-    guided_eps: float = 1e-4
-    guided_subsample: int = 2
+    guided_radius: int = GUIDED_RADIUS
+    guided_eps: float = GUIDED_EPS
+    guided_subsample: int = GUIDED_SUBSAMPLE
     directions: int = 8
     p1: float = 32.0
     p2: float = 384.0
