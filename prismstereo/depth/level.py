@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -35,7 +35,7 @@ from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.series import series_at, sweep_series
 from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_hypotheses, sweep_to_depth
 from prismstereo.epipolar.sweep_table import tabulate_sweep, valid_interval
-from prismstereo.errors import OptionError
+from prismstereo.errors import OptionError, check_option
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_std
@@ -53,7 +53,7 @@ from prismstereo.matching.levels import FineBand, SearchOptions, extend_estimate
 from prismstereo.matching.postprocess import robust_mean
 from prismstereo.matching.split import SplitImage
 
-__all__ = ["DepthLevel", "LevelEstimate", "Placement"]
+__all__ = ["DepthLevel", "LevelEstimate", "Placement", "upsample"]
 
 
 class Placement(NamedTuple):
@@ -97,6 +97,28 @@ def _resolved_search(config: StereoConfig, num_hypotheses: int, factor: int, ban
                      validity: str) -> StereoConfig:
     return config.replace(search={"num_hypotheses": num_hypotheses, "coarse_factor": factor, "band": band,
                                   "sampling": sampling}, validity={"validity": validity})
+
+
+def upsample(t: torch.Tensor, factor: int, size: tuple[int, int], mode: Literal["nearest", "bilinear"] = "nearest",
+             beyond: Literal["replicate", "zero"] = "replicate") -> torch.Tensor:
+    """A level's (B, C, h, w) map at the ``factor`` times finer resolution of ``size`` (H, W): level pixel i covers
+    pixels f i ... f i + f - 1 ('nearest'; 'bilinear' interpolates between the pixel centres, align_corners=False).
+    A level binned by f may end short of the finer one (its size rounded down): the rows and columns beyond it
+    repeat its last one (``beyond='replicate'``) or are 0 (``'zero'``); a level that reaches past it is cut.
+
+    Example:
+        >>> upsample(torch.ones(1, 1, 2, 2), 2, (5, 5), beyond="zero")[0, 0, :, -1].tolist()
+        [0.0, 0.0, 0.0, 0.0, 0.0]
+    """
+    check_option(mode, ("nearest", "bilinear"), "mode")
+    check_option(beyond, ("replicate", "zero"), "beyond")
+    corners = {} if mode == "nearest" else {"align_corners": False}
+    t = F.interpolate(t, scale_factor=factor, mode=mode, **corners)
+    h, w = size
+    if t.shape[-2] < h or t.shape[-1] < w:
+        pad = (0, max(0, w - t.shape[-1]), 0, max(0, h - t.shape[-2]))
+        t = F.pad(t, pad, mode="replicate") if beyond == "replicate" else F.pad(t, pad)
+    return t[..., :h, :w]
 
 
 class DepthLevel(nn.Module):
@@ -257,13 +279,7 @@ class DepthLevel(nn.Module):
             s_c, reach = extend_estimate(s_c, valid_c, radius)
 
         def up(t: torch.Tensor, mode: str = "nearest") -> torch.Tensor:
-            # level pixel i covers full pixels f i ... f i + f - 1; a binned level may end short of the
-            # reference half (its width rounded down): replicate its last row / column
-            corners = {} if mode == "nearest" else {"align_corners": False}
-            t = F.interpolate(t.to(ref.dtype), scale_factor=f, mode=mode, **corners)
-            if t.shape[-2] < h or t.shape[-1] < w_ref:
-                t = F.pad(t, (0, max(0, w_ref - t.shape[-1]), 0, max(0, h - t.shape[-2])), mode="replicate")
-            return t[..., :h, :w_ref]
+            return upsample(t.to(ref.dtype), f, (h, w_ref), mode)
 
         s0 = up(s_c, "bilinear").detach().clamp(-1.0, 1.0)
         calibrated = config.validity.validity == "calibrated"

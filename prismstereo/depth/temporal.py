@@ -38,7 +38,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo.depth.level import DepthLevel
+from prismstereo.depth.level import DepthLevel, upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.series import series_at
 from prismstereo.epipolar.sweep import depth_to_sweep, sweep_to_depth
@@ -186,12 +186,6 @@ class TemporalDepth(nn.Module):
             except OptionError as exc:
                 raise OptionError(f"downsample {k} leaves no level for the temporal band: {exc}") from exc
         self.level = final
-        inside = None  # the full-resolution pixels of a binned pixel, when some are not (beyond its last row / column)
-        rows, cols = k * final.rig.image_height, k * final.rig.reference_width
-        if (rows, cols) != (model.rig.image_height, model.rig.reference_width):
-            inside = torch.zeros(1, 1, model.rig.image_height, model.rig.reference_width)
-            inside[..., :rows, :cols] = 1.0
-        self.register_buffer("inside", inside, persistent=False)
         band_options = dataclasses.replace(final.fine.options, band_edges=self.options.band_edges)
         # 'clamp': the fit may reach the band's outer sample (a prior one step behind the motion is followed within
         # the frame, not over several: see the module docstring)
@@ -261,29 +255,18 @@ class TemporalDepth(nn.Module):
     def _full_resolution(self, result: DepthResult, z_range: torch.Tensor) -> DepthResult:
         """A binned level's result (B, *, h, w) at the model's full resolution (B, *, H, W_ref): the sweep
         coordinate interpolated bilinearly, after each binned pixel without a depth (not valid; dense: not
-        covered) took the mean of its neighbours with one (so valid pixels interpolate valid neighbours only);
+        covered) took the mean of its neighbours with one (:func:`~prismstereo.matching.levels.extend_estimate`,
+        radius 1: valid pixels interpolate valid neighbours only);
         validity and confidence per block, none beyond the binned level's last row and column."""
         final, k = self.model.final, self.downsample
-        h, w = self.rig.image_height, self.rig.reference_width
+        size = (self.rig.image_height, self.rig.reference_width)
         dense = final.config.validity.dense
-        has = (result.confidence > 0 if dense else result.valid).to(result.depth.dtype)
-        s = depth_to_sweep(result.depth, z_range) * has  # (a depth where none is may be anything: dropped here)
-        total = F.avg_pool2d(torch.cat([s, has], 1), 3, 1, 1, count_include_pad=False)
-        neighbours = total[:, :1] / total[:, 1:].clamp_min(1e-6)
-        s = s + (1.0 - has) * neighbours
-
-        def up(t: torch.Tensor, mode: str) -> torch.Tensor:
-            corners = {"align_corners": False} if mode == "bilinear" else {}
-            t = F.interpolate(t, scale_factor=k, mode=mode, **corners)
-            if t.shape[-2] < h or t.shape[-1] < w:  # (a static size: no graph node when the binning divides it)
-                t = F.pad(t, (0, w - t.shape[-1], 0, h - t.shape[-2]), mode="replicate")
-            return t
-
-        s = up(s, "bilinear").clamp(-1.0, 1.0)
-        shown, confidence = up(torch.cat([has, result.confidence], 1), "nearest").split(1, 1)
-        if self.inside is not None:
-            shown, confidence = shown * self.inside, confidence * self.inside
-        valid = shown > 0.5 if not dense else (up(result.valid.to(s.dtype), "nearest") * shown) > 0.5
+        has = result.confidence > 0 if dense else result.valid
+        s = extend_estimate(depth_to_sweep(result.depth, z_range), has, 1).s
+        s = upsample(s, k, size, "bilinear").clamp(-1.0, 1.0)
+        maps = torch.cat([has.to(s.dtype), result.confidence], 1)
+        shown, confidence = upsample(maps, k, size, beyond="zero").split(1, 1)
+        valid = shown > 0.5 if not dense else (upsample(result.valid.to(s.dtype), k, size, beyond="zero") > 0.5)
         return DepthResult(sweep_to_depth(s, z_range), valid, confidence * shown, (s + 1.0) / final.step,
                            torch.cat(series_at(final.series, s), 1))
 

@@ -5,7 +5,7 @@ import torch
 
 from prismstereo import OptionError, thesis_setup1
 from prismstereo.config import StereoConfig
-from prismstereo.depth.level import DepthLevel, Placement
+from prismstereo.depth.level import DepthLevel, Placement, upsample
 from prismstereo.epipolar.sweep import depth_to_sweep
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
@@ -98,3 +98,19 @@ def test_level_errors(capture):
     with pytest.raises(OptionError, match="a placed level needs the coarser level's result"):
         level.depth(capture, Placement(torch.zeros(1, 1, 96, 64), torch.ones(1, 1, 96, 64, dtype=torch.bool),
                                        torch.ones(1, 1, 96, 64), 2))
+
+
+def test_upsample_covers_the_finer_level_and_its_errors():
+    """Each level pixel covers f x f pixels; rows and columns the level does not reach repeat its last one or are
+    0; a level reaching past the finer size is cut; options outside the choices are refused."""
+    t = torch.arange(4.0).view(1, 1, 2, 2)
+    near = upsample(t, 2, (5, 5))
+    assert near.shape == (1, 1, 5, 5) and near[0, 0, 0].tolist() == [0.0, 0.0, 1.0, 1.0, 1.0]
+    assert upsample(t, 2, (5, 5), beyond="zero")[0, 0, 4].tolist() == [0.0] * 5
+    assert upsample(t, 2, (3, 3)).shape == (1, 1, 3, 3)
+    linear = upsample(t, 2, (4, 4), "bilinear")  # between the centres of 0 and 1: 0.25 and 0.75
+    assert linear[0, 0, 0].tolist() == [0.0, 0.25, 0.75, 1.0]
+    with pytest.raises(OptionError, match="Unknown beyond 'wrap'"):
+        upsample(t, 2, (4, 4), beyond="wrap")
+    with pytest.raises(OptionError, match="Unknown mode 'bicubic'"):
+        upsample(t, 2, (4, 4), "bicubic")
