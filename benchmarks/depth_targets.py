@@ -25,8 +25,9 @@ captures (``--downsample 1``: the full-resolution coarse level, an earlier defau
 hypotheses.
 
 ``--band-edges clamp`` refines pixels whose best hypothesis is on the edge of their band from that edge's inner
-neighbour instead of rejecting them (``band_edges='clamp'``; with ``--downsample 2 --full-band 1``
-the fast full-resolution setting).
+neighbour instead of rejecting them, in every band (``band_edges='clamp'``; with ``--downsample 2 --full-band 1``
+the fast full-resolution setting); ``--band-edges reject`` rejects them in every band. By default the final band
+clamps and a pyramid's binned level rejects.
 
 ``--coarse-factor F`` and ``--band R`` set the coarse level's factor and the half width of the band after it (the
 binned model's in a pyramid).
@@ -61,7 +62,7 @@ from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render,
 THESIS_DEPTHS = (228.0, 312.0, 353.0, 418.0, 525.0, 625.0, 780.0, 936.0, 1192.0, 1374.0)
 Z_RANGE = (205.0, 1511.0)
 # the command line's values of options it was not given (left to a --preset)
-DEFAULTS = {"sampling": "rectified", "band_edges": "reject", "directions": 4, "dense": False}
+DEFAULTS = {"sampling": "rectified", "directions": 4, "dense": False}
 SETUPS = {"1": thesis_setup1, "2": thesis_setup2}
 
 
@@ -106,8 +107,9 @@ def main() -> None:
                              "model's)")
     parser.add_argument("--full-band", type=int, default=None, metavar="R",
                         help="with --downsample: a final full-resolution band of 2R+1 hypotheses (full_band=R)")
-    parser.add_argument("--band-edges", choices=("reject", "clamp"), default="reject",
-                        help="option band_edges=...: pixels whose best hypothesis is on a band's edge")
+    parser.add_argument("--band-edges", choices=("reject", "clamp"), default=None,
+                        help="option band_edges=...: pixels whose best hypothesis is on a band's edge (default: "
+                             "the model's)")
     parser.add_argument("--coarse-factor", type=int, default=None, metavar="F",
                         help="option coarse_factor=F (of the binned model with --downsample); default: the "
                              "model's")

@@ -385,9 +385,9 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
                              "hypotheses around the binned estimate (0: each pixel its block's value; "
                              "default: 0 with an explicit --downsample)")
     parser.add_argument("--band-edges", choices=("reject", "clamp"), default=None,
-                        help="a pixel whose best hypothesis is on the edge of its final band: invalid (reject, "
-                             "default) or refined from the edge's inner neighbour (clamp; with --full-band 1 the "
-                             "fast full-resolution setting)")
+                        help="a pixel whose best hypothesis is on the edge of its band: invalid (reject) or "
+                             "refined from the edge's inner neighbour (clamp, every band; with --full-band 1 the "
+                             "fast full-resolution setting); default: the final band clamps, a binned level rejects")
     parser.add_argument("--learned", action="store_true",
                         help="the learned model (prismstereo.learned.LearnedStereo) with its shipped weights "
                              "instead of the classical one (--hypotheses: its D, default 48)")

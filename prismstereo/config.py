@@ -77,8 +77,11 @@ class SearchConfig:
         band: R of the fine band after the coarse level, s0 + j step for j = -R..R; None: f + 1 (ceil(3 f / 4)
             in a pyramid's binned level, whose estimate only places the full-resolution band).
         band_edges: a fine band's pixel whose best hypothesis is on the band's edge (its match lies beyond the
-            band): 'reject' makes it invalid; 'clamp' refines at the edge's inner neighbour (faster with a band
-            of 3; more false matches on ``thesis_setup2``).
+            band): 'reject' makes it invalid; 'clamp' refines at the edge's inner neighbour (every band, with the
+            confidence weights of the fast setting, a full-resolution band of 3); None: the final band clamps and
+            the default confidence judges its pixels, while a pyramid's binned level, which only places that band,
+            rejects (more coverage on planes, under defocus and on photographs than 'reject' everywhere, slightly
+            more false matches).
         sampling: how the coarse (or single) level samples the other half: 'rectified' (a 1-D shift volume on
             row-rectified halves) or 'sweep' (the exact per-pixel plane sweep); None: 'rectified' for a coarse
             level, 'sweep' for a single level.
@@ -93,13 +96,14 @@ class SearchConfig:
     full_band: int | None = None
     coarse_factor: int | None = None
     band: int | None = None
-    band_edges: str = "reject"
+    band_edges: str | None = None
     sampling: str | None = None
     coarse_reach: int = 1
     lr_threshold: float | None = None
 
     def __post_init__(self) -> None:
-        check_option(self.band_edges, BAND_EDGES, "band_edges")
+        if self.band_edges is not None:
+            check_option(self.band_edges, BAND_EDGES, "band_edges")
         if self.sampling is not None:
             check_option(self.sampling, SAMPLINGS, "sampling")
         check_int(self.num_hypotheses, "num_hypotheses", 2, none=True)

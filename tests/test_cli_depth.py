@@ -105,7 +105,7 @@ def test_band_edges_clamp_reaches_the_model(scene, tmp_path, capsys):
     assert _run(scene, scene / "far.png", *args, "--band-edges", "clamp") == 0
     assert "band +-1 of " in (text := capsys.readouterr().out) and "band edges clamped" in text
     clamped = np.isfinite(np.load(out)).sum()
-    assert _run(scene, scene / "far.png", *args) == 0
+    assert _run(scene, scene / "far.png", *args, "--band-edges", "reject") == 0
     assert "band edges clamped" not in capsys.readouterr().out
     assert clamped > np.isfinite(np.load(out)).sum()  # the band's edge pixels (more than the z-buffer removes)
     with pytest.raises(SystemExit):
@@ -117,7 +117,8 @@ def test_dense_writes_every_covered_pixel_and_its_confidence(scene, tmp_path, ca
     there is no depth); more pixels than the valid ones, the same depths where both have one."""
     plain, dense = tmp_path / "plain.npy", tmp_path / "dense.npy"
     args = ("--z-range", 400, 700, "--downsample", "2", "--full-band", "1")
-    assert _run(scene, scene / "far.png", "--out", plain, *args) == 0
+    # the valid pixels of a band that rejects its edges (the default's clamped band keeps all of this easy plane)
+    assert _run(scene, scene / "far.png", "--out", plain, *args, "--band-edges", "reject") == 0
     assert _run(scene, scene / "far.png", "--out", dense, *args, "--dense") == 0
     text = capsys.readouterr().out
     assert "with a depth (dense)" in text and "confidence dense_confidence.npy" in text

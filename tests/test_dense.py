@@ -169,16 +169,17 @@ def test_confidence_inputs_reproduce_the_models_confidence(weak):
     assert plain.smoothed_features is None and plain.smoothed_depth is None
 
 
-@pytest.mark.parametrize("options, moved, largest", [({}, 0.03, 0.005), (GUIDED, 0.35, 0.005)],
+@pytest.mark.parametrize("options, moved, largest, agree", [({}, 0.03, 0.005, 0.995), (GUIDED, 0.35, 0.005, 0.99)],
                          ids=["zncc", "guided"])
-def test_halves_differing_in_gain_and_offset_give_the_same_depth(options, moved, largest):
+def test_halves_differing_in_gain_and_offset_give_the_same_depth(options, moved, largest, agree):
     """ZNCC and the confidence's features are invariant to a gain and offset between the halves (a prism's faces
     transmit differently; vignetting differs across the field): the other half at 0.8 x + 0.05 changes neither
     the valid pixels nor their depths, up to the NCC's variance floor (a regulariser of ~1 grey level: measured
     0.2 % of the pixels move by more than 2e-4, at most by 0.03 %). The guided coarse level's 'ad_gradient' cost
     is offset-invariant in its gradient term only: it places the same bands, but its similarity (a feature of
     the calibrated confidence, and so the smoothing's weight) changes: measured 26 % of the pixels move by more
-    than 2e-4, at most by 0.12 %; the valid masks agree on 99.7 %."""
+    than 2e-4, at most by 0.12 %; the valid masks agree on 99.4 % (the clamped final band leaves more pixels to
+    that confidence's verdict; 99.7 % when it rejected its edges)."""
     rig = scaled_rig(thesis_setup1(), 4)
     from prismstereo.synthetic import fronto_parallel_plane
 
@@ -190,7 +191,7 @@ def test_halves_differing_in_gain_and_offset_give_the_same_depth(options, moved,
     with torch.no_grad():
         a, b = model(cap.image), model(darker)
     assert a.valid.float().mean() > 0.4
-    assert (a.valid == b.valid).float().mean() > 0.995
+    assert (a.valid == b.valid).float().mean() > agree
     both = a.valid & b.valid
     rel = ((b.depth - a.depth).abs() / a.depth)[both]
     assert float((rel > 2e-4).float().mean()) < moved and float(rel.max()) < largest

@@ -1,5 +1,6 @@
 """Video and image-sequence sources, the stream API (torch and ONNX) and ``prismstereo depth`` on them."""
 
+import re
 import threading
 
 import cv2
@@ -178,7 +179,10 @@ def test_depth_cli_uses_the_temporal_prior_on_videos_unless_told(clip, tmp_path,
               "--backend", backend]
     assert _depth(clip / "clip.avi", "--out", tmp_path / "a", *common) == 0
     text = capsys.readouterr().out
-    assert "temporal prior" in text and "1 key frames" in text
+    # key frames: the first, then the stream's rules; on this 128 x 96 sensor the tracked band keeps ~2.5 % fewer
+    # pixels than the key frame's clamped band, so every other frame's prior exceeds max_invalid_growth (measured
+    # 3 of 5; 2 of 20 on the 1024 x 768 moving sequence of benchmarks/video_speed.py)
+    assert "temporal prior" in text and re.search(r"\b[1-3] key frames", text), text
     assert _depth(clip / "clip.avi", "--out", tmp_path / "b", *common, "--no-temporal") == 0
     text = capsys.readouterr().out
     assert "temporal prior" not in text and "key frames" not in text

@@ -133,7 +133,11 @@ class DepthLevel(nn.Module):
             full-resolution level: f = k, R = ``full_band``, no search of its own); 0: its own coarse search.
         places_band: the level only places a pyramid's full-resolution band: its coarse factor and band take the
             pyramid's rules (:func:`~prismstereo.defaults.pyramid_coarse_factor`,
-            :func:`~prismstereo.defaults.pyramid_band`).
+            :func:`~prismstereo.defaults.pyramid_band`), and by default its band rejects its edges.
+
+    Attributes:
+        band_edges: the band's rule, resolved ('clamp' for a dense model, else the config's ``band_edges``; by
+            default 'reject' for a level that places a band, 'clamp' for the final one).
 
     Raises:
         OptionError: options that do not fit the rig (a coarse factor leaving < 8 rows, a calibrated or dense
@@ -178,8 +182,10 @@ class DepthLevel(nn.Module):
         self.num_hypotheses, self.factor, self.band, self.placed_by = num_hypotheses, factor, band, placed_by
         calibrated = level_validity == "calibrated"
         smoothing = config.refinement.smoothing
-        # a final band that clamps its edges (not a dense model's, fitted with the default) has its own weights
+        # the bands of a model asked to clamp their edges (the 'fast' preset; not a dense model's, fitted with the
+        # default) have weights of their own; by default the final band clamps and a binned level's rejects
         self.clamped_band = search.band_edges == "clamp" and not validity.dense
+        self.band_edges = "clamp" if validity.dense else search.band_edges or ("reject" if places_band else "clamp")
         stage1, stage2 = CLAMPED_WEIGHTS if self.clamped_band else (None, None)
         self.calibration = ConfidenceModel(stage1) if calibrated else None
         self.smoothed_calibration = ConfidenceModel(stage2, SMOOTHED_FEATURES) if calibrated and smoothing else None
@@ -216,7 +222,7 @@ class DepthLevel(nn.Module):
         if factor > 1:
             fine_options = dataclasses.replace(
                 options, cost=cost.fine_cost, box=aggregation.fine_box,
-                band_edges="clamp" if validity.dense else search.band_edges, wide_box=aggregation.wide_box,
+                band_edges=self.band_edges, wide_box=aggregation.wide_box,
                 weak_texture=float(aggregation.weak_texture))
             self.fine = FineBand(fine_options, band, 2.0 / (num_hypotheses - 1), self.split.split,
                                  with_match=not smoothing)  # a smoothed s gets its match afterwards

@@ -47,6 +47,39 @@ def test_the_pyramid_is_a_binned_level_placing_a_full_resolution_level(capture):
     assert torch.equal(res.depth, model(capture).depth)  # the model is exactly this composition
 
 
+@pytest.mark.parametrize("options, binned, final, own_weights", [
+    ({}, "reject", "clamp", False),  # the default: the final band clamps, the placement rejects
+    ({"band_edges": "clamp"}, "clamp", "clamp", True),  # every band, with the fast setting's weights
+    ({"band_edges": "reject"}, "reject", "reject", False),
+    ({"dense": True}, "reject", "clamp", False),
+    ({"dense": True, "band_edges": "clamp"}, "clamp", "clamp", False),
+])
+def test_band_edges_resolve_per_level(options, binned, final, own_weights, capture):
+    """band_edges None: the final band clamps its edges and the default confidence judges those pixels, while the
+    binned level, whose estimate only places that band, rejects them; an explicit rule applies to every band (a
+    clamping one with the weights of :data:`~prismstereo.matching.confidence.CLAMPED_WEIGHTS`)."""
+    model = PrismStereo(RIG, Z, {"downsample": 2, "full_band": 2, "coarse_factor": 2, **options})  # both with a band
+    assert (model.binned.band_edges, model.final.band_edges) == (binned, final)
+    assert (model.binned.fine.options.band_edges, model.final.fine.options.band_edges) == (binned, final)
+    assert model.final.clamped_band is own_weights
+    assert model.config()["band_edges"] == options.get("band_edges")  # None round-trips as None
+    one = PrismStereo(RIG, Z, {"coarse_factor": 2, **options})  # one level: its only band is the final one
+    assert one.final.band_edges == final
+
+
+def test_the_default_clamped_band_covers_more_than_rejecting_edges(capture):
+    """On a plane the clamped final band keeps pixels whose best hypothesis is on the band's edge, judged by the
+    confidence: at least the coverage of 'reject', at the same accuracy."""
+    truth = 600.0
+    with torch.no_grad():
+        default = PrismStereo(RIG, Z, {"downsample": 2, "full_band": 2})(capture)
+        reject = PrismStereo(RIG, Z, {"downsample": 2, "full_band": 2, "band_edges": "reject"})(capture)
+    both = default.valid & reject.valid
+    assert int(default.valid.sum()) > int(reject.valid.sum()) and both.sum() == reject.valid.sum()
+    rel = lambda r: float(((r.depth - truth).abs() / truth)[r.valid].mean())  # noqa: E731
+    assert rel(default) < 1.5 * rel(reject) + 1e-4, (rel(default), rel(reject))
+
+
 def test_a_guided_binned_level_searching_the_whole_range_places_by_its_search_as_it_is(capture):
     """A pyramid's binned level with coarse_factor 1 and the guided aggregation passes its search's estimate
     unsmoothed and without the similarity threshold: s, and valid where the search had a real winner; its depth()

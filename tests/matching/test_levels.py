@@ -100,7 +100,7 @@ def test_fine_band_edges_reject_or_clamp(plane):
     half a step beyond that neighbour, with the exact sweep's match there and that hypothesis' (low) confidence.
     Pixels whose best hypothesis is inside the band are the same either way."""
     rig, cap = plane
-    reject = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, smoothing=0))
+    reject = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, band_edges="reject", smoothing=0))
     clamp = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, band_edges="clamp", smoothing=0))
     assert reject.final.fine.options.band_edges == "reject" and clamp.final.fine.options.band_edges == "clamp"
     ref, other = reject.split(cap.image)
@@ -139,7 +139,7 @@ def test_fine_band_of_three_clamped_is_the_centre_refined(plane, refinement):
     at s."""
     rig, cap = plane
     options = dict(coarse_factor=2, band=1, refinement=refinement, wide_box=0, smoothing=0)  # the band's own box only
-    reject = PrismStereo(rig, (450.0, 900.0), options)
+    reject = PrismStereo(rig, (450.0, 900.0), {"band_edges": "reject", **options})
     clamp = PrismStereo(rig, (450.0, 900.0), {"band_edges": "clamp", **options})
     ref, other = reject.split(cap.image)
     truth = float(depth_to_sweep(torch.tensor(600.0), torch.tensor(reject.z_range)))
