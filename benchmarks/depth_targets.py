@@ -26,8 +26,9 @@ hypotheses.
 
 ``--band-edges clamp`` refines pixels whose best hypothesis is on the edge of their band from that edge's inner
 neighbour instead of rejecting them, in every band (``band_edges='clamp'``; with ``--downsample 2 --full-band 1``
-the fast full-resolution setting); ``--band-edges reject`` rejects them in every band. By default the final band
-clamps and a pyramid's binned level rejects.
+the fast full-resolution setting); ``--band-edges reject`` rejects them in every band. By default a band clamps
+where the calibrated confidence judges its pixels (the final band) and rejects where thresholds do (a pyramid's
+binned level, ``--validity thresholds``).
 
 ``--coarse-factor F`` and ``--band R`` set the coarse level's factor and the half width of the band after it (the
 binned model's in a pyramid).

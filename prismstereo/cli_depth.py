@@ -387,7 +387,8 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--band-edges", choices=("reject", "clamp"), default=None,
                         help="a pixel whose best hypothesis is on the edge of its band: invalid (reject) or "
                              "refined from the edge's inner neighbour (clamp, every band; with --full-band 1 the "
-                             "fast full-resolution setting); default: the final band clamps, a binned level rejects")
+                             "fast full-resolution setting); default: clamp where the calibrated confidence "
+                             "judges, reject where thresholds do (a binned level)")
     parser.add_argument("--learned", action="store_true",
                         help="the learned model (prismstereo.learned.LearnedStereo) with its shipped weights "
                              "instead of the classical one (--hypotheses: its D, default 48)")

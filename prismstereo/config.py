@@ -78,10 +78,11 @@ class SearchConfig:
             in a pyramid's binned level, whose estimate only places the full-resolution band).
         band_edges: a fine band's pixel whose best hypothesis is on the band's edge (its match lies beyond the
             band): 'reject' makes it invalid; 'clamp' refines at the edge's inner neighbour (every band, with the
-            confidence weights of the fast setting, a full-resolution band of 3); None: the final band clamps and
-            the default confidence judges its pixels, while a pyramid's binned level, which only places that band,
-            rejects (more coverage on planes, under defocus and on photographs than 'reject' everywhere, slightly
-            more false matches).
+            confidence weights of the fast setting, a full-resolution band of 3); None: a band clamps where the
+            calibrated confidence judges its pixels (the final band of a coarse-to-fine model) and rejects where
+            thresholds do (a pyramid's binned level, which only places the final band; ``validity='thresholds'``):
+            more coverage on planes, under defocus and on photographs than 'reject' everywhere, slightly more
+            false matches.
         sampling: how the coarse (or single) level samples the other half: 'rectified' (a 1-D shift volume on
             row-rectified halves) or 'sweep' (the exact per-pixel plane sweep); None: 'rectified' for a coarse
             level, 'sweep' for a single level.

@@ -133,11 +133,12 @@ class DepthLevel(nn.Module):
             full-resolution level: f = k, R = ``full_band``, no search of its own); 0: its own coarse search.
         places_band: the level only places a pyramid's full-resolution band: its coarse factor and band take the
             pyramid's rules (:func:`~prismstereo.defaults.pyramid_coarse_factor`,
-            :func:`~prismstereo.defaults.pyramid_band`), and by default its band rejects its edges.
+            :func:`~prismstereo.defaults.pyramid_band`).
 
     Attributes:
         band_edges: the band's rule, resolved ('clamp' for a dense model, else the config's ``band_edges``; by
-            default 'reject' for a level that places a band, 'clamp' for the final one).
+            default 'clamp' where the calibrated confidence judges the band's pixels, 'reject' where thresholds
+            do: a pyramid's binned level, ``validity='thresholds'``).
 
     Raises:
         OptionError: options that do not fit the rig (a coarse factor leaving < 8 rows, a calibrated or dense
@@ -183,9 +184,10 @@ class DepthLevel(nn.Module):
         calibrated = level_validity == "calibrated"
         smoothing = config.refinement.smoothing
         # the bands of a model asked to clamp their edges (the 'fast' preset; not a dense model's, fitted with the
-        # default) have weights of their own; by default the final band clamps and a binned level's rejects
+        # default) have weights of their own; by default a band clamps where the calibrated confidence judges its
+        # pixels and rejects where thresholds do (a pyramid's binned level, validity 'thresholds')
         self.clamped_band = search.band_edges == "clamp" and not validity.dense
-        self.band_edges = "clamp" if validity.dense else search.band_edges or ("reject" if places_band else "clamp")
+        self.band_edges = "clamp" if validity.dense else search.band_edges or ("clamp" if calibrated else "reject")
         stage1, stage2 = CLAMPED_WEIGHTS if self.clamped_band else (None, None)
         self.calibration = ConfidenceModel(stage1) if calibrated else None
         self.smoothed_calibration = ConfidenceModel(stage2, SMOOTHED_FEATURES) if calibrated and smoothing else None

@@ -53,11 +53,13 @@ def test_the_pyramid_is_a_binned_level_placing_a_full_resolution_level(capture):
     ({"band_edges": "reject"}, "reject", "reject", False),
     ({"dense": True}, "reject", "clamp", False),
     ({"dense": True, "band_edges": "clamp"}, "clamp", "clamp", False),
+    ({"validity": "thresholds"}, "reject", "reject", False),  # NCC thresholds do not judge clamped pixels
 ])
 def test_band_edges_resolve_per_level(options, binned, final, own_weights, capture):
-    """band_edges None: the final band clamps its edges and the default confidence judges those pixels, while the
-    binned level, whose estimate only places that band, rejects them; an explicit rule applies to every band (a
-    clamping one with the weights of :data:`~prismstereo.matching.confidence.CLAMPED_WEIGHTS`)."""
+    """band_edges None: a band clamps its edges where the calibrated confidence judges those pixels (the final
+    band) and rejects them where thresholds do (the binned level, whose estimate only places the final band;
+    ``validity='thresholds'``); an explicit rule applies to every band (a clamping one with the weights of
+    :data:`~prismstereo.matching.confidence.CLAMPED_WEIGHTS`)."""
     model = PrismStereo(RIG, Z, {"downsample": 2, "full_band": 2, "coarse_factor": 2, **options})  # both with a band
     assert (model.binned.band_edges, model.final.band_edges) == (binned, final)
     assert (model.binned.fine.options.band_edges, model.final.fine.options.band_edges) == (binned, final)
