@@ -19,7 +19,9 @@ with confidence >= c and how many of them are off by more than 1 %.
 
 Models: ``thresholds`` = ``{'validity': 'thresholds', 'smoothing': 0}`` (NCC >= 0.5 and a coarse uniqueness
 >= 0.3: the earlier default), ``unsmoothed`` = the calibrated confidence without the smoothing of the estimate
-(``smoothing=0``), ``default`` = the model's defaults (calibrated confidence >= 0.5, smoothing), ``fast`` = the
+(``smoothing=0``), ``reject edges`` = the defaults with ``band_edges='reject'`` (the final band's edge pixels
+invalid instead of refined from the inner neighbour and judged by the confidence: the previous default),
+``default`` = the model's defaults (calibrated confidence >= 0.5, smoothing), ``fast`` = the
 ``'fast'`` preset (a full-resolution band of 3 with clamped edges, its own confidence weights), ``dense`` = the
 ``'dense'`` preset (``dense=True``, ``coarse_factor=2``, the coarse level matched by cost-volume filtering:
 ``cost='ad_gradient', aggregation='guided', box=1``; coverage counts every pixel with a depth, and its ``valid``
@@ -54,7 +56,8 @@ from prismstereo.synthetic import (  # noqa: E402
 )
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
-MODELS = {"thresholds": {"validity": "thresholds", "smoothing": 0}, "unsmoothed": {"smoothing": 0}, "default": {},
+MODELS = {"thresholds": {"validity": "thresholds", "smoothing": 0}, "unsmoothed": {"smoothing": 0},
+          "reject edges": {"band_edges": "reject"}, "default": {},
           "fast": preset("fast").to_kwargs(), "dense": preset("dense").to_kwargs(),
           "dense sgm": {"dense": True, "coarse_factor": 2},
           "dense cf1": preset("dense").with_options(coarse_factor=1).to_kwargs()}
