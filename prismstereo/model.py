@@ -56,7 +56,7 @@ from prismstereo._graph import tracing
 from prismstereo.batching import per_image
 from prismstereo.config import StereoConfig, preset
 from prismstereo.defaults import default_coarse_factor, default_downsample
-from prismstereo.depth.level import DepthLevel
+from prismstereo.depth.level import DepthLevel, upsample
 from prismstereo.depth.range import default_z_range
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import sweep_hypotheses, sweep_to_depth
@@ -337,8 +337,7 @@ class PrismStereo(nn.Module):
         w_ref = self.rig.reference_width
 
         def up(t: torch.Tensor) -> torch.Tensor:  # nearest: each pixel gets its block's value; 0 beyond
-            t = F.interpolate(t, scale_factor=k, mode="nearest")
-            return F.pad(t, (0, w_ref - t.shape[-1], 0, h - t.shape[-2]))
+            return upsample(t, k, (h, w_ref), beyond="zero")
 
         match = res.match * k + (k - 1) / 2  # binned -> full-sensor pixels (block centres)
         valid = up(res.valid.to(res.depth.dtype)) > 0.5
