@@ -5,25 +5,32 @@ Renders training captures of ``thesis_setup1`` and ``thesis_setup2`` at full res
 renderer: fronto-parallel planes (near ones included, where most of the reference half is not co-visible),
 slanted planes, depth steps, and smooth procedural height fields whose texture is strong in some regions and
 nearly absent in others (contrast 0.01-0.21, with slow shading), with read noise of 1-2 grey levels and some
-blur. None of the held-out scenes of ``benchmarks/dense_depth.py`` (the Middlebury photographs, the defocus
-captures) is used. Every pixel with an estimate is a sample: correct when it is co-visible and its depth is
-within 1 % of the truth, wrong otherwise (pixels the other half does not see included). Prints the fitted
-weights (paste them into ``DEFAULT_WEIGHTS``), the training log-loss and, per capture, the coverage and
-wrong share at p >= 0.5. Then the second stage, the re-scoring after the model's smoothing
-(``SMOOTHED_WEIGHTS``, on :data:`~prismstereo.matching.confidence.SMOOTHED_FEATURES` of the smoothed depth):
-it is fitted on the model's current first stage, so after pasting new ``DEFAULT_WEIGHTS`` run the script
-again for the second. ``--presets fast`` fits the weights of models whose final band clamps its edges
-(``CLAMPED_WEIGHTS``: stage 1, then stage 2 the same way).
+blur; and photographs: scikit-image's sample of the Middlebury 2014 *Motorcycle* pair with its true disparity
+(:func:`~prismstereo.synthetic.disparity_scene`, three depth ranges, one mirrored) and two of its other sample
+photographs on procedural bumps (``--photos DIR``: a folder with scikit-image's files; default: the installed
+``skimage/data``, ``pip install -e .[fit]``; ``--photos none`` leaves them out). None of the held-out scenes of
+``benchmarks/dense_depth.py`` (the Middlebury photographs Tsukuba and Venus, the defocus captures) is used.
+Every pixel with an estimate is a sample: correct when it is co-visible and its depth is within 1 % of the truth,
+wrong otherwise (pixels the other half does not see included). Prints the fitted weights (paste them into
+``DEFAULT_WEIGHTS``), the training log-loss and, per capture, the coverage and wrong share at p >= 0.5. Then the
+second stage, the re-scoring after the model's smoothing (``SMOOTHED_WEIGHTS``, on
+:data:`~prismstereo.matching.confidence.SMOOTHED_FEATURES` of the smoothed depth), fitted on the smoothing that the
+new first stage weights (the models are run again with it). ``--presets fast`` fits the weights of models whose
+final band clamps its edges (``CLAMPED_WEIGHTS``).
 
-Run: .venv/bin/python benchmarks/fit_confidence.py [--cache DIR] [--scenes N] [--z-range ZMIN ZMAX]
+Run: .venv/bin/python benchmarks/fit_confidence.py [--cache DIR] [--scenes N] [--photos DIR | none]
+[--z-range ZMIN ZMAX]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 from pathlib import Path
 
+import cv2
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -35,6 +42,7 @@ from prismstereo.model import PrismStereo
 from prismstereo.synthetic import (
     ImageFormation,
     Scene,
+    disparity_scene,
     fronto_parallel_plane,
     height_field_scene,
     render,
@@ -44,6 +52,9 @@ from prismstereo.synthetic import (
 
 SETUPS = {"1": thesis_setup1, "2": thesis_setup2}
 SAMPLES_PER_CAPTURE = 200_000
+PHOTOS = ("astronaut.png", "coffee.png", "chelsea.png", "rocket.jpg", "camera.png", "brick.png", "grass.png",
+          "gravel.png")
+MOTORCYCLE_RANGES = ((450.0, 900.0), (300.0, 600.0), (700.0, 1300.0))
 
 
 def procedural_surface(seed: int, h: int = 360, w: int = 480) -> tuple[torch.Tensor, torch.Tensor]:
@@ -79,77 +90,127 @@ def training_scenes(rig: BiPrismRig, seed: int, count: int, z_range: tuple[float
     return scenes
 
 
+def photo_folder(choice: str | None) -> Path | None:
+    """The folder of the training photographs: ``choice``, None's default scikit-image's installed sample data, or
+    None for ``'none'``."""
+    if choice == "none":
+        return None
+    if choice is not None:
+        return Path(choice)
+    spec = importlib.util.find_spec("skimage")
+    if spec is None or not spec.submodule_search_locations:
+        raise SystemExit("the training photographs come from scikit-image's sample data: pip install -e .[fit] "
+                         "(or --photos DIR with its files, or --photos none)")
+    return Path(next(iter(spec.submodule_search_locations))) / "data"
+
+
+def grey(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise SystemExit(f"cannot read {path}")
+    return img
+
+
+def photo_scenes(folder: Path, seed: int, z_range: tuple[float, float]) -> list[Scene]:
+    """The Motorcycle pair's left photograph with its true depth over three ranges (the second mirrored), then two
+    sample photographs (picked by ``seed``) on procedural bumps."""
+    gen = torch.Generator().manual_seed(seed)
+    picture = torch.from_numpy(grey(folder / "motorcycle_left.png")).float() / 255.0
+    disparity = torch.from_numpy(np.load(folder / "motorcycle_disp.npz")["arr_0"])
+    scenes = []
+    for j, (near, far) in enumerate(MOTORCYCLE_RANGES):
+        pic, disp = (picture.flip(-1), disparity.flip(-1)) if j == 1 else (picture, disparity)
+        scenes.append(disparity_scene(pic, disp, near, far, name=f"motorcycle_{near:.0f}-{far:.0f}"))
+    lo, hi = z_range
+    for j in range(2):
+        name = PHOTOS[int(torch.randint(len(PHOTOS), (1,), generator=gen))]
+        img = grey(folder / name)
+        _, bumps = procedural_surface(seed * 100 + 50 + j, img.shape[0], img.shape[1])
+        z = lo + 100 + (hi - lo - 400) * float(torch.rand(1, generator=gen))
+        depth = (z + 0.1 * z * bumps).clamp(lo + 10, hi - 10)
+        scenes.append(height_field_scene(depth, torch.from_numpy(img).float() / 255.0, width_mm=z * 0.21,
+                                         name=f"photo_{Path(name).stem}_{z:.0f}mm"))
+    return scenes
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cache", type=Path, default=Path(".cache/fit_confidence"), help="renders kept here")
     parser.add_argument("--scenes", type=int, default=10, help="training scenes per setup and sensor size")
+    parser.add_argument("--photos", default=None,
+                        help="folder of scikit-image's sample photographs (default: the installed package's), or none")
     parser.add_argument("--presets", nargs="+", default=("accurate",),
                         help="model presets whose estimates are the samples (one confidence is fitted to them all)")
     parser.add_argument("--scales", type=int, nargs="+", default=(1, 2),
                         help="sensor downscale factors (1: the 1024 x 768 pyramid; 2: 512 x 384, one level)")
     parser.add_argument("--z-range", type=float, nargs=2, default=(205.0, 1511.0), metavar=("ZMIN", "ZMAX"))
     args = parser.parse_args()
-    torch.manual_seed(0)
+    photos = photo_folder(args.photos)
     args.cache.mkdir(parents=True, exist_ok=True)
-    xs, ys, per_capture = [], [], []
-    xs2, ys2, per_capture2 = [], [], []
+    captures = []  # (rig, label prefix, scene name, cache path)
     for key, make, scale in ((k, m, s) for k, m in SETUPS.items() for s in args.scales):
         rig = make().downscaled(scale)
-        models = {name: PrismStereo.from_config(rig, tuple(args.z_range), name) for name in args.presets}
-        w = rig.reference_width
         prefix = f"setup{key}" if scale == 1 else f"setup{key}_x{scale}"
-        for i, scene in enumerate(training_scenes(rig, int(key) + 10 * (scale - 1), args.scenes,
-                                                  tuple(args.z_range))):
+        seed = int(key) + 10 * (scale - 1)
+        scenes = training_scenes(rig, seed, args.scenes, tuple(args.z_range))
+        if photos is not None:
+            scenes += photo_scenes(photos, seed, tuple(args.z_range))
+        for i, scene in enumerate(scenes):
             path = args.cache / f"{prefix}_{i}_{scene.name}.pt"
-            if path.exists():
-                capture = torch.load(path)
-            else:
+            if not path.exists():
                 formation = ImageFormation(supersample=2, noise_sigma=(1 + i % 2) / 255,
                                            blur_sigma_px=(0.0, 0.0, 1.0, 2.0)[(i // 2) % 4], seed=i)
-                capture = render(rig, scene, formation)._asdict()
-                torch.save(capture, path)
-            for preset_name, model in models.items():
-                label = f"{prefix} {preset_name} {scene.name}"
+                torch.save(render(rig, scene, formation)._asdict(), path)
+            captures.append((rig, prefix, scene.name, path))
+    models = {}  # per rig: the presets' models
+    first = None
+    for stage, names in ((1, FEATURES), (2, SMOOTHED_FEATURES)):
+        torch.manual_seed(0)  # the same samples in both stages
+        xs, ys, per_capture = [], [], []
+        for rig, prefix, scene_name, path in captures:
+            if rig not in models:
+                models[rig] = {n: PrismStereo.from_config(rig, tuple(args.z_range), n) for n in args.presets}
+            capture = torch.load(path)
+            w = rig.reference_width
+            for preset_name, model in models[rig].items():
+                if first is not None:  # stage 2 re-scores the smoothing that the new first stage weights
+                    model.final.calibration = ConfidenceModel(first)
+                label = f"{prefix} {preset_name} {scene_name}"
                 with torch.inference_mode():
                     inputs = model.confidence_inputs(capture["image"])
                 gt, covisible = capture["depth"][..., :w], capture["covisible"][..., :w]
-                correct = covisible & ((inputs.depth.double() - gt).abs() <= 0.01 * gt)
+                depth = inputs.depth if stage == 1 else inputs.smoothed_depth
+                features = inputs.features if stage == 1 else inputs.smoothed_features
+                correct = covisible & ((depth.double() - gt).abs() <= 0.01 * gt)
                 sel = inputs.sampled[:, 0]
-                x = inputs.features.permute(0, 2, 3, 1)[sel].double()
                 y = correct[:, 0][sel]
                 keep = torch.randperm(len(y))[:SAMPLES_PER_CAPTURE]
-                xs.append(x[keep])
+                xs.append(features.permute(0, 2, 3, 1)[sel].double()[keep])
                 ys.append(y[keep])
-                per_capture.append((label, inputs.features, inputs.sampled, covisible, correct))
-                correct2 = covisible & ((inputs.smoothed_depth.double() - gt).abs() <= 0.01 * gt)
-                x2 = inputs.smoothed_features.permute(0, 2, 3, 1)[sel].double()
-                xs2.append(x2[keep])
-                ys2.append(correct2[:, 0][sel][keep])
-                per_capture2.append((label, inputs.smoothed_features, inputs.sampled, covisible, correct2))
-                print(f"{label}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct", flush=True)
-    losses = []
-    clamped = all(m.final.clamped_band for m in models.values())
-    labels = ("CLAMPED_WEIGHTS[0]", "CLAMPED_WEIGHTS[1]") if clamped else ("DEFAULT_WEIGHTS", "SMOOTHED_WEIGHTS")
-    for names, label, xs_, ys_, captures in ((FEATURES, labels[0], xs, ys, per_capture),
-                                             (SMOOTHED_FEATURES, labels[1], xs2, ys2, per_capture2)):
-        x, y = torch.cat(xs_), torch.cat(ys_)
+                per_capture.append((label, features, inputs.sampled, covisible, correct))
+                if stage == 1:
+                    print(f"{label}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct",
+                          flush=True)
+        clamped = all(m.final.clamped_band for ms in models.values() for m in ms.values())
+        label = f"CLAMPED_WEIGHTS[{stage - 1}]" if clamped else ("DEFAULT_WEIGHTS", "SMOOTHED_WEIGHTS")[stage - 1]
+        x, y = torch.cat(xs), torch.cat(ys)
         weights = fit_confidence(x, y)
         logit = x @ weights[:-1] + weights[-1]
         loss = float(F.binary_cross_entropy_with_logits(logit, y.double()))
-        losses.append(loss)
         print(f"\nfeatures {', '.join(names)}, bias; {len(y)} samples, log-loss {loss:.4f}")
         print(f"{label} = (" + ", ".join(f"{v:.3f}" for v in weights.tolist()) + ")")
+        if not math.isfinite(loss):
+            raise SystemExit("the fit diverged")
+        first = [round(v, 3) for v in weights.tolist()]  # as printed (and pasted)
         calibration = ConfidenceModel(weights, names)
         print(f"\n{'capture':40s} {'cover %':>8s} {'wrong %':>8s}   (p >= 0.5, co-visible pixels)")
-        for name, features, sampled, covisible, correct in captures:
+        for name, features, sampled, covisible, correct in per_capture:
             with torch.inference_mode():
                 p = calibration(features.float())
             accepted = sampled & (p >= 0.5) & covisible
             cover = 100 * float(accepted.sum() / covisible.sum().clamp_min(1))
             wrong = 100 * float((accepted & ~correct).sum() / accepted.sum().clamp_min(1))
             print(f"{name:40s} {cover:8.1f} {wrong:8.2f}")
-    if not all(math.isfinite(v) for v in losses):
-        raise SystemExit("the fit diverged")
 
 
 if __name__ == "__main__":

@@ -44,6 +44,7 @@ __all__ = [
     "slanted_plane",
     "step_scene",
     "sphere_scene",
+    "disparity_scene",
     "height_field_scene",
     "middlebury_scene",
     "vector3",
@@ -464,17 +465,61 @@ def height_field_scene(
     return Scene([field], name=name)
 
 
+def disparity_scene(
+    picture: torch.Tensor, disparity: torch.Tensor, near_mm: float = 450.0, far_mm: float = 700.0,
+    width_mm: float | None = None, name: str = "disparity",
+) -> Scene:
+    """A stereo photograph placed in front of the prism with the depth structure of its disparity map.
+
+    Disparity is mapped to depth as a real stereo camera does, 1/Z linear in disparity, with the largest
+    disparity at ``near_mm`` and the smallest at ``far_mm``; pixels without a disparity (not finite or <= 0) are
+    filled by inpainting (OpenCV's Telea). ``width_mm`` defaults to the width that fills the sensor at ``far_mm``
+    for a 25 mm lens and a 4.76 mm sensor (190 mm at 1 m).
+
+    Args:
+        picture: (C, h, w) or (h, w) photograph in [0, 1].
+        disparity: (h, w) its disparity map (any positive unit; invalid entries not finite or <= 0).
+        near_mm, far_mm: depths of the largest and smallest disparity.
+        width_mm: physical width of the picture.
+        name: the scene's name.
+
+    Raises:
+        SceneError: bad depths, sizes that differ, fewer than 16 pixels with a disparity.
+
+    Example:
+        >>> disparity = torch.linspace(10.0, 20.0, 40).expand(30, 40)
+        >>> field = disparity_scene(torch.rand(30, 40), disparity, 450.0, 700.0).surfaces[0]
+        >>> round(field.z_min, 1), round(field.z_max, 1)
+        (450.0, 700.0)
+    """
+    near_mm, far_mm = _positive_depth(near_mm, "near_mm"), _positive_depth(far_mm, "far_mm")
+    if not near_mm < far_mm:
+        raise SceneError(f"near_mm must be smaller than far_mm, got {near_mm}, {far_mm}")
+    if not isinstance(disparity, torch.Tensor) or disparity.dim() != 2 or picture.shape[-2:] != disparity.shape:
+        raise SceneError(f"disparity must be an (h, w) tensor of the picture's size {tuple(picture.shape[-2:])}")
+    disp = disparity.detach().cpu().numpy().astype(np.float32)
+    known = np.isfinite(disp) & (disp > 0)
+    if known.sum() < 16:
+        raise SceneError("the disparity map has no usable values (fewer than 16 finite, positive)")
+    d_min, d_max = float(disp[known].min()), float(disp[known].max())
+    inv = 1.0 / far_mm + (np.where(known, disp, d_min) - d_min) / max(d_max - d_min, 1e-6) * (
+        1.0 / near_mm - 1.0 / far_mm)
+    depth = np.where(known, 1.0 / np.maximum(inv, 1e-9), 0.0).astype(np.float32)
+    depth = cv2.inpaint(depth, (~known).astype(np.uint8), 5, cv2.INPAINT_TELEA)
+    depth = np.clip(depth, near_mm, far_mm)
+    if width_mm is None:
+        width_mm = far_mm * 4.7616 / 25.0
+    return height_field_scene(torch.from_numpy(depth), picture, width_mm, name=name)
+
+
 def middlebury_scene(
     folder: str | Path, near_mm: float = 450.0, far_mm: float = 700.0, width_mm: float | None = None,
     scale: float | None = None, channels: int = 1,
 ) -> Scene:
-    """A Middlebury pair's left photograph placed in front of the prism with its true depth structure.
-
-    Disparity is mapped to depth as a real stereo camera does, 1/Z linear in disparity, with the largest
-    disparity at ``near_mm`` and the smallest at ``far_mm``; pixels without ground truth are filled by
-    inpainting. ``scale`` divides the stored disparity (16 for Tsukuba's .pgm, 8 for Venus' .png by
-    default, from the folder's README). ``width_mm`` defaults to the width that fills the sensor at
-    ``far_mm`` for a 25 mm lens and a 4.76 mm sensor (190 mm at 1 m).
+    """A Middlebury pair's left photograph placed in front of the prism with its true depth structure
+    (:func:`disparity_scene`: 1/Z linear in disparity from ``far_mm`` to ``near_mm``, pixels without ground truth
+    inpainted). ``scale`` divides the stored disparity (16 for Tsukuba's .pgm, 8 for Venus' .png by default, from
+    the folder's README).
 
     Example:
         >>> scene = middlebury_scene("../shared/data/middlebury/Tsukuba")  # doctest: +SKIP
@@ -484,25 +529,12 @@ def middlebury_scene(
     disp_path = next((p for p in (folder / "disp_gt.pgm", folder / "disp_gt.png") if p.exists()), None)
     if not img_path.exists() or disp_path is None:
         raise SceneError(f"{folder} must hold img_left.png and disp_gt.pgm or disp_gt.png")
-    near_mm, far_mm = _positive_depth(near_mm, "near_mm"), _positive_depth(far_mm, "far_mm")
-    if not near_mm < far_mm:
-        raise SceneError(f"near_mm must be smaller than far_mm, got {near_mm}, {far_mm}")
     flag = cv2.IMREAD_COLOR if channels == 3 else cv2.IMREAD_GRAYSCALE
     img = cv2.imread(str(img_path), flag)
     disp = cv2.imread(str(disp_path), cv2.IMREAD_UNCHANGED).astype(np.float32)
     if scale is None:
         scale = 16.0 if disp_path.suffix == ".pgm" else 8.0
-    disp = disp / scale
-    known = disp > 0
-    if known.sum() < 16:
-        raise SceneError(f"{disp_path} has no usable ground truth")
-    d_min, d_max = float(disp[known].min()), float(disp[known].max())
-    inv = 1.0 / far_mm + (disp - d_min) / max(d_max - d_min, 1e-6) * (1.0 / near_mm - 1.0 / far_mm)
-    depth = np.where(known, 1.0 / np.maximum(inv, 1e-9), 0.0).astype(np.float32)
-    depth = cv2.inpaint(depth, (~known).astype(np.uint8), 5, cv2.INPAINT_TELEA)
-    depth = np.clip(depth, near_mm, far_mm)
     picture = torch.from_numpy(img).float() / 255.0
     picture = picture.permute(2, 0, 1).flip(0) if picture.dim() == 3 else picture  # BGR -> RGB
-    if width_mm is None:
-        width_mm = far_mm * 4.7616 / 25.0
-    return height_field_scene(torch.from_numpy(depth), picture, width_mm, name=f"middlebury_{folder.name.lower()}")
+    return disparity_scene(picture, torch.from_numpy(disp / scale), near_mm, far_mm, width_mm,
+                           name=f"middlebury_{folder.name.lower()}")

@@ -14,6 +14,7 @@ from prismstereo.synthetic import (
     Sphere,
     checkerboard_target,
     circle_grid_target,
+    disparity_scene,
     fronto_parallel_plane,
     height_field_scene,
     middlebury_scene,
@@ -160,6 +161,9 @@ def test_scene_validation_against_the_prism():
         (lambda r: height_field_scene(torch.ones(4, 4) * 500, torch.zeros(1, 0, 4), 10.0), "same \\(h, w\\)"),
         (lambda r: height_field_scene(torch.ones(0, 4), torch.zeros(0, 4), 10.0), "non-empty"),
         (lambda r: middlebury_scene("/nonexistent"), "must hold img_left.png"),
+        (lambda r: disparity_scene(torch.rand(4, 4), torch.full((4, 4), float("nan"))), "no usable values"),
+        (lambda r: disparity_scene(torch.rand(4, 5), torch.rand(4, 4)), "picture's size"),
+        (lambda r: disparity_scene(torch.rand(4, 4), torch.rand(4, 4), 700.0, 450.0), "near_mm must be smaller"),
     ],
 )
 def test_factory_errors(make, match):
@@ -177,6 +181,20 @@ def test_factories():
     torch.testing.assert_close(board.point, torch.tensor([-30.0, -30.0, 600.0], dtype=F64))
     assert board.bounds_mm == (-10.0, 90.0, -10.0, 70.0)
     assert circle_grid_target().channels == 1
+
+
+def test_disparity_scene_maps_inverse_depth_linearly_and_inpaints():
+    disparity = torch.linspace(10.0, 30.0, 40).expand(30, 40).clone()
+    disparity[10:14, 20:24] = float("inf")  # unknown: inpainted from its neighbours
+    disparity[0, 0] = 0.0
+    field = disparity_scene(torch.rand(3, 30, 40), disparity, 400.0, 800.0, width_mm=120.0, name="ramp").surfaces[0]
+    inverse = 1.0 / field.depth.double()
+    expected = 1 / 800 + (disparity.double() - 10.0) / 20.0 * (1 / 400 - 1 / 800)  # 1/Z linear in disparity
+    known = torch.isfinite(disparity) & (disparity > 0)
+    torch.testing.assert_close(inverse[known], expected[known], rtol=1e-5, atol=0.0)
+    hole = field.depth[10:14, 20:24]  # between its neighbours' depths (they fall from left to right)
+    assert field.depth[10:14, 24].min() <= hole.min() and hole.max() <= field.depth[10:14, 19].max()
+    assert field.texture.channels == 3 and field.x_range == (-60.0, 60.0)
 
 
 @pytest.mark.skipif(not MIDDLEBURY.exists(), reason="shared Middlebury data not present")
