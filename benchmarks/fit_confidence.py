@@ -194,7 +194,9 @@ def main() -> None:
         clamped = all(m.final.clamped_band for ms in models.values() for m in ms.values())
         label = f"CLAMPED_WEIGHTS[{stage - 1}]" if clamped else ("DEFAULT_WEIGHTS", "SMOOTHED_WEIGHTS")[stage - 1]
         x, y = torch.cat(xs), torch.cat(ys)
-        weights = fit_confidence(x, y)
+        # the second stage's own-confidence weight is kept >= 0: collinear with the window's mean confidence, it
+        # came out negative (-1.6), which made a pixel with more evidence of its own less trusted than its neighbour
+        weights = fit_confidence(x, y, nonnegative=[SMOOTHED_FEATURES.index("confidence")] if stage == 2 else [])
         logit = x @ weights[:-1] + weights[-1]
         loss = float(F.binary_cross_entropy_with_logits(logit, y.double()))
         print(f"\nfeatures {', '.join(names)}, bias; {len(y)} samples, log-loss {loss:.4f}")

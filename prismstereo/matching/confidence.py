@@ -237,7 +237,8 @@ class ConfidenceModel(nn.Module):
         return torch.sigmoid(logit)
 
 
-def fit_confidence(features: torch.Tensor, correct: torch.Tensor, max_iter: int = 500) -> torch.Tensor:
+def fit_confidence(features: torch.Tensor, correct: torch.Tensor, max_iter: int = 500,
+                   nonnegative: Sequence[int] = ()) -> torch.Tensor:
     """Logistic regression of ``correct`` on ``features`` (maximum likelihood, L-BFGS, float64).
 
     Args:
@@ -245,12 +246,17 @@ def fit_confidence(features: torch.Tensor, correct: torch.Tensor, max_iter: int 
             :func:`smoothed_features`).
         correct: (N,) bool, the pixel's depth is within 1 % of the truth.
         max_iter: L-BFGS iterations.
+        nonnegative: indices of features whose weight must be >= 0 (e.g. the pixel's own first-stage confidence
+            in the second stage: more evidence at the pixel must not lower its confidence, which collinear
+            features can make the unconstrained fit do). A weight that comes out negative is fixed at 0 and the
+            others are fitted again, until none is (an active-set search; for one active constraint it is the
+            constrained maximum, the likelihood being concave).
 
     Returns:
         (F + 1,) float64 weights, the bias last (:class:`ConfidenceModel`'s ``weights``).
 
     Raises:
-        ShapeError: bad shapes. OptionError: ``correct`` has only one class.
+        ShapeError: bad shapes. OptionError: ``correct`` has only one class, an index out of range.
 
     Example:
         >>> g = torch.Generator().manual_seed(0)
@@ -265,7 +271,23 @@ def fit_confidence(features: torch.Tensor, correct: torch.Tensor, max_iter: int 
     y = correct.to(torch.float64)
     if y.min() == y.max():
         raise OptionError("correct must hold both correct and wrong pixels to fit a confidence")
+    n_features = features.shape[1]
+    if any(not isinstance(i, int) or not 0 <= i < n_features for i in nonnegative):
+        raise OptionError(f"nonnegative must hold feature indices in [0, {n_features}), got {list(nonnegative)}")
     design = torch.cat([features.to(torch.float64), torch.ones_like(y).unsqueeze(1)], 1)
+    fixed: set[int] = set()
+    while True:
+        free = [i for i in range(n_features + 1) if i not in fixed]
+        w = torch.zeros(n_features + 1, dtype=torch.float64)
+        w[free] = _logistic(design[:, free], y, max_iter)
+        negative = [i for i in nonnegative if w[i] < 0]
+        if not negative:
+            return w
+        fixed.update(negative)
+
+
+def _logistic(design: torch.Tensor, y: torch.Tensor, max_iter: int) -> torch.Tensor:
+    """Maximum-likelihood logistic weights of (N, K) ``design`` for (N,) targets ``y`` in {0, 1}."""
     w = torch.zeros(design.shape[1], dtype=torch.float64, requires_grad=True)
     opt = torch.optim.LBFGS([w], max_iter=max_iter, line_search_fn="strong_wolfe")
 

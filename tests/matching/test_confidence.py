@@ -83,12 +83,36 @@ def test_fit_recovers_known_weights():
     assert abs(float(p.mean()) - float(y.double().mean())) < 0.01  # calibrated in the mean
 
 
+def test_fit_with_a_nonnegative_weight():
+    g = torch.Generator().manual_seed(3)
+    a = torch.randn(20000, generator=g, dtype=torch.float64)
+    x = torch.stack([a + 0.3 * torch.randn(20000, generator=g, dtype=torch.float64), a], 1)  # collinear features
+    y = torch.rand(20000, generator=g, dtype=torch.float64) < torch.sigmoid(2.0 * a - 0.5 * x[:, 0])
+    free = fit_confidence(x, y)
+    assert free[0] < -0.2  # the unconstrained fit gives the first feature a negative weight
+    w = fit_confidence(x, y, nonnegative=[0])
+    assert w[0] == 0.0 and w[1] > 0
+    # the constrained maximum: the fit of the second feature alone, and no better likelihood with w[0] = 0.05
+    torch.testing.assert_close(w[1:], fit_confidence(x[:, 1:], y), rtol=1e-6, atol=1e-6)
+
+    def loss(weights: torch.Tensor) -> float:
+        logit = x @ weights[:-1] + weights[-1]
+        return float(torch.nn.functional.binary_cross_entropy_with_logits(logit, y.double()))
+
+    nudged = w.clone()
+    nudged[0] = 0.05
+    assert loss(w) < loss(nudged) and loss(free) < loss(w)
+    assert torch.equal(fit_confidence(x, y, nonnegative=[1]), free)  # an inactive constraint changes nothing
+
+
 def test_fit_errors():
     x = torch.zeros(10, len(FEATURES))
     with pytest.raises(OptionError, match="both correct and wrong"):
         fit_confidence(x, torch.ones(10, dtype=torch.bool))
     with pytest.raises(ShapeError, match="correct must be"):
         fit_confidence(x, torch.ones(9, dtype=torch.bool))
+    with pytest.raises(OptionError, match="nonnegative must hold feature indices"):
+        fit_confidence(x, torch.arange(10) % 2 == 0, nonnegative=[len(FEATURES)])
 
 
 def test_features_and_model_gradcheck():
