@@ -26,7 +26,6 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check prismstereo tests benchmarks export
 
 bench: $(STAMP)
-	$(PIP) -e ".[dev,fit]"  # fit_confidence.py trains on scikit-image's sample photographs
 	for b in benchmarks/[!_]*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
 clean:

@@ -5,11 +5,12 @@ Renders training captures of ``thesis_setup1`` and ``thesis_setup2`` at full res
 renderer: fronto-parallel planes (near ones included, where most of the reference half is not co-visible),
 slanted planes, depth steps, and smooth procedural height fields whose texture is strong in some regions and
 nearly absent in others (contrast 0.01-0.21, with slow shading), with read noise of 1-2 grey levels and some
-blur; and photographs: scikit-image's sample of the Middlebury 2014 *Motorcycle* pair with its true disparity
-(:func:`~prismstereo.synthetic.disparity_scene`, three depth ranges, one mirrored) and two of its other sample
-photographs on procedural bumps (``--photos DIR``: a folder with scikit-image's files; default: the installed
-``skimage/data``, ``pip install -e .[fit]``; ``--photos none`` leaves them out). None of the held-out scenes of
-``benchmarks/dense_depth.py`` (the Middlebury photographs Tsukuba and Venus, the defocus captures) is used.
+blur. ``--photos skimage`` (scikit-image's installed sample data, ``pip install -e .[fit]``) or ``--photos DIR``
+(a folder with its files) adds photographs per setup and sensor size: its sample of the Middlebury 2014
+*Motorcycle* pair with its true disparity (:func:`~prismstereo.synthetic.disparity_scene`, three depth ranges, one
+mirrored) and two of its other sample photographs on procedural bumps; the shipped weights were fitted without
+them (what they changed: ``docs/design.md``, *Dense depth on weak texture and defocus*). None of the held-out scenes
+of ``benchmarks/dense_depth.py`` (the Middlebury photographs Tsukuba and Venus, the defocus captures) is used.
 Every pixel with an estimate is a sample: correct when it is co-visible and its depth is within 1 % of the truth,
 wrong otherwise (pixels the other half does not see included). Prints the fitted weights (paste them into
 ``DEFAULT_WEIGHTS``), the training log-loss and, per capture, the coverage and wrong share at p >= 0.5. Then the
@@ -18,7 +19,7 @@ second stage, the re-scoring after the model's smoothing (``SMOOTHED_WEIGHTS``, 
 new first stage weights (the models are run again with it). ``--presets fast`` fits the weights of models whose
 final band clamps its edges (``CLAMPED_WEIGHTS``).
 
-Run: .venv/bin/python benchmarks/fit_confidence.py [--cache DIR] [--scenes N] [--photos DIR | none]
+Run: .venv/bin/python benchmarks/fit_confidence.py [--cache DIR] [--scenes N] [--photos skimage | DIR]
 [--z-range ZMIN ZMAX]
 """
 
@@ -91,16 +92,16 @@ def training_scenes(rig: BiPrismRig, seed: int, count: int, z_range: tuple[float
 
 
 def photo_folder(choice: str | None) -> Path | None:
-    """The folder of the training photographs: ``choice``, None's default scikit-image's installed sample data, or
-    None for ``'none'``."""
-    if choice == "none":
+    """The folder of the training photographs: None (none), scikit-image's installed sample data ('skimage') or
+    the folder ``choice``."""
+    if choice is None:
         return None
-    if choice is not None:
+    if choice != "skimage":
         return Path(choice)
     spec = importlib.util.find_spec("skimage")
     if spec is None or not spec.submodule_search_locations:
-        raise SystemExit("the training photographs come from scikit-image's sample data: pip install -e .[fit] "
-                         "(or --photos DIR with its files, or --photos none)")
+        raise SystemExit("--photos skimage needs scikit-image: pip install -e .[fit] (or --photos DIR with its "
+                         "sample files)")
     return Path(next(iter(spec.submodule_search_locations))) / "data"
 
 
@@ -138,7 +139,7 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=Path(".cache/fit_confidence"), help="renders kept here")
     parser.add_argument("--scenes", type=int, default=10, help="training scenes per setup and sensor size")
     parser.add_argument("--photos", default=None,
-                        help="folder of scikit-image's sample photographs (default: the installed package's), or none")
+                        help="add photographs: 'skimage' (the installed package's sample data) or its folder")
     parser.add_argument("--presets", nargs="+", default=("accurate",),
                         help="model presets whose estimates are the samples (one confidence is fitted to them all)")
     parser.add_argument("--scales", type=int, nargs="+", default=(1, 2),
@@ -194,8 +195,9 @@ def main() -> None:
         clamped = all(m.final.clamped_band for ms in models.values() for m in ms.values())
         label = f"CLAMPED_WEIGHTS[{stage - 1}]" if clamped else ("DEFAULT_WEIGHTS", "SMOOTHED_WEIGHTS")[stage - 1]
         x, y = torch.cat(xs), torch.cat(ys)
-        # the second stage's own-confidence weight is kept >= 0: collinear with the window's mean confidence, it
-        # came out negative (-1.6), which made a pixel with more evidence of its own less trusted than its neighbour
+        # the second stage's own-confidence weight is kept >= 0: collinear with the window's mean confidence, it comes
+        # out negative on the current chain (-1.6 with --photos), which would make a pixel with more evidence of its
+        # own less trusted than its neighbour
         weights = fit_confidence(x, y, nonnegative=[SMOOTHED_FEATURES.index("confidence")] if stage == 2 else [])
         logit = x @ weights[:-1] + weights[-1]
         loss = float(F.binary_cross_entropy_with_logits(logit, y.double()))
