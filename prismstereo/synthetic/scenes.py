@@ -495,8 +495,10 @@ def disparity_scene(
     near_mm, far_mm = _positive_depth(near_mm, "near_mm"), _positive_depth(far_mm, "far_mm")
     if not near_mm < far_mm:
         raise SceneError(f"near_mm must be smaller than far_mm, got {near_mm}, {far_mm}")
-    if not isinstance(disparity, torch.Tensor) or disparity.dim() != 2 or picture.shape[-2:] != disparity.shape:
-        raise SceneError(f"disparity must be an (h, w) tensor of the picture's size {tuple(picture.shape[-2:])}")
+    if not (isinstance(picture, torch.Tensor) and isinstance(disparity, torch.Tensor)) or disparity.dim() != 2 or (
+            picture.shape[-2:] != disparity.shape):
+        got = [tuple(t.shape) if isinstance(t, torch.Tensor) else type(t).__name__ for t in (picture, disparity)]
+        raise SceneError(f"picture and disparity must be tensors, disparity (h, w) of the picture's size, got {got}")
     disp = disparity.detach().cpu().numpy().astype(np.float32)
     known = np.isfinite(disp) & (disp > 0)
     if known.sum() < 16:

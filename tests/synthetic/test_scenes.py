@@ -163,6 +163,7 @@ def test_scene_validation_against_the_prism():
         (lambda r: middlebury_scene("/nonexistent"), "must hold img_left.png"),
         (lambda r: disparity_scene(torch.rand(4, 4), torch.full((4, 4), float("nan"))), "no usable values"),
         (lambda r: disparity_scene(torch.rand(4, 5), torch.rand(4, 4)), "picture's size"),
+        (lambda r: disparity_scene([[0.5]], torch.rand(4, 4)), "must be tensors"),
         (lambda r: disparity_scene(torch.rand(4, 4), torch.rand(4, 4), 700.0, 450.0), "near_mm must be smaller"),
     ],
 )
