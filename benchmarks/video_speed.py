@@ -100,7 +100,8 @@ def streams(rig, tmp: Path, name: str) -> tuple[PrismStereo, dict[str, DepthStre
     graph = export_onnx(model, tmp / f"{name}_{rig.image_width}.onnx")
     default = temporal_downsample(model)
     runs = {"per-frame ONNX": DepthStream(graph, threads=2)}
-    for k in (default, 3 - default):
+    other = 1 if default > 1 else 2  # the full-resolution band for a binned default, the binned one otherwise
+    for k in (default, other):
         temporal = export_onnx(model, tmp / f"{name}_{rig.image_width}_temporal_{k}.onnx",
                                temporal=TemporalOptions() if k == default else TemporalOptions(downsample=k))
         label = "temporal ONNX" if k == default else f"temporal k={k} ONNX"

@@ -183,10 +183,9 @@ class DepthLevel(nn.Module):
         self.num_hypotheses, self.factor, self.band, self.placed_by = num_hypotheses, factor, band, placed_by
         calibrated = level_validity == "calibrated"
         smoothing = config.refinement.smoothing
-        # the bands of a model asked to clamp their edges (the 'fast' preset; not a dense model's, fitted with the
-        # default) have weights of their own; by default a band clamps where the calibrated confidence judges its
-        # pixels and rejects where thresholds do (a pyramid's binned level, validity 'thresholds')
-        self.clamped_band = search.band_edges == "clamp" and not validity.dense
+        # by default a band clamps where the calibrated confidence judges its pixels and rejects where thresholds do
+        # (a pyramid's binned level, validity 'thresholds')
+        self.clamped_band = self.has_clamped_weights(search.band_edges, validity.dense)
         self.band_edges = "clamp" if validity.dense else search.band_edges or ("clamp" if calibrated else "reject")
         stage1, stage2 = CLAMPED_WEIGHTS if self.clamped_band else (None, None)
         self.calibration = ConfidenceModel(stage1) if calibrated else None
@@ -228,6 +227,18 @@ class DepthLevel(nn.Module):
                 weak_texture=float(aggregation.weak_texture))
             self.fine = FineBand(fine_options, band, 2.0 / (num_hypotheses - 1), self.split.split,
                                  with_match=not smoothing)  # a smoothed s gets its match afterwards
+
+    @staticmethod
+    def has_clamped_weights(band_edges: str | None, dense: bool) -> bool:
+        """Whether a band asked for ``band_edges`` is judged by the confidence weights fitted to clamped bands
+        (:data:`~prismstereo.matching.confidence.CLAMPED_WEIGHTS`): a band asked to clamp its edges (the 'fast'
+        preset, the temporal band), except a dense model's (fitted with the default weights).
+
+        Example:
+            >>> DepthLevel.has_clamped_weights("clamp", False), DepthLevel.has_clamped_weights(None, False)
+            (True, False)
+        """
+        return band_edges == "clamp" and not dense
 
     @property
     def step(self) -> float:

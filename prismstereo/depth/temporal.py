@@ -194,7 +194,7 @@ class TemporalDepth(nn.Module):
                              with_match=final.fine.with_match, vertex_limit=limit)
         self.calibration = None
         if final.calibration is not None:  # weights fitted to the band's edge rule
-            clamped = self.options.band_edges == "clamp" and not final.config.validity.dense
+            clamped = DepthLevel.has_clamped_weights(self.options.band_edges, final.config.validity.dense)
             self.calibration = ConfidenceModel(CLAMPED_WEIGHTS[0] if clamped else None)
 
     @property
@@ -264,9 +264,9 @@ class TemporalDepth(nn.Module):
         has = result.confidence > 0 if dense else result.valid
         s = extend_estimate(depth_to_sweep(result.depth, z_range), has, 1).s
         s = upsample(s, k, size, "bilinear").clamp(-1.0, 1.0)
-        maps = torch.cat([has.to(s.dtype), result.confidence], 1)
-        shown, confidence = upsample(maps, k, size, beyond="zero").split(1, 1)
-        valid = shown > 0.5 if not dense else (upsample(result.valid.to(s.dtype), k, size, beyond="zero") > 0.5)
+        maps = [has.to(s.dtype), result.confidence] + ([result.valid.to(s.dtype)] if dense else [])
+        shown, confidence, *valid = upsample(torch.cat(maps, 1), k, size, beyond="zero").split(1, 1)
+        valid = (valid[0] if dense else shown) > 0.5
         return DepthResult(sweep_to_depth(s, z_range), valid, confidence * shown, (s + 1.0) / final.step,
                            torch.cat(series_at(final.series, s), 1))
 

@@ -183,6 +183,34 @@ def test_binned_band_interpolates_valid_neighbours_only(model):
     assert not bool(res.valid[..., 64].any()) and float(res.confidence[..., 64].abs().max()) == 0.0
 
 
+def test_binned_band_of_a_dense_model_keeps_its_covered_pixels():
+    """A dense model's binned band: back at full resolution every block with a depth (confidence > 0) keeps one and
+    its confidence, interpolated from the covered binned pixels (valid or not); ``valid`` stays the valid blocks."""
+    dense = PrismStereo(thesis_setup1().downscaled(4), (228.0, 1374.0),
+                        {"downsample": 2, "full_band": 2, "dense": True}).eval()
+    tracker = TemporalDepth(dense, TemporalOptions(downsample=2))
+    h, w = tracker.level.rig.image_height, tracker.level.rig.reference_width
+    z_range = torch.tensor(dense.final.z_range)
+    gen = torch.Generator().manual_seed(4)
+    depth = 500.0 + 100.0 * torch.rand(1, 1, h, w, generator=gen)
+    covered = torch.rand(1, 1, h, w, generator=gen) > 0.2
+    valid = covered & (torch.rand(1, 1, h, w, generator=gen) > 0.5)
+    confidence = (0.01 + torch.rand(1, 1, h, w, generator=gen)) * covered
+    binned = DepthResult(torch.where(covered, depth, torch.full_like(depth, 5000.0)), valid, confidence,
+                         torch.zeros_like(depth), torch.zeros(1, 2, h, w))
+    full = tracker._full_resolution(binned, z_range)
+
+    def up(t: torch.Tensor) -> torch.Tensor:
+        return torch.nn.functional.interpolate(t.float(), scale_factor=2, mode="nearest")
+
+    assert torch.equal(full.valid[..., :2 * h, :2 * w], up(valid) > 0.5)
+    assert torch.equal(full.confidence[..., :2 * h, :2 * w], up(confidence) * up(covered))
+    has = full.confidence > 0
+    assert torch.equal(has[..., :2 * h, :2 * w], up(covered) > 0.5) and bool((full.valid <= has).all())
+    inside = full.depth[has]  # the uncovered pixels' (absurd) depth never leaks in
+    assert float(inside.min()) >= 500.0 - 1e-3 and float(inside.max()) <= 600.0 + 1e-3
+
+
 def test_key_frames_on_interval_cut_and_a_depth_step(model, moving):
     stream = DepthStream(model, temporal=TemporalOptions(keyframe_interval=3, downsample=1))
     keys = [stream.push(image).keyframe for image in moving.image]
