@@ -146,14 +146,20 @@ def test_binned_band_shapes_and_moving_sequence_within_tolerance(model, moving):
     assert t_err <= 0.25 and t_cov >= cov - 0.5, (err, cov, t_err, t_cov)
 
 
+def _binned_band(model, seed: int):
+    """The model's temporal band on the 2 x 2-binned capture, its range, a generator and random binned depths
+    (500-600 mm)."""
+    tracker = TemporalDepth(model, TemporalOptions(downsample=2))
+    h, w = tracker.level.rig.image_height, tracker.level.rig.reference_width
+    gen = torch.Generator().manual_seed(seed)
+    return tracker, torch.tensor(model.final.z_range), gen, 500.0 + 100.0 * torch.rand(1, 1, h, w, generator=gen)
+
+
 def test_binned_band_interpolates_valid_neighbours_only(model):
     """Back at full resolution, a valid pixel's depth comes from valid binned pixels only: the depth of invalid
     ones (here absurd) never leaks into it; validity and confidence are per block, zero beyond the binned level."""
-    tracker = TemporalDepth(model, TemporalOptions(downsample=2))
-    h, w = tracker.level.rig.image_height, tracker.level.rig.reference_width
-    z_range = torch.tensor(model.final.z_range)
-    gen = torch.Generator().manual_seed(1)
-    depth = 500.0 + 100.0 * torch.rand(1, 1, h, w, generator=gen)
+    tracker, z_range, gen, depth = _binned_band(model, 1)
+    h, w = depth.shape[-2:]
     valid = torch.rand(1, 1, h, w, generator=gen) > 0.3
     confidence = torch.rand(1, 1, h, w, generator=gen) * valid
     binned = DepthResult(torch.where(valid, depth, torch.full_like(depth, 5000.0)), valid, confidence,
@@ -188,11 +194,8 @@ def test_binned_band_of_a_dense_model_keeps_its_covered_pixels():
     its confidence, interpolated from the covered binned pixels (valid or not); ``valid`` stays the valid blocks."""
     dense = PrismStereo(thesis_setup1().downscaled(4), (228.0, 1374.0),
                         {"downsample": 2, "full_band": 2, "dense": True}).eval()
-    tracker = TemporalDepth(dense, TemporalOptions(downsample=2))
-    h, w = tracker.level.rig.image_height, tracker.level.rig.reference_width
-    z_range = torch.tensor(dense.final.z_range)
-    gen = torch.Generator().manual_seed(4)
-    depth = 500.0 + 100.0 * torch.rand(1, 1, h, w, generator=gen)
+    tracker, z_range, gen, depth = _binned_band(dense, 4)
+    h, w = depth.shape[-2:]
     covered = torch.rand(1, 1, h, w, generator=gen) > 0.2
     valid = covered & (torch.rand(1, 1, h, w, generator=gen) > 0.5)
     confidence = (0.01 + torch.rand(1, 1, h, w, generator=gen)) * covered
