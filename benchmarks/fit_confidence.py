@@ -65,6 +65,14 @@ def procedural_surface(seed: int, h: int = 360, w: int = 480) -> tuple[torch.Ten
     return procedural_picture(torch.Generator().manual_seed(seed), h, w)
 
 
+def bumpy_surface(picture: torch.Tensor, bumps: torch.Tensor, z: float, z_range: tuple[float, float],
+                  name: str) -> Scene:
+    """``picture`` on a height field at ``z`` mm bent by 10 % of z times ``bumps``, inside ``z_range`` (10 mm margins),
+    0.21 z wide."""
+    depth = (z + 0.1 * z * bumps).clamp(z_range[0] + 10, z_range[1] - 10)
+    return height_field_scene(depth, picture, width_mm=z * 0.21, name=name)
+
+
 def training_scenes(rig: BiPrismRig, seed: int, count: int, z_range: tuple[float, float]) -> list[Scene]:
     """``count`` scenes cycling through plane, slanted plane, step, height field, near plane."""
     gen = torch.Generator().manual_seed(seed)
@@ -84,8 +92,7 @@ def training_scenes(rig: BiPrismRig, seed: int, count: int, z_range: tuple[float
             scenes.append(step_scene(rig, z, z + 150, seed=seed * 100 + i, texel_px=texel))
         elif kind == 3:
             picture, bumps = procedural_surface(seed * 100 + i)
-            depth = (z + 0.1 * z * bumps).clamp(lo + 10, hi - 10)
-            scenes.append(height_field_scene(depth, picture, width_mm=z * 0.21, name=f"surface_{z:.0f}mm"))
+            scenes.append(bumpy_surface(picture, bumps, z, z_range, f"surface_{z:.0f}mm"))
         else:  # near: most of the reference half sees what the other half does not
             scenes.append(fronto_parallel_plane(rig, lo + 20 + 100 * u, seed=seed * 100 + i, texel_px=texel))
     return scenes
@@ -128,9 +135,8 @@ def photo_scenes(folder: Path, seed: int, z_range: tuple[float, float]) -> list[
         img = grey(folder / name)
         _, bumps = procedural_surface(seed * 100 + 50 + j, img.shape[0], img.shape[1])
         z = lo + 100 + (hi - lo - 400) * float(torch.rand(1, generator=gen))
-        depth = (z + 0.1 * z * bumps).clamp(lo + 10, hi - 10)
-        scenes.append(height_field_scene(depth, torch.from_numpy(img).float() / 255.0, width_mm=z * 0.21,
-                                         name=f"photo_{Path(name).stem}_{z:.0f}mm"))
+        scenes.append(bumpy_surface(torch.from_numpy(img).float() / 255.0, bumps, z, z_range,
+                                    f"photo_{Path(name).stem}_{z:.0f}mm"))
     return scenes
 
 
@@ -164,7 +170,6 @@ def main() -> None:
                 torch.save(render(rig, scene, formation)._asdict(), path)
             captures.append((rig, prefix, scene.name, path))
     models = {}  # per rig: the presets' models
-    first = None
     for stage, names in ((1, FEATURES), (2, SMOOTHED_FEATURES)):
         torch.manual_seed(0)  # the same samples in both stages
         xs, ys, per_capture = [], [], []
@@ -174,8 +179,6 @@ def main() -> None:
             capture = torch.load(path)
             w = rig.reference_width
             for preset_name, model in models[rig].items():
-                if first is not None:  # stage 2 re-scores the smoothing that the new first stage weights
-                    model.final.calibration = ConfidenceModel(first)
                 label = f"{prefix} {preset_name} {scene_name}"
                 with torch.inference_mode():
                     inputs = model.confidence_inputs(capture["image"])
@@ -205,7 +208,9 @@ def main() -> None:
         print(f"{label} = (" + ", ".join(f"{v:.3f}" for v in weights.tolist()) + ")")
         if not math.isfinite(loss):
             raise SystemExit("the fit diverged")
-        first = [round(v, 3) for v in weights.tolist()]  # as printed (and pasted)
+        if stage == 1:  # stage 2 re-scores the smoothing that the new first stage weights (as printed and pasted)
+            for model in (m for ms in models.values() for m in ms.values()):
+                model.final.calibration = ConfidenceModel([round(v, 3) for v in weights.tolist()])
         calibration = ConfidenceModel(weights, names)
         print(f"\n{'capture':40s} {'cover %':>8s} {'wrong %':>8s}   (p >= 0.5, co-visible pixels)")
         for name, features, sampled, covisible, correct in per_capture:
