@@ -8,7 +8,7 @@ with :class:`SweepSampler`, the plane sweep's sampling that :class:`~prismstereo
 shifts (:func:`cost_volume`) with its own post-processing (:mod:`~prismstereo.matching.rectified`).
 """
 
-from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate, sgm_aggregate_guided
+from prismstereo.matching.aggregate import box_filter, box_std, guided_filter, sgm_aggregate, sgm_aggregate_guided
 from prismstereo.matching.confidence import (
     FEATURES,
     SMOOTHED_FEATURES,
@@ -39,7 +39,6 @@ from prismstereo.matching.levels import (
     extend_estimate,
 )
 from prismstereo.matching.postprocess import RobustMean, fill_background, median_filter, robust_mean, weighted_median
-from prismstereo.matching.rectified import guided_filter
 from prismstereo.matching.select import (
     Subpixel,
     left_right_check,
@@ -84,6 +83,7 @@ __all__ = [
     "CostVolume",
     "box_filter",
     "box_std",
+    "guided_filter",
     "sgm_aggregate",
     "sgm_aggregate_guided",
     "census_transform",
@@ -93,7 +93,6 @@ __all__ = [
     "median_filter",
     "weighted_median",
     "ad_gradient_volume",
-    "guided_filter",
     "Subpixel",
     "left_right_check",
     "soft_argmin_local",

@@ -1,4 +1,5 @@
-"""Cost aggregation: a box filter over the whole volume, and semi-global matching (SGM) scanline passes.
+"""Cost aggregation: a box filter over the whole volume, the guided filter (cost-volume filtering), and
+semi-global matching (SGM) scanline passes.
 
 SGM (Hirschmueller 2008) adds, for each scan direction r, the path cost
 L_r(p, d) = C(p, d) + min(L_r(p - r, d), L_r(p - r, d +- 1) + P1, min_k L_r(p - r, k) + P2) - min_k L_r(p - r, k)
@@ -11,11 +12,17 @@ P2), where depth discontinuities usually are.
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 
 from prismstereo._graph import box_mean, in_place, scan_eager, scan_traced
-from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_int, check_shape
 
-__all__ = ["box_filter", "box_std", "sgm_aggregate", "sgm_aggregate_guided"]
+__all__ = ["box_filter", "box_std", "guided_filter", "sgm_aggregate", "sgm_aggregate_guided"]
+
+# the guided filter's radius, regularisation and subsampling (chosen on Middlebury): the defaults of the rectified
+# matcher (prismstereo.matching.rectified.MatchOptions) and the depth model's 'guided' aggregation
+# (prismstereo.matching.levels)
+GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE = 13, 1e-4, 2
 
 # (scan dim, reverse, row shift of the predecessor): dim 3 scans columns, dim 2 rows; a shift of +-1 makes
 # the horizontal scan diagonal (the predecessor of row y is row y - shift of the previous column)
@@ -129,6 +136,84 @@ def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
     # cannot move Transposes through the rank-changing Reshapes
     flat = (b, negated.shape[1], -1)
     return (along_w.reshape(flat) + along_h.reshape(flat)).view(negated.shape)
+
+
+def guided_filter(
+    volume: torch.Tensor, guide: torch.Tensor, radius: int = 13, eps: float = 1e-4, subsample: int = 1
+) -> torch.Tensor:
+    """He et al.'s guided filter of every slice of a (B, D, H, W) cost volume (Rhemann et al. 2011's
+    cost-volume filtering): an edge-aware mean that smooths the cost inside regions of similar colour of the
+    guide and little across its edges, so the aggregation window does not fatten foreground objects.
+
+    Each slice p is modelled as a_k . I + b_k in every (2 r + 1)^2 window k of the guide I (C channels): a_k =
+    (Sigma_k + eps Id)^-1 cov_k(I, p), b_k = mean_k(p) - a_k . mean_k(I); the output averages the models of
+    the windows covering a pixel, q = mean(a) . I + mean(b). Windows are cut at the image border (box means
+    over the pixels inside, :func:`~prismstereo.matching.aggregate.box_filter`); 2 + 2 C box filters of the
+    volume's size. With ``subsample`` s > 1 the coefficients are computed on s x s block means of the volume
+    and the guide with a radius of round(r / s) and bilinearly upsampled (He & Sun's fast guided filter,
+    ~1 / s^2 of the work); q still uses the full-resolution guide, so the edges stay sharp.
+
+    Args:
+        volume: (B, D, H, W) cost, finite.
+        guide: (B or 1, C, H, W) guide image (e.g. the reference image in [0, 1]).
+        radius: box radius r (>= 1), in full-resolution pixels.
+        eps: regularisation (> 0, squared guide units): a window whose guide varies less than ~sqrt(eps) is
+            averaged like a box.
+        subsample: s (>= 1), 1 for the exact filter.
+
+    Returns:
+        (B, D, H, W) filtered volume, dtype of ``volume``.
+
+    Raises:
+        ShapeError: bad shapes. OptionError: radius or subsample not an int >= 1, or eps <= 0.
+
+    Example:
+        >>> guide = torch.zeros(1, 1, 8, 8); guide[..., 4:] = 1.0  # two regions
+        >>> cost = torch.zeros(1, 1, 8, 8); cost[..., 4:] = 2.0
+        >>> out = guided_filter(cost + 0.1 * torch.rand(1, 1, 8, 8), guide, 2, 1e-4)
+        >>> bool((out[..., :4] < 0.2).all() and (out[..., 4:] > 1.9).all())  # the step survives
+        True
+    """
+    check_shape(volume, ["B", "D", "H", "W"], "volume")
+    check_shape(guide, ["B", "C", "H", "W"], "guide")
+    if guide.shape[-2:] != volume.shape[-2:] or guide.shape[0] not in (1, volume.shape[0]):
+        raise ShapeError(f"guide {tuple(guide.shape)} must match the volume {tuple(volume.shape)} in H, W and "
+                         "batch")
+    for name, value in (("radius", radius), ("subsample", subsample)):
+        check_int(value, name, 1)
+    if not eps > 0:
+        raise OptionError(f"eps must be > 0, got {eps!r}")
+    guide = guide.to(volume.dtype)
+    full = guide
+    if subsample > 1:
+        guide = F.avg_pool2d(guide, subsample, ceil_mode=True)
+        volume = F.avg_pool2d(volume, subsample, ceil_mode=True)
+    window = 2 * max(1, round(radius / subsample)) + 1
+    b, d, h, w = volume.shape
+    c = guide.shape[1]
+    mean_i = box_filter(guide, window)  # (Bg, C, h, w)
+    mean_p = box_filter(volume, window)
+    mean_ip = box_filter(torch.cat([guide[:, i:i + 1] * volume for i in range(c)], 1), window).view(b, c, d, h, w)
+    cov_ip = mean_ip - mean_i.unsqueeze(2) * mean_p.unsqueeze(1)  # (B, C, D, h, w)
+    if c == 1:  # a grey guide: a = cov / (var + eps), no matrix to build and invert
+        var_i = box_filter(guide * guide, window) - mean_i * mean_i + eps  # (Bg, 1, h, w)
+        a = cov_ip / var_i.unsqueeze(2)
+    else:
+        pairs = [(i, j) for i in range(c) for j in range(i, c)]
+        corr = box_filter(torch.cat([guide[:, i:i + 1] * guide[:, j:j + 1] for i, j in pairs], 1), window)
+        sigma = guide.new_empty(guide.shape[0], h, w, c, c)
+        for k, (i, j) in enumerate(pairs):
+            cov = corr[:, k] - mean_i[:, i] * mean_i[:, j] + (eps if i == j else 0.0)
+            sigma[..., i, j] = cov
+            sigma[..., j, i] = cov
+        inverse = torch.linalg.inv(sigma).permute(0, 3, 4, 1, 2).unsqueeze(3)  # (Bg, C, C, 1, h, w)
+        a = torch.stack([sum(inverse[:, i, j] * cov_ip[:, j] for j in range(c)) for i in range(c)], 1)
+    coefficients = torch.cat([box_filter(a.reshape(b, c * d, h, w), window),
+                              box_filter(mean_p - (a * mean_i.unsqueeze(2)).sum(1), window)], 1)
+    if subsample > 1:
+        coefficients = F.interpolate(coefficients, size=full.shape[-2:], mode="bilinear", align_corners=False)
+    mean_a = coefficients[:, :c * d].unflatten(1, (c, d))
+    return (mean_a * full.unsqueeze(2)).sum(1) + coefficients[:, c * d:]
 
 
 def sgm_aggregate(cost: torch.Tensor, p1: float, p2: float, directions: int = 4) -> torch.Tensor:

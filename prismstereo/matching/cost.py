@@ -19,7 +19,7 @@ Costs (lower is better), all (B, D, H, W):
   floored at ~ the variance of 8-bit read noise (:func:`ncc_cost`); differentiable.
 * ``'ad_gradient'``: Rhemann et al.'s truncated colour + gradient difference per pixel (:func:`ad_gradient_cost`,
   the cost of :func:`ad_gradient_volume` on any views), in [0, 1]; no window: meant for an edge-aware
-  aggregation (:func:`~prismstereo.matching.rectified.guided_filter`).
+  aggregation (:func:`~prismstereo.matching.aggregate.guided_filter`).
 
 Views that are not valid get the cost's worst value (:func:`worst_cost`).
 """
@@ -377,7 +377,7 @@ def ad_gradient_volume(
     / ((1 - a) t_ad + a t_g), in [0, 1], with gx the central difference along W of the channel mean and a the
     gradient weight; the gradient term ignores brightness offsets between the views, the truncations limit
     the weight of occluded and mismatched pixels. Cheap per pixel and sharp at object borders: meant to be
-    aggregated with an edge-aware filter (:func:`guided_filter`).
+    aggregated with an edge-aware filter (:func:`~prismstereo.matching.aggregate.guided_filter`).
 
     Args:
         reference: (B, C, H, W) reference image in [0, 1].

@@ -30,9 +30,16 @@ from prismstereo.epipolar.row_rectify import RectifiedLevel
 from prismstereo.epipolar.series import series_at, series_band
 from prismstereo.epipolar.sweep_table import column_to_sweep
 from prismstereo.errors import OptionError, ShapeError, check_number, check_shape
-from prismstereo.matching.aggregate import box_filter, box_std, sgm_aggregate
+from prismstereo.matching.aggregate import (
+    GUIDED_EPS,
+    GUIDED_RADIUS,
+    GUIDED_SUBSAMPLE,
+    box_filter,
+    box_std,
+    guided_filter,
+    sgm_aggregate,
+)
 from prismstereo.matching.cost import Warped, grey, sweep_cost, worst_cost
-from prismstereo.matching.rectified import GUIDED_EPS, GUIDED_RADIUS, GUIDED_SUBSAMPLE, guided_filter
 from prismstereo.matching.select import (
     left_right_check,
     soft_argmin_local,
@@ -127,7 +134,7 @@ class _Search(nn.Module):
         """(index (B, 1, H, W) long, refined index, confidence, unique, aggregated volume).
 
         ``guide`` (B, 1, H, W), the level's grey reference in the volume's layout, steers the 'guided'
-        aggregation (:func:`~prismstereo.matching.rectified.guided_filter`); its confidence is the similarity of
+        aggregation (:func:`~prismstereo.matching.aggregate.guided_filter`); its confidence is the similarity of
         the filtered cost (a window's evidence spread over its region of similar grey), the others' that of the
         box-averaged cost."""
         o = self.options

@@ -6,7 +6,8 @@ Convention: disparity d >= 0 with right column = left column - d (the usual rect
 
 Besides the shared layers it has the pieces of cost-volume filtering (Rhemann et al. 2011) used by the
 defaults of :class:`MatchOptions`: :func:`~prismstereo.matching.cost.ad_gradient_volume` (truncated colour +
-gradient difference) and :func:`guided_filter` (edge-aware aggregation of a cost volume).
+gradient difference) and :func:`~prismstereo.matching.aggregate.guided_filter` (edge-aware aggregation of a
+cost volume).
 """
 
 from __future__ import annotations
@@ -15,10 +16,17 @@ import dataclasses
 from typing import Literal, NamedTuple
 
 import torch
-import torch.nn.functional as F
 
 from prismstereo.errors import OptionError, ShapeError, check_int, check_option, check_shape
-from prismstereo.matching.aggregate import box_filter, sgm_aggregate, sgm_aggregate_guided
+from prismstereo.matching.aggregate import (
+    GUIDED_EPS,
+    GUIDED_RADIUS,
+    GUIDED_SUBSAMPLE,
+    box_filter,
+    guided_filter,
+    sgm_aggregate,
+    sgm_aggregate_guided,
+)
 from prismstereo.matching.cost import (
     AD_THRESHOLD,
     COSTS,
@@ -36,15 +44,12 @@ from prismstereo.matching.select import (
     winner_take_all,
 )
 
-__all__ = ["MatchOptions", "MatchResult", "match_rectified", "right_view_volume", "guided_filter"]
+__all__ = ["MatchOptions", "MatchResult", "match_rectified", "right_view_volume"]
 
 RectifiedCost = Literal["census", "sad", "zncc", "ad_gradient"]
 RECTIFIED_COSTS: tuple[str, ...] = COSTS
 Aggregation = Literal["box", "sgm", "guided"]
 OutOfRange = Literal["worst", "replicate"]
-# the guided filter's radius, regularisation and subsampling (chosen on Middlebury): MatchOptions' defaults and the
-# depth model's 'guided' aggregation (prismstereo.matching.levels)
-GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE = 13, 1e-4, 2
 SubpixelCost = Literal["local", "sad"]
 
 
@@ -212,84 +217,6 @@ def right_view_volume(volume: torch.Tensor) -> torch.Tensor:
         shifted = torch.cat([s[..., d:], torch.full_like(s[..., :d], float("inf"))], dim=-1)
         slices.append(shifted[..., :w])
     return torch.stack(slices, dim=1)
-
-
-def guided_filter(
-    volume: torch.Tensor, guide: torch.Tensor, radius: int = 13, eps: float = 1e-4, subsample: int = 1
-) -> torch.Tensor:
-    """He et al.'s guided filter of every slice of a (B, D, H, W) cost volume (Rhemann et al. 2011's
-    cost-volume filtering): an edge-aware mean that smooths the cost inside regions of similar colour of the
-    guide and little across its edges, so the aggregation window does not fatten foreground objects.
-
-    Each slice p is modelled as a_k . I + b_k in every (2 r + 1)^2 window k of the guide I (C channels): a_k =
-    (Sigma_k + eps Id)^-1 cov_k(I, p), b_k = mean_k(p) - a_k . mean_k(I); the output averages the models of
-    the windows covering a pixel, q = mean(a) . I + mean(b). Windows are cut at the image border (box means
-    over the pixels inside, :func:`~prismstereo.matching.aggregate.box_filter`); 2 + 2 C box filters of the
-    volume's size. With ``subsample`` s > 1 the coefficients are computed on s x s block means of the volume
-    and the guide with a radius of round(r / s) and bilinearly upsampled (He & Sun's fast guided filter,
-    ~1 / s^2 of the work); q still uses the full-resolution guide, so the edges stay sharp.
-
-    Args:
-        volume: (B, D, H, W) cost, finite.
-        guide: (B or 1, C, H, W) guide image (e.g. the reference image in [0, 1]).
-        radius: box radius r (>= 1), in full-resolution pixels.
-        eps: regularisation (> 0, squared guide units): a window whose guide varies less than ~sqrt(eps) is
-            averaged like a box.
-        subsample: s (>= 1), 1 for the exact filter.
-
-    Returns:
-        (B, D, H, W) filtered volume, dtype of ``volume``.
-
-    Raises:
-        ShapeError: bad shapes. OptionError: radius or subsample not an int >= 1, or eps <= 0.
-
-    Example:
-        >>> guide = torch.zeros(1, 1, 8, 8); guide[..., 4:] = 1.0  # two regions
-        >>> cost = torch.zeros(1, 1, 8, 8); cost[..., 4:] = 2.0
-        >>> out = guided_filter(cost + 0.1 * torch.rand(1, 1, 8, 8), guide, 2, 1e-4)
-        >>> bool((out[..., :4] < 0.2).all() and (out[..., 4:] > 1.9).all())  # the step survives
-        True
-    """
-    check_shape(volume, ["B", "D", "H", "W"], "volume")
-    check_shape(guide, ["B", "C", "H", "W"], "guide")
-    if guide.shape[-2:] != volume.shape[-2:] or guide.shape[0] not in (1, volume.shape[0]):
-        raise ShapeError(f"guide {tuple(guide.shape)} must match the volume {tuple(volume.shape)} in H, W and "
-                         "batch")
-    for name, value in (("radius", radius), ("subsample", subsample)):
-        check_int(value, name, 1)
-    if not eps > 0:
-        raise OptionError(f"eps must be > 0, got {eps!r}")
-    guide = guide.to(volume.dtype)
-    full = guide
-    if subsample > 1:
-        guide = F.avg_pool2d(guide, subsample, ceil_mode=True)
-        volume = F.avg_pool2d(volume, subsample, ceil_mode=True)
-    window = 2 * max(1, round(radius / subsample)) + 1
-    b, d, h, w = volume.shape
-    c = guide.shape[1]
-    mean_i = box_filter(guide, window)  # (Bg, C, h, w)
-    mean_p = box_filter(volume, window)
-    mean_ip = box_filter(torch.cat([guide[:, i:i + 1] * volume for i in range(c)], 1), window).view(b, c, d, h, w)
-    cov_ip = mean_ip - mean_i.unsqueeze(2) * mean_p.unsqueeze(1)  # (B, C, D, h, w)
-    if c == 1:  # a grey guide: a = cov / (var + eps), no matrix to build and invert
-        var_i = box_filter(guide * guide, window) - mean_i * mean_i + eps  # (Bg, 1, h, w)
-        a = cov_ip / var_i.unsqueeze(2)
-    else:
-        pairs = [(i, j) for i in range(c) for j in range(i, c)]
-        corr = box_filter(torch.cat([guide[:, i:i + 1] * guide[:, j:j + 1] for i, j in pairs], 1), window)
-        sigma = guide.new_empty(guide.shape[0], h, w, c, c)
-        for k, (i, j) in enumerate(pairs):
-            cov = corr[:, k] - mean_i[:, i] * mean_i[:, j] + (eps if i == j else 0.0)
-            sigma[..., i, j] = cov
-            sigma[..., j, i] = cov
-        inverse = torch.linalg.inv(sigma).permute(0, 3, 4, 1, 2).unsqueeze(3)  # (Bg, C, C, 1, h, w)
-        a = torch.stack([sum(inverse[:, i, j] * cov_ip[:, j] for j in range(c)) for i in range(c)], 1)
-    coefficients = torch.cat([box_filter(a.reshape(b, c * d, h, w), window),
-                              box_filter(mean_p - (a * mean_i.unsqueeze(2)).sum(1), window)], 1)
-    if subsample > 1:
-        coefficients = F.interpolate(coefficients, size=full.shape[-2:], mode="bilinear", align_corners=False)
-    mean_a = coefficients[:, :c * d].unflatten(1, (c, d))
-    return (mean_a * full.unsqueeze(2)).sum(1) + coefficients[:, c * d:]
 
 
 def match_rectified(

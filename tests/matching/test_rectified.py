@@ -5,8 +5,9 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
+from prismstereo.matching.aggregate import guided_filter
 from prismstereo.matching.cost import ad_gradient_volume
-from prismstereo.matching.rectified import MatchOptions, guided_filter, match_rectified
+from prismstereo.matching.rectified import MatchOptions, match_rectified
 from tests.matching.test_cost_select import shifted_pair
 
 F64 = torch.float64
