@@ -62,8 +62,6 @@ from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render,
 
 THESIS_DEPTHS = (228.0, 312.0, 353.0, 418.0, 525.0, 625.0, 780.0, 936.0, 1192.0, 1374.0)
 Z_RANGE = (205.0, 1511.0)
-# the command line's values of options it was not given (left to a --preset)
-DEFAULTS = {"sampling": "rectified", "directions": 4, "dense": False}
 SETUPS = {"1": thesis_setup1, "2": thesis_setup2}
 
 
@@ -116,11 +114,11 @@ def main() -> None:
                              "model's")
     parser.add_argument("--band", type=int, default=None, metavar="R",
                         help="option band=R: the coarse level's fine band (the binned model's in a pyramid)")
-    parser.add_argument("--directions", type=int, default=4, choices=(2, 4, 8),
-                        help="option directions=...: SGM scan directions of the coarse level")
+    parser.add_argument("--directions", type=int, default=None, choices=(2, 4, 8),
+                        help="option directions=...: SGM scan directions of the coarse level (default: the model's)")
     parser.add_argument("--validity", choices=("calibrated", "thresholds"), default=None,
                         help="option validity=...: the calibrated confidence (default) or the NCC thresholds")
-    parser.add_argument("--dense", action="store_true",
+    parser.add_argument("--dense", action="store_true", default=None,
                         help="option dense=True: coverage and errors of every pixel with a depth")
     parser.add_argument("--preset", choices=tuple(PRESETS), default=None,
                         help="a named preset under the options above (e.g. 'dense': its own coarse cost and "
@@ -144,16 +142,14 @@ def main() -> None:
         models = {}
         for sampling in ("rectified", "sweep") if args.sampling else ("rectified",):
             t0 = time.perf_counter()
-            options = dict(sampling=sampling, downsample=args.downsample, full_band=args.full_band,
-                           band_edges=args.band_edges, coarse_factor=args.coarse_factor, band=args.band,
-                           directions=args.directions, validity=args.validity, dense=args.dense)
-            if args.smoothing is not None:
-                options["smoothing"] = args.smoothing
-            if args.preset is not None:  # the options given explicitly on top of the preset
-                base = PRESETS[args.preset]
-                options = {k: v for k, v in options.items() if v is not None and v != DEFAULTS.get(k)}
-                options = base.with_options(**options)
-            model = models[sampling] = PrismStereo(rig, z_range, options)
+            # the options given explicitly (the rest: the preset's, or the model's defaults)
+            options = dict(sampling=sampling if args.sampling else None, downsample=args.downsample,
+                           full_band=args.full_band, band_edges=args.band_edges, coarse_factor=args.coarse_factor,
+                           band=args.band, directions=args.directions, validity=args.validity, dense=args.dense,
+                           smoothing=args.smoothing)
+            options = {k: v for k, v in options.items() if v is not None}
+            config = PRESETS[args.preset or "accurate"].with_options(**options)
+            model = models[sampling] = PrismStereo(rig, z_range, config)
             print(f"\nthesis_setup{key} {rig.image_width}x{rig.image_height}: {model.summary()}; model built in "
                   f"{time.perf_counter() - t0:.1f} s")
         print(HEADER)

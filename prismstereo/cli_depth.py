@@ -402,7 +402,9 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
                              "override it")
     parser.add_argument("--dense", action="store_true",
                         help="a depth for every pixel of the common field of view with its calibrated confidence "
-                             "(the probability of a depth within 1 %%), not only for the valid ones")
+                             "(the probability of a depth within 1 %%), not only for the valid ones, from the "
+                             "preset's chain; --preset dense is the chain built for it (its coarse level matched by "
+                             "cost-volume filtering: fewer wrong depths on weakly textured photographs)")
 
 
 def add_depth_parser(sub: argparse._SubParsersAction) -> None:
