@@ -15,7 +15,10 @@ None of them is used to fit the confidence (``benchmarks/fit_confidence.py``). P
 coverage (co-visible reference pixels with a depth: valid ones, or for the dense output every pixel it gives a
 depth), bad>1 % (share of those off by more than 1 %), mean relative error, time of one forward pass. Then the
 reliability of the confidence over all captures (dense output): for each c, the share of co-visible pixels
-with confidence >= c and how many of them are off by more than 1 %.
+with confidence >= c and how many of them are off by more than 1 %. Last, for the captures with depth jumps
+(neighbouring true depths more than 1 % apart: the photographs), where the errors are: coverage and bad>1 % by
+the distance of a pixel to the nearest jump, for the default, the dense output, the reference and the ``--model``
+additions.
 
 Models: ``thresholds`` = ``{'validity': 'thresholds', 'smoothing': 0}`` (NCC >= 0.5 and a coarse uniqueness
 >= 0.3: the earlier default), ``unsmoothed`` = the calibrated confidence without the smoothing of the estimate
@@ -27,18 +30,29 @@ invalid instead of refined from the inner neighbour and judged by the confidence
 ``cost='ad_gradient', aggregation='guided', box=1``; coverage counts every pixel with a depth, and its ``valid``
 mask is reported as ``dense valid``), ``dense sgm`` = the previous 'dense' preset (the default's semi-global ZNCC
 coarse level), ``dense cf1`` = the 'dense' preset with ``coarse_factor=1`` (in the pyramid: the binned model
-filters the whole range at its own resolution; ~5x the time; not on sensors without a pyramid).
+filters the whole range at its own resolution; ~5x the time; not on sensors without a pyramid), ``reference`` =
+the ``'reference'`` preset: no coarse-to-fine placement at all, one level that searches the whole range at full
+resolution (semi-global ZNCC on the exact sweep; ~30 s per 1024 x 768 capture in torch), reported on its valid
+pixels (NCC thresholds) and as ``reference all`` on every co-visible pixel with a finite depth, before its
+validity rules.
+``--model NAME=JSON`` adds a model by its options (``PrismStereo``'s config keywords; ``{"preset": "dense",
+...}`` starts from a preset), e.g. ``--model 'no fill={"preset": "dense", "dense_fill": 0}'``; one without a
+dense output gets a ``NAME all`` row too.
 
-Run: .venv/bin/python benchmarks/dense_depth.py [--z-range ZMIN ZMAX] [--scale K] [--cache DIR]
+Run: .venv/bin/python benchmarks/dense_depth.py [--z-range ZMIN ZMAX] [--scale K] [--cache DIR] [--model NAME=JSON]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import re
 import sys
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -60,9 +74,14 @@ MODELS = {"thresholds": {"validity": "thresholds", "smoothing": 0}, "unsmoothed"
           "reject edges": {"band_edges": "reject"}, "default": {},
           "fast": preset("fast").to_kwargs(), "dense": preset("dense").to_kwargs(),
           "dense sgm": {"dense": True, "coarse_factor": 2},
-          "dense cf1": preset("dense").with_options(coarse_factor=1).to_kwargs()}
+          "dense cf1": preset("dense").with_options(coarse_factor=1).to_kwargs(),
+          "reference": preset("reference").to_kwargs()}
+WHOLE = ("reference",)  # models also scored on every pixel with a finite depth (``NAME all``)
 DENSE = ("dense", "dense sgm", "dense cf1")  # models whose coverage counts every pixel with a depth
 LEVELS = (0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95)
+# the rows of the table by distance to a depth jump (and every --model's)
+JUMP_ROWS = ("default", "dense", "dense valid", "reference", "reference all")
+JUMP_BANDS = ((0, 2), (2, 4), (4, 8), (8, 16), (16, None))  # px
 
 
 def captures(rig, cache: Path) -> dict[str, dict]:
@@ -97,35 +116,82 @@ def scores(rel: torch.Tensor, has: torch.Tensor, covisible: torch.Tensor) -> tup
     return cover, bad, mean
 
 
+def jump_distance(depth: torch.Tensor, jump: float = 0.01) -> torch.Tensor:
+    """(H, W) distance in px from each pixel to the nearest one whose true depth differs from a 4-neighbour's by
+    more than ``jump`` (relative to the nearer of the two), from (H, W) ``depth``; inf without any jump."""
+    d = depth.double()
+    edges = torch.zeros_like(d, dtype=torch.bool)
+    for a, b, at_a, at_b in ((d[:, :-1], d[:, 1:], (slice(None), slice(0, -1)), (slice(None), slice(1, None))),
+                             (d[:-1], d[1:], (slice(0, -1), slice(None)), (slice(1, None), slice(None)))):
+        step = (a - b).abs() / torch.minimum(a, b) > jump
+        edges[at_a] |= step
+        edges[at_b] |= step
+    if not edges.any():
+        return torch.full_like(d, float("inf"))
+    distance = cv2.distanceTransform((~edges).numpy().astype(np.uint8), cv2.DIST_L2, 5)
+    return torch.from_numpy(distance).double()
+
+
+def model_config(spec: str) -> tuple[str, dict]:
+    """``NAME=JSON`` (``--model``; the name may contain ``=``, the JSON starts at the first ``={``): the name and
+    the model's keyword options (``"preset"`` starts from one)."""
+    found = re.match(r"(.+?)=\s*(\{.*)$", spec, re.S)
+    name, sep, text = (found.group(1), "=", found.group(2)) if found else spec.partition("=")
+    if not sep or not name:
+        raise SystemExit(f"--model takes NAME=JSON, got {spec!r}")
+    try:
+        options = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SystemExit(f"--model {name}: not JSON ({exc})") from exc
+    if not isinstance(options, dict):
+        raise SystemExit(f"--model {name}: the options must be a JSON object, got {text!r}")
+    if "preset" in options:
+        options = dict(options)
+        options = preset(options.pop("preset")).with_options(**options).to_kwargs()
+    return name, options
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--z-range", type=float, nargs=2, default=(205.0, 1511.0), metavar=("ZMIN", "ZMAX"))
     parser.add_argument("--scale", type=int, default=1, help="sensor downscale factor")
     parser.add_argument("--cache", type=Path, default=Path(".cache/dense_depth"))
+    parser.add_argument("--model", action="append", default=[], metavar="NAME=JSON",
+                        help="add a model by its options (see the module docstring)")
     args = parser.parse_args()
+    extra = dict(model_config(spec) for spec in args.model)
     torch.set_num_threads(2)
     rig = thesis_setup1() if args.scale == 1 else thesis_setup1().downscaled(args.scale)
     caps = captures(rig, args.cache)
     pyramid = PrismStereo.default_downsample(rig) > 1  # 'dense cf1' needs the binned model (a single level has
     models = {k: PrismStereo(rig, tuple(args.z_range), v) for k, v in MODELS.items()  # no band after a factor 1)
               if pyramid or k != "dense cf1"}
+    models.update({k: PrismStereo(rig, tuple(args.z_range), v) for k, v in extra.items()})
     print(f"thesis_setup1 {rig.image_width}x{rig.image_height}, searched {args.z_range[0]:g}-{args.z_range[1]:g} mm; "
           f"{models['default'].summary()}")
-    print(f"{'capture':26s} {'model':15s} {'cover %':>8s} {'bad>1% %':>9s} {'mean %':>8s} {'ms':>6s}")
+    width = max(15, *(len(k) + 6 for k in models))  # the model column (a dense model's "NAME valid" rows)
+    print(f"{'capture':26s} {'model':{width}s} {'cover %':>8s} {'bad>1% %':>9s} {'mean %':>8s} {'ms':>6s}")
     w = rig.reference_width
     pooled_p, pooled_ok = [], []
+    jumps = {}  # capture -> (distance to a jump, [(label, relative errors, mask)]), the captures with jumps
     for name, cap in caps.items():
         gt, covisible = cap["depth"][..., :w], cap["covisible"][..., :w]
+        distance = jump_distance(gt[0, 0])
         for key, model in models.items():
             t0 = time.perf_counter()
             with torch.inference_mode():
                 res = model(cap["image"])
             ms = 1e3 * (time.perf_counter() - t0)
             rel = (res.depth.double() - gt).abs() / gt
-            rows = [(key, res.valid)] if key not in DENSE else [(key, res.confidence > 0), (f"{key} valid", res.valid)]
+            dense = key in DENSE or model.final.config.validity.dense
+            rows = [(key, res.valid)] if not dense else [(key, res.confidence > 0), (f"{key} valid", res.valid)]
+            if (key in extra or key in WHOLE) and not dense:  # its estimate everywhere, before the validity rules
+                rows.append((f"{key} all", torch.isfinite(res.depth)))
             for label, has in rows:
                 cover, bad, mean = scores(rel, has, covisible)
-                print(f"{name:26s} {label:15s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:6.0f}")
+                print(f"{name:26s} {label:{width}s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:6.0f}")
+                if torch.isfinite(distance).any() and (label in JUMP_ROWS or key in extra):
+                    jumps.setdefault(name, (distance, []))[1].append((label, rel, has))
             if key == "dense":  # every co-visible pixel with a depth
                 sel = (res.confidence > 0) & covisible
                 pooled_p.append(res.confidence[sel])
@@ -139,6 +205,22 @@ def main() -> None:
         wrong = 100 * float((~ok[sel]).double().mean()) if sel.any() else float("nan")
         expected = 100 * float(1 - p[sel].double().mean()) if sel.any() else float("nan")
         print(f"{c:14.2f} {share:8.1f} {wrong:9.2f} {expected:16.2f}")
+    if jumps:
+        print("\nby distance to a depth jump (true depths of neighbours > 1 % apart), co-visible pixels: the band's "
+              "share of them, then per model cover % / bad>1 % of the covered")
+        bands = [f"{lo}-{hi} px" if hi else f">= {lo} px" for lo, hi in JUMP_BANDS]
+        print(f"{'capture':26s} {'model':{width}s} " + " ".join(f"{b:>13s}" for b in bands))
+    for name, (distance, entries) in jumps.items():
+        covisible = caps[name]["covisible"][0, 0, :, :w]
+        masks = [covisible & (distance >= lo) & (distance < (hi or float("inf"))) for lo, hi in JUMP_BANDS]
+        shares = [100 * float(m.sum() / covisible.sum()) for m in masks]
+        print(f"{name:26s} {'share %':{width}s} " + " ".join(f"{v:13.1f}" for v in shares))
+        for label, rel, has in entries:
+            cells = []
+            for m in masks:
+                cover, bad, _ = scores(rel[0, 0], has[0, 0], m)
+                cells.append(f"{cover:5.1f} / {bad:5.1f}")
+            print(f"{'':26s} {label:{width}s} " + " ".join(f"{c:>13s}" for c in cells))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,43 @@
+"""Helpers of the benchmark scripts whose numbers go to docs/benchmarks.md."""
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from dense_depth import jump_distance, model_config  # noqa: E402
+
+from prismstereo.config import preset  # noqa: E402
+
+
+def test_jump_distance_of_a_step():
+    depth = torch.full((6, 10), 500.0)
+    depth[:, 5:] = 520.0  # 4 % farther: a jump between columns 4 and 5
+    distance = jump_distance(depth)
+    assert distance.shape == (6, 10)
+    assert distance[:, 4:6].eq(0).all()  # both sides of the jump
+    torch.testing.assert_close(distance[0, :4], torch.tensor([4.0, 3.0, 2.0, 1.0], dtype=torch.float64))
+    torch.testing.assert_close(distance[0, 6:], torch.tensor([1.0, 2.0, 3.0, 4.0], dtype=torch.float64))
+
+
+def test_jump_distance_ignores_steps_below_the_threshold():
+    depth = torch.full((4, 8), 500.0)
+    depth[:, 4:] = 504.0  # 0.8 %
+    assert torch.isinf(jump_distance(depth)).all()
+    assert jump_distance(depth, jump=0.005)[:, 3:5].eq(0).all()
+    rows = torch.full((8, 4), 500.0)
+    rows[4:] = 450.0  # a jump between rows counts too
+    assert jump_distance(rows)[3:5].eq(0).all()
+
+
+def test_model_config():
+    assert model_config('a={"downsample": 1}') == ("a", {"downsample": 1})
+    name, options = model_config('no fill={"preset": "dense", "dense_fill": 0}')
+    assert name == "no fill"
+    assert options == preset("dense").with_options(dense_fill=0).to_kwargs()
+    assert model_config('c>=0.1={"min_confidence": 0.1}') == ("c>=0.1", {"min_confidence": 0.1})
+    for bad, message in (("nothing", "NAME=JSON"), ("a={", "not JSON"), ("a=[1]", "JSON object")):
+        with pytest.raises(SystemExit, match=message):
+            model_config(bad)
