@@ -148,7 +148,7 @@ def guided_filter(
     Each slice p is modelled as a_k . I + b_k in every (2 r + 1)^2 window k of the guide I (C channels): a_k =
     (Sigma_k + eps Id)^-1 cov_k(I, p), b_k = mean_k(p) - a_k . mean_k(I); the output averages the models of
     the windows covering a pixel, q = mean(a) . I + mean(b). Windows are cut at the image border (box means
-    over the pixels inside, :func:`~prismstereo.matching.aggregate.box_filter`); 2 + 2 C box filters of the
+    over the pixels inside, :func:`box_filter`); 2 + 2 C box filters of the
     volume's size. With ``subsample`` s > 1 the coefficients are computed on s x s block means of the volume
     and the guide with a radius of round(r / s) and bilinearly upsampled (He & Sun's fast guided filter,
     ~1 / s^2 of the work); q still uses the full-resolution guide, so the edges stay sharp.
