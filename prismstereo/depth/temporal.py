@@ -265,8 +265,8 @@ class TemporalDepth(nn.Module):
         s = extend_estimate(depth_to_sweep(result.depth, z_range), has, 1).s
         s = upsample(s, k, size, "bilinear").clamp(-1.0, 1.0)
         maps = [has.to(s.dtype), result.confidence] + ([result.valid.to(s.dtype)] if dense else [])
-        shown, confidence, *valid = upsample(torch.cat(maps, 1), k, size, beyond="zero").split(1, 1)
-        valid = (valid[0] if dense else shown) > 0.5
+        shown, confidence, *dense_valid = upsample(torch.cat(maps, 1), k, size, beyond="zero").split(1, 1)
+        valid = (dense_valid[0] if dense else shown) > 0.5
         return DepthResult(sweep_to_depth(s, z_range), valid, confidence * shown, (s + 1.0) / final.step,
                            torch.cat(series_at(final.series, s), 1))
 
