@@ -15,7 +15,10 @@ None of them is used to fit the confidence (``benchmarks/fit_confidence.py``). P
 coverage (co-visible reference pixels with a depth: valid ones, or for the dense output every pixel it gives a
 depth), bad>1 % (share of those off by more than 1 %), mean relative error, time of one forward pass. Then the
 reliability of the confidence over all captures (dense output): for each c, the share of co-visible pixels
-with confidence >= c and how many of them are off by more than 1 %. Last, for the captures with depth jumps
+with confidence >= c and how many of them are off by more than 1 %; per capture and dense model, the largest
+share of the co-visible pixels a threshold on the confidence keeps at <= 5 % off by > 1 % (``threshold``), and what
+a perfect ranking of the same depths would keep (``perfect``: the right ones plus wrong ones up to 5 %: the
+ceiling of any validity rule on these estimates). Last, for the captures with depth jumps
 (neighbouring true depths more than 1 % apart: the photographs), where the errors are: coverage and bad>1 % by
 the distance of a pixel to the nearest jump, for the default, the dense output, the reference and the ``--model``
 additions.
@@ -116,6 +119,25 @@ def scores(rel: torch.Tensor, has: torch.Tensor, covisible: torch.Tensor) -> tup
     return cover, bad, mean
 
 
+def best_coverage(confidence: torch.Tensor, right: torch.Tensor, covisible: int, bad: float = 0.05
+                  ) -> tuple[float, float, float]:
+    """(coverage %, its threshold) of the largest set of pixels with confidence >= a threshold that is at most
+    ``bad`` wrong, and the coverage % of a perfect ranking (every right pixel, then wrong ones up to ``bad``), from
+    (N,) ``confidence`` and bool ``right`` of the pixels with a depth among ``covisible`` pixels."""
+    order = torch.argsort(confidence, descending=True, stable=True)
+    wrong = (~right[order]).double().cumsum(0)
+    count = torch.arange(1, len(order) + 1, dtype=torch.float64)
+    # only cut between distinct confidences: a threshold keeps all pixels at that confidence or none
+    c = confidence[order]
+    cut = torch.ones_like(c, dtype=torch.bool)
+    cut[:-1] = c[1:] < c[:-1]
+    ok = (wrong <= bad * count) & cut
+    k = int(ok.nonzero().max()) + 1 if ok.any() else 0
+    threshold = float(c[k - 1]) if k else float("nan")
+    perfect = min(len(order), float(right.sum()) / (1 - bad))
+    return 100 * k / covisible, threshold, 100 * perfect / covisible
+
+
 def jump_distance(depth: torch.Tensor, jump: float = 0.01) -> torch.Tensor:
     """(H, W) distance in px from each pixel to the nearest one whose true depth differs from a 4-neighbour's by
     more than ``jump`` (relative to the nearer of the two), from (H, W) ``depth``; inf without any jump."""
@@ -174,6 +196,7 @@ def main() -> None:
     w = rig.reference_width
     pooled_p, pooled_ok = [], []
     jumps = {}  # capture -> (distance to a jump, [(label, relative errors, mask)]), the captures with jumps
+    ceilings = []  # (capture, model, threshold's coverage, its threshold, a perfect ranking's coverage)
     for name, cap in caps.items():
         gt, covisible = cap["depth"][..., :w], cap["covisible"][..., :w]
         distance = jump_distance(gt[0, 0])
@@ -192,6 +215,10 @@ def main() -> None:
                 print(f"{name:26s} {label:{width}s} {cover:8.1f} {bad:9.2f} {mean:8.3f} {ms:6.0f}")
                 if torch.isfinite(distance).any() and (label in JUMP_ROWS or key in extra):
                     jumps.setdefault(name, (distance, []))[1].append((label, rel, has))
+            if dense:  # what a threshold on its confidence keeps at <= 5 % off
+                sel = (res.confidence > 0) & covisible
+                ceilings.append((name, key, *best_coverage(res.confidence[sel], rel[sel] <= 0.01,
+                                                           int(covisible.sum()))))
             if key == "dense":  # every co-visible pixel with a depth
                 sel = (res.confidence > 0) & covisible
                 pooled_p.append(res.confidence[sel])
@@ -205,6 +232,11 @@ def main() -> None:
         wrong = 100 * float((~ok[sel]).double().mean()) if sel.any() else float("nan")
         expected = 100 * float(1 - p[sel].double().mean()) if sel.any() else float("nan")
         print(f"{c:14.2f} {share:8.1f} {wrong:9.2f} {expected:16.2f}")
+    print("\nthe most a threshold on a dense model's confidence keeps at <= 5 % off by > 1 % (co-visible pixels), "
+          "and a perfect ranking of its depths")
+    print(f"{'capture':26s} {'model':{width}s} {'threshold %':>11s} {'at conf':>8s} {'perfect %':>10s}")
+    for name, key, cover, threshold, perfect in ceilings:
+        print(f"{name:26s} {key:{width}s} {cover:11.1f} {threshold:8.3f} {perfect:10.1f}")
     if jumps:
         print("\nby distance to a depth jump (true depths of neighbours > 1 % apart), co-visible pixels: the band's "
               "share of them, then per model cover % / bad>1 % of the covered")

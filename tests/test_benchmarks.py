@@ -7,7 +7,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from dense_depth import jump_distance, model_config  # noqa: E402
+from dense_depth import best_coverage, jump_distance, model_config  # noqa: E402
 
 from prismstereo.config import preset  # noqa: E402
 
@@ -41,3 +41,16 @@ def test_model_config():
     for bad, message in (("nothing", "NAME=JSON"), ("a={", "not JSON"), ("a=[1]", "JSON object")):
         with pytest.raises(SystemExit, match=message):
             model_config(bad)
+
+
+def test_best_coverage():
+    confidence = torch.tensor([0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2])
+    right = torch.tensor([True, True, True, False, True, True, False, False])
+    cover, threshold, perfect = best_coverage(confidence, right, 10, bad=0.2)
+    # the 5 most confident are 1/5 wrong; the 6th keeps 1/6; the 7th 2/7 > 0.2
+    assert (cover, threshold) == (60.0, pytest.approx(0.4))
+    assert perfect == pytest.approx(100 * min(8, 5 / 0.8) / 10)
+    # ties: a threshold keeps every pixel at its confidence or none of them
+    tied = best_coverage(torch.tensor([0.9, 0.5, 0.5]), torch.tensor([True, True, False]), 3, bad=0.3)
+    assert tied[:2] == (pytest.approx(100 / 3), pytest.approx(0.9))
+    assert best_coverage(torch.tensor([0.9]), torch.tensor([False]), 1)[0] == 0.0
