@@ -80,7 +80,6 @@ MODELS = {"thresholds": {"validity": "thresholds", "smoothing": 0}, "unsmoothed"
           "dense cf1": preset("dense").with_options(coarse_factor=1).to_kwargs(),
           "reference": preset("reference").to_kwargs()}
 WHOLE = ("reference",)  # models also scored on every pixel with a finite depth (``NAME all``)
-DENSE = ("dense", "dense sgm", "dense cf1")  # models whose coverage counts every pixel with a depth
 LEVELS = (0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95)
 # the rows of the table by distance to a depth jump (and every --model's)
 JUMP_ROWS = ("default", "dense", "dense valid", "reference", "reference all")
@@ -206,7 +205,7 @@ def main() -> None:
                 res = model(cap["image"])
             ms = 1e3 * (time.perf_counter() - t0)
             rel = (res.depth.double() - gt).abs() / gt
-            dense = key in DENSE or model.final.config.validity.dense
+            dense = model.final.config.validity.dense  # coverage counts every pixel with a depth
             rows = [(key, res.valid)] if not dense else [(key, res.confidence > 0), (f"{key} valid", res.valid)]
             if (key in extra or key in WHOLE) and not dense:  # its estimate everywhere, before the validity rules
                 rows.append((f"{key} all", torch.isfinite(res.depth)))
