@@ -521,7 +521,8 @@ def middlebury_scene(
     """A Middlebury pair's left photograph placed in front of the prism with its true depth structure
     (:func:`disparity_scene`: 1/Z linear in disparity from ``far_mm`` to ``near_mm``, pixels without ground truth
     inpainted). ``scale`` divides the stored disparity (16 for Tsukuba's .pgm, 8 for Venus' .png by default, from
-    the folder's README).
+    the folder's README); the depths do not depend on it, since the map's own smallest and largest disparities are
+    placed at ``far_mm`` and ``near_mm``.
 
     Example:
         >>> scene = middlebury_scene("../shared/data/middlebury/Tsukuba")  # doctest: +SKIP
