@@ -19,8 +19,14 @@ second stage, the re-scoring after the model's smoothing (``SMOOTHED_WEIGHTS``, 
 new first stage weights (the models are run again with it). ``--presets fast`` fits the weights of models whose
 final band clamps its edges (``CLAMPED_WEIGHTS``).
 
+``--band-edges`` (default ``reject``) sets the final band's edge rule of the presets that leave it to the model
+(``band_edges=None``; not dense ones): the shipped ``DEFAULT_WEIGHTS`` and ``SMOOTHED_WEIGHTS`` were fitted on
+bands that reject their edges and are kept for the default's clamped final band (``docs/design.md``,
+``band_edges``: refitted on its estimates they were more conservative on the held-out captures without a better
+trade-off); ``--band-edges preset`` fits each preset as it is.
+
 Run: .venv/bin/python benchmarks/fit_confidence.py [--cache DIR] [--scenes N] [--photos skimage | DIR]
-[--z-range ZMIN ZMAX]
+[--presets NAME ...] [--band-edges reject | clamp | preset] [--z-range ZMIN ZMAX]
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo import thesis_setup1, thesis_setup2
+from prismstereo.config import preset
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.data import procedural_picture
 from prismstereo.matching.confidence import FEATURES, SMOOTHED_FEATURES, ConfidenceModel, fit_confidence
@@ -56,6 +63,16 @@ SAMPLES_PER_CAPTURE = 200_000
 PHOTOS = ("astronaut.png", "coffee.png", "chelsea.png", "rocket.jpg", "camera.png", "brick.png", "grass.png",
           "gravel.png")
 MOTORCYCLE_RANGES = ((450.0, 900.0), (300.0, 600.0), (700.0, 1300.0))
+
+
+def fit_options(name: str, band_edges: str = "reject") -> dict:
+    """The keyword options of the model whose estimates are fitted for preset ``name``: the preset, with
+    ``band_edges`` (``'reject'`` or ``'clamp'``) where it leaves the final band's edge rule to the model (not a
+    dense preset, whose bands always clamp); ``'preset'``: the preset as it is."""
+    config = preset(name)
+    if band_edges == "preset" or config.search.band_edges is not None or config.validity.dense:
+        return config.to_kwargs()
+    return config.with_options(band_edges=band_edges).to_kwargs()
 
 
 def procedural_surface(seed: int, h: int = 360, w: int = 480) -> tuple[torch.Tensor, torch.Tensor]:
@@ -148,6 +165,8 @@ def main() -> None:
                         help="add photographs: 'skimage' (the installed package's sample data) or its folder")
     parser.add_argument("--presets", nargs="+", default=("accurate",),
                         help="model presets whose estimates are the samples (one confidence is fitted to them all)")
+    parser.add_argument("--band-edges", choices=("reject", "clamp", "preset"), default="reject",
+                        help="the final band's edge rule of presets that leave it to the model (see the docstring)")
     parser.add_argument("--scales", type=int, nargs="+", default=(1, 2),
                         help="sensor downscale factors (1: the 1024 x 768 pyramid; 2: 512 x 384, one level)")
     parser.add_argument("--z-range", type=float, nargs=2, default=(205.0, 1511.0), metavar=("ZMIN", "ZMAX"))
@@ -175,7 +194,8 @@ def main() -> None:
         xs, ys, per_capture = [], [], []
         for rig, prefix, scene_name, path in captures:
             if rig not in models:
-                models[rig] = {n: PrismStereo.from_config(rig, tuple(args.z_range), n) for n in args.presets}
+                models[rig] = {n: PrismStereo(rig, tuple(args.z_range), fit_options(n, args.band_edges))
+                               for n in args.presets}
             capture = torch.load(path)
             w = rig.reference_width
             for preset_name, model in models[rig].items():

@@ -8,6 +8,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from dense_depth import best_coverage, jump_distance, model_config  # noqa: E402
+from fit_confidence import fit_options  # noqa: E402
 
 from prismstereo.config import preset  # noqa: E402
 
@@ -54,3 +55,21 @@ def test_best_coverage():
     tied = best_coverage(torch.tensor([0.9, 0.5, 0.5]), torch.tensor([True, True, False]), 3, bad=0.3)
     assert tied[:2] == (pytest.approx(100 / 3), pytest.approx(0.9))
     assert best_coverage(torch.tensor([0.9]), torch.tensor([False]), 1)[0] == 0.0
+
+
+def test_fit_options_reject_edges_only_where_the_preset_leaves_them():
+    """The shipped DEFAULT_WEIGHTS were fitted on the default chain with its final band rejecting its edges; the
+    fast preset keeps its clamp, a dense preset its own rule, and 'preset' changes nothing."""
+    accurate = fit_options("accurate")
+    assert accurate["band_edges"] == "reject"
+    assert accurate == preset("accurate").with_options(band_edges="reject").to_kwargs()
+    assert fit_options("accurate", "clamp")["band_edges"] == "clamp"
+    assert fit_options("accurate", "preset") == preset("accurate").to_kwargs()
+    for name in ("fast", "dense"):
+        assert fit_options(name) == preset(name).to_kwargs()
+    from prismstereo import thesis_setup1
+    from prismstereo.model import PrismStereo
+
+    rig = thesis_setup1().downscaled(8)
+    assert PrismStereo(rig, (400.0, 700.0), fit_options("accurate")).final.band_edges == "reject"
+    assert PrismStereo(rig, (400.0, 700.0), fit_options("fast")).final.clamped_band

@@ -50,24 +50,28 @@ __all__ = [
 FEATURES: tuple[str, ...] = ("ncc", "coarse", "roughness", "offset", "texture", "rejected")
 """The feature channels of :func:`confidence_features`, in order."""
 
-# fitted by benchmarks/fit_confidence.py (the last entry is the bias)
-DEFAULT_WEIGHTS: tuple[float, ...] = (4.045, 2.071, -2.178, -1.673, 0.051, -0.090, -1.167)
+# fitted by benchmarks/fit_confidence.py (the last entry is the bias) on the default chain with its final band
+# rejecting its edges (the script's --band-edges reject; the default model's clamped final band keeps these
+# weights: docs/design.md, band_edges)
+DEFAULT_WEIGHTS: tuple[float, ...] = (4.046, 2.069, -2.178, -1.673, 0.051, -0.093, -1.161)
 
 SMOOTHED_FEATURES: tuple[str, ...] = ("confidence", "agreement", "support", "spread")
 """The feature channels of :func:`smoothed_features`, in order."""
 
-# fitted by benchmarks/fit_confidence.py (the last entry is the bias)
-SMOOTHED_WEIGHTS: tuple[float, ...] = (0.195, 7.214, 6.699, -0.558, -8.913)
+# fitted by benchmarks/fit_confidence.py (the last entry is the bias), as DEFAULT_WEIGHTS
+SMOOTHED_WEIGHTS: tuple[float, ...] = (0.197, 7.186, 6.694, -0.558, -8.889)
 
 CLAMPED_WEIGHTS: tuple[tuple[float, ...], tuple[float, ...]] = (
-    (2.528, 3.101, -5.274, -4.406, 0.156, 0.140, 0.464),
-    (-2.638, -0.622, 9.668, -0.941, -1.785),
+    (2.528, 3.100, -5.274, -4.406, 0.156, 0.139, 0.463),
+    (0.000, -0.525, 6.879, -0.950, -1.798),
 )
 """(stage 1, stage 2) weights of models whose final band clamps its edges instead of rejecting them
 (``band_edges='clamp'``, the ``'fast'`` preset: ``PrismStereo.clamped_band``; fitted by
 ``benchmarks/fit_confidence.py --presets fast``): their wrong estimates agree with their neighbours more often,
 and the default weights trusted them too much. In stage 2 the spread carries what the agreement did (the two
-describe the same window; the fit leaves the agreement a small negative weight)."""
+describe the same window; the fit leaves the agreement a small negative weight). The own-confidence weight of
+stage 2 is held >= 0 as in every fit (a negative one, -2.6 before that rule, made more evidence at a pixel lower
+its confidence): it comes out at 0."""
 
 # the thresholds of the coarse level (the binned model of a pyramid) whose validity the features "coarse" and
 # "rejected" describe: those of the renders DEFAULT_WEIGHTS were fitted on (the model's defaults), whatever the

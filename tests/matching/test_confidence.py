@@ -210,6 +210,9 @@ def test_clamped_band_models_have_their_own_weights():
     # the spread and the agreement describe the same neighbourhood: with the spread, the clamped fit leaves the
     # agreement a small negative weight
     assert stage2["support"] > 0 and stage2["spread"] < 0 and stage2["spread"] < stage2["agreement"]
+    # more evidence of a pixel's own never lowers its confidence: stage 2's own-confidence weights are >= 0
+    for weights in (SMOOTHED_WEIGHTS, CLAMPED_WEIGHTS[1]):
+        assert dict(zip(SMOOTHED_FEATURES, weights, strict=False))["confidence"] >= 0
 
 
 def test_local_spread_exported_graph_matches_eager(tmp_path):
