@@ -21,7 +21,9 @@ a perfect ranking of the same depths would keep (``perfect``: the right ones plu
 ceiling of any validity rule on these estimates). Last, for the captures with depth jumps
 (neighbouring true depths more than 1 % apart: the photographs), where the errors are: coverage and bad>1 % by
 the distance of a pixel to the nearest jump, for the default, the dense output, the reference and the ``--model``
-additions.
+additions; whether the jumps show in the image (the percentile of the grey gradient at jump pixels among all
+co-visible pixels'); and the share of pixels that neither the dense output nor the reference's estimates get
+within 1 % (what a per-pixel choice between the two chains, made by an oracle, would leave wrong).
 
 Models: ``thresholds`` = ``{'validity': 'thresholds', 'smoothing': 0}`` (NCC >= 0.5 and a coarse uniqueness
 >= 0.3: the earlier default), ``unsmoothed`` = the calibrated confidence without the smoothing of the estimate
@@ -153,6 +155,25 @@ def jump_distance(depth: torch.Tensor, jump: float = 0.01) -> torch.Tensor:
     return torch.from_numpy(distance).double()
 
 
+def edge_strength(image: torch.Tensor, depth: torch.Tensor, covisible: torch.Tensor) -> tuple[float, float]:
+    """Whether the depth jumps of a capture show in its image: the percentile of each jump pixel's grey gradient
+    (Sobel magnitude, its largest within 1 px) among the co-visible pixels', as (median %, share % of jump pixels
+    below the median pixel's), from (C, H, W) ``image``, (H, W) true ``depth`` and bool ``covisible``; (nan, nan)
+    without jumps. A jump that an edge marks scores near 100; one with no trace in the image, like any pixel."""
+    grey = torch.nn.functional.pad(image.double().mean(0)[None, None], (1, 1, 1, 1), mode="replicate")
+    gx = torch.nn.functional.conv2d(grey, _SOBEL[None, None])
+    gy = torch.nn.functional.conv2d(grey, _SOBEL.t()[None, None])
+    strength = torch.nn.functional.max_pool2d(torch.hypot(gx, gy), 3, 1, 1)[0, 0]
+    jump = (jump_distance(depth) < 1) & covisible
+    if not jump.any():
+        return float("nan"), float("nan")
+    ranks = torch.searchsorted(strength[covisible].sort().values, strength[jump]).double() / int(covisible.sum())
+    return 100 * float(ranks.median()), 100 * float((ranks < 0.5).double().mean())
+
+
+_SOBEL = torch.tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]], dtype=torch.float64)
+
+
 def model_config(spec: str) -> tuple[str, dict]:
     """``NAME=JSON`` (``--model``; the name may contain ``=``, the JSON starts at the first ``={``): the name and
     the model's keyword options (``"preset"`` starts from one)."""
@@ -243,6 +264,9 @@ def main() -> None:
         print(f"{'capture':26s} {'model':{width}s} " + " ".join(f"{b:>13s}" for b in bands))
     for name, (distance, entries) in jumps.items():
         covisible = caps[name]["covisible"][0, 0, :, :w]
+        median, below = edge_strength(caps[name]["image"][0, :, :, :w], caps[name]["depth"][0, 0, :, :w], covisible)
+        print(f"{name:26s} image edges at the jumps: gradient percentile median {median:.0f}, {below:.0f} % of the "
+              "jump pixels below the median pixel's")
         masks = [covisible & (distance >= lo) & (distance < (hi or float("inf"))) for lo, hi in JUMP_BANDS]
         shares = [100 * float(m.sum() / covisible.sum()) for m in masks]
         print(f"{name:26s} {'share %':{width}s} " + " ".join(f"{v:13.1f}" for v in shares))
@@ -252,6 +276,11 @@ def main() -> None:
                 cover, bad, _ = scores(rel[0, 0], has[0, 0], m)
                 cells.append(f"{cover:5.1f} / {bad:5.1f}")
             print(f"{'':26s} {label:{width}s} " + " ".join(f"{c:>13s}" for c in cells))
+        right = {label: (rel <= 0.01) & has for label, rel, has in entries}
+        if "dense" in right and "reference all" in right:  # a per-pixel choice between the two, by an oracle
+            either = (right["dense"] | right["reference all"])[0, 0] & covisible
+            print(f"{'':26s} neither the dense output nor the reference's estimates within 1 %: "
+                  f"{100 * (1 - float(either.sum() / covisible.sum())):.1f} % of the co-visible pixels")
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from dense_depth import best_coverage, jump_distance, model_config  # noqa: E402
+from dense_depth import best_coverage, edge_strength, jump_distance, model_config  # noqa: E402
 from fit_confidence import fit_options  # noqa: E402
 
 from prismstereo.config import preset  # noqa: E402
@@ -73,3 +73,19 @@ def test_fit_options_reject_edges_only_where_the_preset_leaves_them():
     rig = thesis_setup1().downscaled(8)
     assert PrismStereo(rig, (400.0, 700.0), fit_options("accurate")).final.band_edges == "reject"
     assert PrismStereo(rig, (400.0, 700.0), fit_options("fast")).final.clamped_band
+
+
+def test_edge_strength_tells_marked_jumps_from_hidden_ones():
+    g = torch.Generator().manual_seed(0)
+    image = 0.5 + 0.02 * torch.rand(1, 40, 40, generator=g)  # faint texture
+    depth = torch.full((40, 40), 500.0)
+    depth[:, 20:] = 550.0
+    covisible = torch.ones(40, 40, dtype=torch.bool)
+    hidden = edge_strength(image, depth, covisible)  # the same texture everywhere
+    marked = image.clone()
+    marked[..., 20:] += 0.3  # the jump is an edge of the image too
+    shown = edge_strength(marked, depth, covisible)
+    assert shown[0] > 85 and shown[1] == 0
+    assert hidden[0] < 75 and hidden[1] > 20
+    nan = edge_strength(image, torch.full((40, 40), 500.0), covisible)
+    assert all(v != v for v in nan)
