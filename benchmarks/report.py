@@ -58,8 +58,11 @@ BENCHMARKS: dict[str, Benchmark] = {
         "Interleaved rounds on 2 threads, 1024 x 768; ratios are medians of same-round ratios to StereoSGBM."),
     "video_speed": Benchmark(
         "video_speed.py", (), "Video: frame times, accuracy and flicker",
-        "A moving slanted plane frame by frame in onnxruntime against OpenCV at 1024 x 768 and 640 x 480, and the "
-        "per-pixel depth flicker of a static plane over 30 noisy frames."),
+        "Per frame and with the temporal prior in onnxruntime against OpenCV (a moving slanted plane, a depth step "
+        "entering the view, a cut) at 1024 x 768 and 640 x 480, and the per-pixel depth flicker of a static plane "
+        "over 30 noisy frames. `temporal ONNX` is the default temporal graph (`TemporalOptions()`: the band on the "
+        "2 x 2-binned frame for the 1024 x 768 pyramid, at full resolution for the one-level 640 x 480 model), "
+        "`temporal k=...` the band at the other resolution. What the numbers mean: usage.md, *Video and streams*."),
     "middlebury": Benchmark(
         "middlebury.py", (), "The rectified matcher on the Middlebury pairs",
         "bad > 1 px (missing output counts as bad) against OpenCV StereoSGBM / StereoBM."),
