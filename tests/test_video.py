@@ -12,7 +12,7 @@ from prismstereo import thesis_setup1
 from prismstereo.cli import main
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.io import read_depth, write_image
-from prismstereo.stream import DepthStream
+from prismstereo.stream import DepthStream, one_torch_thread
 from prismstereo.video import VideoError, is_sequence_source, read_frames, sequence_length
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -153,6 +153,46 @@ def test_stream_is_thread_safe_and_checks_its_input():
         DepthStream("model.pt")
     with pytest.raises(OptionError, match="a torch module with a rig"):
         DepthStream(torch.nn.Identity())
+
+
+def test_onnx_stream_does_its_tensor_work_on_one_torch_thread(export_once):
+    """An ONNX stream's push runs on one torch intra-op thread and restores the count, also with pushes of two
+    streams from two threads at once; a torch stream keeps the caller's threads for its model."""
+    from prismstereo.model import PrismStereo
+
+    model = PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0))
+    streams = {"onnx": DepthStream(export_once(model)), "onnx 2": DepthStream(export_once(model)),
+               "torch": DepthStream(model)}
+    seen: dict[str, set[int]] = {name: set() for name in streams}
+    for name, stream in streams.items():
+        prepare = stream._prepare
+
+        def spy(frame, name=name, prepare=prepare):
+            seen[name].add(torch.get_num_threads())
+            return prepare(frame)
+
+        stream._prepare = spy
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        gen = torch.Generator().manual_seed(0)
+        frames = [torch.rand(1, 48, 64, generator=gen) for _ in range(4)]
+        threads = [threading.Thread(target=lambda s=streams[n]: [s.push(f) for f in frames])
+                   for n in ("onnx", "onnx 2")]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        streams["torch"].push(frames[0])
+        assert seen == {"onnx": {1}, "onnx 2": {1}, "torch": {2}}
+        assert torch.get_num_threads() == 2  # restored after the last of the overlapping pushes
+        with one_torch_thread():
+            with one_torch_thread():
+                assert torch.get_num_threads() == 1
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
 
 
 @pytest.mark.parametrize("backend", ["torch", "onnx"])
