@@ -59,6 +59,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+from kornia.filters import sobel
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fit_confidence import procedural_surface  # noqa: E402
@@ -155,23 +156,18 @@ def jump_distance(depth: torch.Tensor, jump: float = 0.01) -> torch.Tensor:
     return torch.from_numpy(distance).double()
 
 
-def edge_strength(image: torch.Tensor, depth: torch.Tensor, covisible: torch.Tensor) -> tuple[float, float]:
+def edge_strength(image: torch.Tensor, distance: torch.Tensor, covisible: torch.Tensor) -> tuple[float, float]:
     """Whether the depth jumps of a capture show in its image: the percentile of each jump pixel's grey gradient
-    (Sobel magnitude, its largest within 1 px) among the co-visible pixels', as (median %, share % of jump pixels
-    below the median pixel's), from (C, H, W) ``image``, (H, W) true ``depth`` and bool ``covisible``; (nan, nan)
-    without jumps. A jump that an edge marks scores near 100; one with no trace in the image, like any pixel."""
-    grey = torch.nn.functional.pad(image.double().mean(0)[None, None], (1, 1, 1, 1), mode="replicate")
-    gx = torch.nn.functional.conv2d(grey, _SOBEL[None, None])
-    gy = torch.nn.functional.conv2d(grey, _SOBEL.t()[None, None])
-    strength = torch.nn.functional.max_pool2d(torch.hypot(gx, gy), 3, 1, 1)[0, 0]
-    jump = (jump_distance(depth) < 1) & covisible
+    (Sobel magnitude, kornia's, its largest within 1 px) among the co-visible pixels', as (median %, share % of
+    jump pixels below the median pixel's), from (C, H, W) ``image``, the (H, W) :func:`jump_distance` of its true
+    depth (jump pixels: 0) and bool ``covisible``; (nan, nan) without jumps. A jump that an edge marks scores
+    near 100; one with no trace in the image, like any pixel."""
+    strength = torch.nn.functional.max_pool2d(sobel(image.double().mean(0)[None, None]), 3, 1, 1)[0, 0]
+    jump = (distance < 1) & covisible
     if not jump.any():
         return float("nan"), float("nan")
     ranks = torch.searchsorted(strength[covisible].sort().values, strength[jump]).double() / int(covisible.sum())
     return 100 * float(ranks.median()), 100 * float((ranks < 0.5).double().mean())
-
-
-_SOBEL = torch.tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]], dtype=torch.float64)
 
 
 def model_config(spec: str) -> tuple[str, dict]:
@@ -264,7 +260,7 @@ def main() -> None:
         print(f"{'capture':26s} {'model':{width}s} " + " ".join(f"{b:>13s}" for b in bands))
     for name, (distance, entries) in jumps.items():
         covisible = caps[name]["covisible"][0, 0, :, :w]
-        median, below = edge_strength(caps[name]["image"][0, :, :, :w], caps[name]["depth"][0, 0, :, :w], covisible)
+        median, below = edge_strength(caps[name]["image"][0, :, :, :w], distance, covisible)
         print(f"{name:26s} image edges at the jumps: gradient percentile median {median:.0f}, {below:.0f} % of the "
               "jump pixels below the median pixel's")
         masks = [covisible & (distance >= lo) & (distance < (hi or float("inf"))) for lo, hi in JUMP_BANDS]

@@ -81,11 +81,12 @@ def test_edge_strength_tells_marked_jumps_from_hidden_ones():
     depth = torch.full((40, 40), 500.0)
     depth[:, 20:] = 550.0
     covisible = torch.ones(40, 40, dtype=torch.bool)
-    hidden = edge_strength(image, depth, covisible)  # the same texture everywhere
+    distance = jump_distance(depth)
+    hidden = edge_strength(image, distance, covisible)  # the same texture everywhere
     marked = image.clone()
     marked[..., 20:] += 0.3  # the jump is an edge of the image too
-    shown = edge_strength(marked, depth, covisible)
+    shown = edge_strength(marked, distance, covisible)
     assert shown[0] > 85 and shown[1] == 0
     assert hidden[0] < 75 and hidden[1] > 20
-    nan = edge_strength(image, torch.full((40, 40), 500.0), covisible)
+    nan = edge_strength(image, jump_distance(torch.full((40, 40), 500.0)), covisible)
     assert all(v != v for v in nan)
