@@ -139,7 +139,7 @@ def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
 
 
 def guided_filter(
-    volume: torch.Tensor, guide: torch.Tensor, radius: int = 13, eps: float = 1e-4, subsample: int = 1
+    volume: torch.Tensor, guide: torch.Tensor, radius: int = GUIDED_RADIUS, eps: float = GUIDED_EPS, subsample: int = 1
 ) -> torch.Tensor:
     """He et al.'s guided filter of every slice of a (B, D, H, W) cost volume (Rhemann et al. 2011's
     cost-volume filtering): an edge-aware mean that smooths the cost inside regions of similar colour of the
@@ -156,10 +156,10 @@ def guided_filter(
     Args:
         volume: (B, D, H, W) cost, finite.
         guide: (B or 1, C, H, W) guide image (e.g. the reference image in [0, 1]).
-        radius: box radius r (>= 1), in full-resolution pixels.
+        radius: box radius r (>= 1), in full-resolution pixels (default :data:`GUIDED_RADIUS`, 13).
         eps: regularisation (> 0, squared guide units): a window whose guide varies less than ~sqrt(eps) is
-            averaged like a box.
-        subsample: s (>= 1), 1 for the exact filter.
+            averaged like a box (default :data:`GUIDED_EPS`, 1e-4).
+        subsample: s (>= 1), 1 for the exact filter (the model and the matcher take :data:`GUIDED_SUBSAMPLE`).
 
     Returns:
         (B, D, H, W) filtered volume, dtype of ``volume``.
