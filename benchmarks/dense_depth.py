@@ -66,6 +66,7 @@ from fit_confidence import procedural_surface  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
 from prismstereo.config import preset  # noqa: E402
+from prismstereo.defaults import default_downsample  # noqa: E402
 from prismstereo.model import PrismStereo  # noqa: E402
 from prismstereo.synthetic import (  # noqa: E402
     ImageFormation,
@@ -78,10 +79,10 @@ from prismstereo.synthetic import (  # noqa: E402
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
 MODELS = {"thresholds": {"validity": "thresholds", "smoothing": 0}, "unsmoothed": {"smoothing": 0},
           "reject edges": {"band_edges": "reject"}, "default": {},
-          "fast": preset("fast").to_kwargs(), "dense": preset("dense").to_kwargs(),
+          "fast": preset("fast").to_options(), "dense": preset("dense").to_options(),
           "dense sgm": {"dense": True, "coarse_factor": 2},
-          "dense cf1": preset("dense").with_options(coarse_factor=1).to_kwargs(),
-          "reference": preset("reference").to_kwargs()}
+          "dense cf1": preset("dense").with_options(coarse_factor=1).to_options(),
+          "reference": preset("reference").to_options()}
 WHOLE = ("reference",)  # models also scored on every pixel with a finite depth (``NAME all``)
 LEVELS = (0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95)
 # the rows of the table by distance to a depth jump (and every --model's)
@@ -185,7 +186,7 @@ def model_config(spec: str) -> tuple[str, dict]:
         raise SystemExit(f"--model {name}: the options must be a JSON object, got {text!r}")
     if "preset" in options:
         options = dict(options)
-        options = preset(options.pop("preset")).with_options(**options).to_kwargs()
+        options = preset(options.pop("preset")).with_options(**options).to_options()
     return name, options
 
 
@@ -201,7 +202,7 @@ def main() -> None:
     torch.set_num_threads(2)
     rig = thesis_setup1() if args.scale == 1 else thesis_setup1().downscaled(args.scale)
     caps = captures(rig, args.cache)
-    pyramid = PrismStereo.default_downsample(rig) > 1  # 'dense cf1' needs the binned model (a single level has
+    pyramid = default_downsample(rig) > 1  # 'dense cf1' needs the binned model (a single level has
     models = {k: PrismStereo(rig, tuple(args.z_range), v) for k, v in MODELS.items()  # no band after a factor 1)
               if pyramid or k != "dense cf1"}
     models.update({k: PrismStereo(rig, tuple(args.z_range), v) for k, v in extra.items()})

@@ -66,13 +66,13 @@ MOTORCYCLE_RANGES = ((450.0, 900.0), (300.0, 600.0), (700.0, 1300.0))
 
 
 def fit_options(name: str, band_edges: str = "reject") -> dict:
-    """The keyword options of the model whose estimates are fitted for preset ``name``: the preset, with
+    """The options of the model whose estimates are fitted for preset ``name``: the preset, with
     ``band_edges`` (``'reject'`` or ``'clamp'``) where it leaves the final band's edge rule to the model (not a
     dense preset, whose bands always clamp); ``'preset'``: the preset as it is."""
     config = preset(name)
     if band_edges == "preset" or config.search.band_edges is not None or config.validity.dense:
-        return config.to_kwargs()
-    return config.with_options(band_edges=band_edges).to_kwargs()
+        return config.to_options()
+    return config.with_options(band_edges=band_edges).to_options()
 
 
 def procedural_surface(seed: int, h: int = 360, w: int = 480) -> tuple[torch.Tensor, torch.Tensor]:
@@ -215,7 +215,8 @@ def main() -> None:
                 if stage == 1:
                     print(f"{label}: {int(sel.sum())} pixels, {100 * float(y.double().mean()):.1f} % correct",
                           flush=True)
-        clamped = all(m.final.clamped_band for ms in models.values() for m in ms.values())
+        clamped = all(m.final.config.validity.confidence_weights == "clamped"
+                      for ms in models.values() for m in ms.values())
         label = f"CLAMPED_WEIGHTS[{stage - 1}]" if clamped else ("DEFAULT_WEIGHTS", "SMOOTHED_WEIGHTS")[stage - 1]
         x, y = torch.cat(xs), torch.cat(ys)
         # the second stage's own-confidence weight is kept >= 0: collinear with the window's mean confidence, it comes

@@ -106,9 +106,10 @@ import onnxruntime as ort
 import torch
 from _timing import interleaved_ms, paired_ratio  # benchmarks/_timing.py (scripts run from this folder)
 
-from prismstereo import thesis_setup1, trace_pixels
+from prismstereo import thesis_setup1
 from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.export import OnnxDepth, export_onnx
+from prismstereo.geometry import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, render, slanted_plane

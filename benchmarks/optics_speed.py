@@ -15,7 +15,8 @@ import onnxruntime as ort
 import torch
 from _timing import median_ms  # benchmarks/_timing.py (scripts run from this folder)
 
-from prismstereo import points_at_depth, project_points, thesis_setup1, trace_pixels
+from prismstereo import thesis_setup1
+from prismstereo.geometry import points_at_depth, project_points, trace_pixels
 
 
 class _Project(torch.nn.Module):

@@ -98,7 +98,7 @@ import cv2
 import numpy as np
 import torch
 
-from prismstereo import thesis_setup1, thesis_setup2, virtual_camera, virtual_cameras
+from prismstereo import thesis_setup1, thesis_setup2
 from prismstereo.baselines import (
     PinholePair,
     ZhangResult,
@@ -111,6 +111,7 @@ from prismstereo.baselines import (
     triangulate_pinholes,
 )
 from prismstereo.calibration import calibrate_board, detect_board, parse_target
+from prismstereo.geometry import virtual_camera, virtual_cameras
 from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, calibration_views, fronto_parallel_plane, render
 

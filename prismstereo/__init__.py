@@ -1,43 +1,28 @@
 """prismstereo: metric stereo depth from one camera with a bi-prism, as differentiable torch layers.
 
-The public API (conventions: :mod:`prismstereo.conventions`):
+The names a user starts from (conventions: :mod:`prismstereo.conventions`):
 
-* rig: :class:`BiPrismRig`, :class:`RigParameters`, :func:`thesis_setup1`, :func:`thesis_setup2`,
-  :func:`load_rig` (a rig file, JSON text, dict or preset name, geometry checked), :func:`check_rig_images`
-* exact optics: :func:`trace_pixels`, :func:`project_points`, :func:`refract`, :func:`points_at_depth`
-* virtual cameras (thesis ch. 3): :func:`virtual_camera`, :func:`virtual_cameras`
-* depth: :class:`PrismStereo` (the model), :class:`DepthResult` (its output), :class:`DepthStream` (frames
-  pushed one at a time); loaded on first use, so ``import prismstereo`` stays light
-* errors: :class:`PrismStereoError` and its family
+* the rig: :class:`BiPrismRig` (JSON with :meth:`~BiPrismRig.to_json` / :meth:`~BiPrismRig.from_json`),
+  :func:`load_rig` (a rig file, JSON text, dict or preset name, geometry checked), :func:`thesis_setup1`,
+  :func:`thesis_setup2`;
+* depth: :class:`PrismStereo` (the model), its options :class:`StereoConfig` with the named :data:`PRESETS`
+  (:func:`preset`), its output :class:`DepthResult`; :class:`LearnedStereo` (the learned model);
+* deployment: :func:`export_onnx` and :class:`OnnxDepth` (the graph in onnxruntime), :class:`DepthStream` (frames
+  pushed one at a time) with :class:`TemporalOptions`;
+* files: :func:`read_image`, :func:`write_depth`, :func:`read_depth`;
+* errors: :class:`PrismStereoError` and its family.
+
+Everything else lives in the subpackages, along the data path: :mod:`prismstereo.geometry` (exact optics, virtual
+cameras) -> :mod:`prismstereo.epipolar` -> :mod:`prismstereo.matching` -> :mod:`prismstereo.depth`; beside them
+:mod:`prismstereo.calibration`, :mod:`prismstereo.analysis`, :mod:`prismstereo.synthetic`, :mod:`prismstereo.nn`.
+The depth names are imported on first use, so ``import prismstereo`` stays light.
 """
 
 import importlib
 
 from prismstereo.errors import CalibrationError, OptionError, PrismStereoError, RigError, ShapeError
-from prismstereo.geometry.optics import (
-    RayBundle,
-    Refraction,
-    apex_ray,
-    check_rig_images,
-    half_of_pixels,
-    pixel_directions,
-    points_at_depth,
-    refract,
-    trace_directions,
-    trace_pixels,
-)
 from prismstereo.geometry.presets import load_rig, thesis_setup1, thesis_setup2
-from prismstereo.geometry.projection import Projection, project_points
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
-from prismstereo.geometry.virtual_camera import (
-    VirtualCamera,
-    VirtualCameraPair,
-    closest_point_to_rays,
-    pinhole_reprojection_error,
-    ray_midpoint,
-    virtual_camera,
-    virtual_cameras,
-)
+from prismstereo.geometry.rig import BiPrismRig
 
 __version__ = "0.1.0"
 
@@ -49,39 +34,47 @@ __all__ = [
     "OptionError",
     "CalibrationError",
     "BiPrismRig",
-    "RigParameters",
+    "load_rig",
     "thesis_setup1",
     "thesis_setup2",
-    "load_rig",
-    "check_rig_images",
-    "Projection",
-    "RayBundle",
-    "Refraction",
-    "apex_ray",
-    "half_of_pixels",
-    "pixel_directions",
-    "points_at_depth",
-    "project_points",
-    "refract",
-    "trace_directions",
-    "trace_pixels",
-    "VirtualCamera",
-    "VirtualCameraPair",
-    "closest_point_to_rays",
-    "pinhole_reprojection_error",
-    "ray_midpoint",
-    "virtual_camera",
-    "virtual_cameras",
     "PrismStereo",
+    "StereoConfig",
+    "PRESETS",
+    "preset",
     "DepthResult",
+    "LearnedStereo",
+    "export_onnx",
+    "OnnxDepth",
     "DepthStream",
+    "TemporalOptions",
+    "read_image",
+    "write_depth",
+    "read_depth",
 ]
 
-_LAZY = {"PrismStereo": "prismstereo.model", "DepthResult": "prismstereo.model", "DepthStream": "prismstereo.stream"}
+_LAZY = {
+    "PrismStereo": "prismstereo.model",
+    "StereoConfig": "prismstereo.config",
+    "PRESETS": "prismstereo.config",
+    "preset": "prismstereo.config",
+    "DepthResult": "prismstereo.depth.result",
+    "LearnedStereo": "prismstereo.learned",
+    "export_onnx": "prismstereo.export",
+    "OnnxDepth": "prismstereo.export",
+    "DepthStream": "prismstereo.stream",
+    "TemporalOptions": "prismstereo.depth.temporal",
+    "read_image": "prismstereo.io",
+    "write_depth": "prismstereo.io",
+    "read_depth": "prismstereo.io",
+}
 
 
 def __getattr__(name: str):
-    """The depth model's names, imported on first use (PEP 562)."""
+    """The depth, deployment and file names, imported on first use (PEP 562)."""
     if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'prismstereo' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

@@ -2,12 +2,12 @@
 instead, side by side, one function per operation.
 
 Every operation here computes the same numbers in both forms (to float rounding, the SGM scan and the fills
-bitwise); each form is the fastest one measured in its runtime (torch eager on CPU, onnxruntime; numbers in
-``docs/design.md``, *Implementation measurements*). The algorithms (:mod:`~prismstereo.matching.cost`,
-:mod:`~prismstereo.matching.aggregate`, :mod:`~prismstereo.matching.sweep_cost`, :mod:`~prismstereo.matching.levels`)
-call these and never test the runtime themselves; the tests hold the two forms equal. Layers whose exported form
-is a different arrangement of the same algorithm (the power series of :mod:`~prismstereo.epipolar.series`, the
-table gathers of :mod:`~prismstereo.epipolar.sweep_table`, the model's batching) ask :func:`exporting` /
+bitwise); each form is the faster one in its runtime (torch eager on CPU, onnxruntime). The algorithms
+(:mod:`~prismstereo.matching.cost`, :mod:`~prismstereo.matching.aggregate`, :mod:`~prismstereo.matching.sweep_cost`,
+:mod:`~prismstereo.matching.search`, :mod:`~prismstereo.matching.band`) call these and never test the runtime
+themselves; the tests hold the two forms equal. Layers whose exported form is a different arrangement of the same
+algorithm (the power series of :mod:`~prismstereo.epipolar.series`, the table gathers of
+:mod:`~prismstereo.epipolar.sweep_table`, the model's batching) ask :func:`exporting` /
 :func:`tracing` here.
 
 * :func:`fill_invalid`: invalid entries of a volume -> a value (a full tensor vs a scalar constant, or a Max).

@@ -19,7 +19,7 @@ from prismstereo.cli_calibrate import add_calibrate_parser
 from prismstereo.cli_depth import add_depth_parser, add_export_parser
 from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
-from prismstereo.geometry.presets import PRESETS, load_rig
+from prismstereo.geometry.presets import RIG_PRESETS, load_rig
 from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.geometry.virtual_camera import VirtualCamera, virtual_cameras
@@ -67,7 +67,7 @@ def _cmd_rig_show(args: argparse.Namespace) -> int:
 
 
 def _cmd_rig_preset(args: argparse.Namespace) -> int:
-    rig = PRESETS[args.name]()
+    rig = RIG_PRESETS[args.name]()
     text = rig.to_json(args.out)
     if args.out is None:
         print(text, end="")
@@ -334,7 +334,7 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("rig", metavar="RIG", help="rig JSON file or preset name (thesis_setup1, thesis_setup2)")
     show.set_defaults(func=_cmd_rig_show)
     preset = rig_sub.add_parser("preset", help="write a preset rig as JSON")
-    preset.add_argument("name", choices=sorted(PRESETS))
+    preset.add_argument("name", choices=sorted(RIG_PRESETS))
     preset.add_argument("--out", help="output JSON path (default: print)")
     preset.set_defaults(func=_cmd_rig_preset)
 

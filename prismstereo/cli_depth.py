@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import time
 from pathlib import Path
@@ -95,26 +96,43 @@ def _run_backend(name: str, model, batch: torch.Tensor):
     raise PrismStereoError(f"unknown backend {name!r}. Choose from: {', '.join(BACKENDS)}")
 
 
-def _resolve_config(args: argparse.Namespace):
-    """The model's :class:`~prismstereo.config.StereoConfig`: ``--preset`` (default 'accurate') or ``--config``,
-    with the explicit options (``--hypotheses``, ``--downsample``, ``--full-band``, ``--band-edges``, ``--dense``)
-    on top; sets ``args.dense`` to the config's."""
+# the config options that have a flag of their own: errors about them name the flag
+_FLAGS = {"num_hypotheses": "--hypotheses", "downsample": "--downsample", "full_band": "--full-band",
+          "band_edges": "--band-edges"}
+
+
+def _flag_error(exc: PrismStereoError, given: dict[str, object]) -> PrismStereoError:
+    """The config's error about options set by flags (``given``), naming the flags (a flag is never None)."""
+    message = str(exc)
+    for option in given:
+        if option in _FLAGS:
+            message = re.sub(rf"\b{option}\b", _FLAGS[option], message).replace(" or None,", ",")
+    return PrismStereoError(message)
+
+
+def _requested_config(args: argparse.Namespace):
+    """The model's :class:`~prismstereo.config.StereoConfig` as asked: ``--preset`` (default 'accurate') or
+    ``--config``, with the explicit options (``--hypotheses``, ``--downsample``, ``--full-band``, ``--band-edges``,
+    ``--dense``) on top; sets ``args.dense`` to the config's. The model resolves the rest
+    (:func:`~prismstereo.defaults.resolve_config`)."""
     from prismstereo.config import StereoConfig, preset
 
     if args.preset is not None and args.config is not None:
         raise PrismStereoError("--preset and --config exclude each other")
-    if args.hypotheses is not None and args.hypotheses < 2:
-        raise PrismStereoError(f"--hypotheses must be >= 2, got {args.hypotheses}")
-    if args.downsample is not None and args.downsample < 1:
-        raise PrismStereoError(f"--downsample must be >= 1, got {args.downsample}")
-    if args.full_band is not None and args.full_band < 0:
-        raise PrismStereoError(f"--full-band must be >= 0 and needs --downsample >= 2, got {args.full_band}")
     base = StereoConfig.from_json(args.config) if args.config is not None else preset(args.preset or "accurate")
-    search = {k: v for k, v in (("num_hypotheses", args.hypotheses), ("downsample", args.downsample),
-                                ("full_band", args.full_band), ("band_edges", args.band_edges)) if v is not None}
-    config = base.replace(search=search, validity={"dense": True} if args.dense else {})
+    search = _search_flags(args)
+    try:
+        config = base.replace(search=search, validity={"dense": True} if args.dense else {})
+    except PrismStereoError as exc:
+        raise _flag_error(exc, search) from exc
     args.dense = config.validity.dense
     return config
+
+
+def _search_flags(args: argparse.Namespace) -> dict[str, object]:
+    """The search options set by flags."""
+    return {k: v for k, v in (("num_hypotheses", args.hypotheses), ("downsample", args.downsample),
+                              ("full_band", args.full_band), ("band_edges", args.band_edges)) if v is not None}
 
 
 def _z_range(args: argparse.Namespace, rig: BiPrismRig) -> tuple[tuple[float, float], str]:
@@ -135,6 +153,8 @@ def _learned_model(args: argparse.Namespace, rig: BiPrismRig):
                                           ("--band-edges", args.band_edges)) if value is not None]
     if classical:
         raise PrismStereoError(f"{', '.join(classical)} set the classical model's options, not --learned's")
+    if args.hypotheses is not None and args.hypotheses < 2:
+        raise PrismStereoError(f"--hypotheses must be an int >= 2, got {args.hypotheses}")
     z_range, how = _z_range(args, rig)
     weights = "default" if args.weights is None else args.weights
     model = LearnedStereo(rig, tuple(z_range), num_hypotheses=args.hypotheses or 48, weights=weights).eval()
@@ -142,20 +162,18 @@ def _learned_model(args: argparse.Namespace, rig: BiPrismRig):
 
 
 def _build_model(args: argparse.Namespace, rig: BiPrismRig):
-    """The PrismStereo of ``--z-range`` and the config (:func:`_resolve_config`; shared by ``depth`` and
+    """The PrismStereo of ``--z-range`` and the config (:func:`_requested_config`; shared by ``depth`` and
     ``export``), with a line describing its range."""
     from prismstereo.model import PrismStereo
 
     if args.learned or args.weights is not None:
         return _learned_model(args, rig)
-    config = _resolve_config(args)
-    search = config.search
-    downsample = PrismStereo.default_downsample(rig) if search.downsample is None else search.downsample
-    if search.full_band and downsample == 1:
-        raise PrismStereoError(f"--full-band must be >= 0 and needs --downsample >= 2 (here {downsample}), "
-                               f"got {search.full_band}")
+    config = _requested_config(args)
     z_range, how = _z_range(args, rig)
-    model = PrismStereo.from_config(rig, z_range, config).eval()
+    try:
+        model = PrismStereo(rig, z_range, config).eval()
+    except PrismStereoError as exc:
+        raise _flag_error(exc, _search_flags(args)) from exc
     return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
 
 
@@ -235,7 +253,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     from prismstereo.depth import depth_to_points
 
     rig = load_rig(args.rig)
-    _resolve_config(args)  # --preset / --config: fails early, and sets args.dense for the outputs
+    _requested_config(args)  # --preset / --config: fails early, and sets args.dense for the outputs
     if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
         raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
     pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None

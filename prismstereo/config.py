@@ -14,7 +14,7 @@ depth (:class:`ValidityConfig`) — with the model's defaults. Presets name the 
   coarse level that carries matches into weakly textured regions: finer (``coarse_factor=2``: the binned model's
   search at 1/4 of the sensor instead of 1/8) and matched by cost-volume filtering (``cost='ad_gradient'``,
   ``aggregation='guided'``, ``box=1``: a per-pixel cost aggregated by a guided filter of the reference, which
-  spreads evidence through regions of even grey and stops at edges), at ~1.3x the default's time;
+  spreads evidence through regions of even grey and stops at edges);
 * ``'reference'``: one exact full-resolution level over the whole range (no coarse-to-fine placement): slow,
   the baseline the others are measured against.
 
@@ -28,31 +28,24 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from prismstereo.errors import OptionError, check_int, check_number, check_option
+from prismstereo.errors import OptionError, check_int, check_number, check_odd, check_option
 from prismstereo.matching.cost import COSTS
 
 __all__ = [
     "SearchConfig", "CostConfig", "AggregationConfig", "RefinementConfig", "ValidityConfig", "StereoConfig",
-    "PRESETS", "preset",
+    "PRESETS", "as_config", "preset",
 ]
 
 VALIDITIES: tuple[str, ...] = ("calibrated", "thresholds")
+CONFIDENCE_WEIGHTS: tuple[str, ...] = ("default", "clamped")
 BAND_EDGES: tuple[str, ...] = ("reject", "clamp")
 SAMPLINGS: tuple[str, ...] = ("sweep", "rectified")
 REFINEMENTS: tuple[str, ...] = ("equiangular", "parabola", "soft_argmin")
 AGGREGATIONS: tuple[str, ...] = ("sgm", "box", "guided")
-
-
-def _odd(name: str, value: object, zero: bool = False, least: int = 1) -> None:
-    """``value`` is a positive odd int >= ``least`` (or 0 with ``zero``)."""
-    ok = isinstance(value, int) and not isinstance(value, bool) and (
-        (zero and value == 0) or (value >= least and value % 2 == 1))
-    if not ok:
-        what = f"an odd int >= {least}" if least > 1 else "a positive odd int"
-        raise OptionError(f"{name} must be {'0 (off) or ' if zero else ''}{what}, got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -138,7 +131,7 @@ class CostConfig:
     def __post_init__(self) -> None:
         check_option(self.cost, COSTS, "cost")
         check_option(self.fine_cost, COSTS, "fine_cost")
-        _odd("window", self.window)
+        check_odd(self.window, "window")
         check_number(self.census_threshold, "census_threshold", 0.0, math.inf, "a number >= 0")
 
 
@@ -171,9 +164,9 @@ class AggregationConfig:
 
     def __post_init__(self) -> None:
         check_option(self.aggregation, AGGREGATIONS, "aggregation")
-        _odd("box", self.box)
-        _odd("fine_box", self.fine_box)
-        _odd("wide_box", self.wide_box, zero=True)
+        check_odd(self.box, "box")
+        check_odd(self.fine_box, "fine_box")
+        check_odd(self.wide_box, "wide_box", zero=True)
         check_number(self.weak_texture, "weak_texture", 0.0, math.inf, "a finite number > 0", open_low=True)
         if self.directions not in (2, 4, 8):
             raise OptionError(f"directions must be 2, 4 or 8, got {self.directions!r}")
@@ -201,7 +194,7 @@ class RefinementConfig:
     def __post_init__(self) -> None:
         if self.refinement is not None:
             check_option(self.refinement, REFINEMENTS, "refinement")
-        _odd("smoothing", self.smoothing, zero=True, least=3)
+        check_odd(self.smoothing, "smoothing", 3, zero=True)
         check_number(self.smoothing_tolerance, "smoothing_tolerance", 0.0, math.inf, "a finite number > 0",
                 open_low=True)
 
@@ -228,6 +221,10 @@ class ValidityConfig:
             coarse-to-fine model.
         dense_fill: with ``dense``, pixels that are not valid take the mean estimate of the valid pixels within
             this many pixels (0: their own estimates).
+        confidence_weights: which fitted weights the calibrated confidence uses: 'default'
+            (:data:`~prismstereo.matching.confidence.DEFAULT_WEIGHTS`, fitted on final bands that reject their edges)
+            or 'clamped' (:data:`~prismstereo.matching.confidence.CLAMPED_WEIGHTS`, fitted on bands asked to clamp
+            them); None: 'clamped' when ``band_edges='clamp'`` is asked for a model that is not dense, else 'default'.
     """
 
     validity: str | None = None
@@ -238,10 +235,13 @@ class ValidityConfig:
     occluder_confidence: float | None = 0.8
     dense: bool = False
     dense_fill: int = 15
+    confidence_weights: str | None = None
 
     def __post_init__(self) -> None:
         if self.validity is not None:
             check_option(self.validity, VALIDITIES, "validity")
+        if self.confidence_weights is not None:
+            check_option(self.confidence_weights, CONFIDENCE_WEIGHTS, "confidence_weights")
         if not isinstance(self.dense, bool):
             raise OptionError(f"dense must be a bool, got {self.dense!r}")
         check_int(self.dense_fill, "dense_fill", 0)
@@ -276,26 +276,17 @@ class StereoConfig:
     refinement: RefinementConfig = dataclasses.field(default_factory=RefinementConfig)
     validity: ValidityConfig = dataclasses.field(default_factory=ValidityConfig)
 
-    def to_kwargs(self) -> dict[str, Any]:
-        """The options as :class:`~prismstereo.model.PrismStereo` keyword arguments (flat)."""
+    def to_options(self) -> dict[str, Any]:
+        """The options, flat (the inverse of :meth:`with_options` on the default config).
+
+        Example:
+            >>> StereoConfig().with_options(**preset("fast").to_options()) == preset("fast")
+            True
+        """
         out: dict[str, Any] = {}
         for name in _GROUPS:
             out.update(dataclasses.asdict(getattr(self, name)))
         return out
-
-    @classmethod
-    def from_kwargs(cls, **kwargs: Any) -> StereoConfig:
-        """A config from flat :class:`~prismstereo.model.PrismStereo` options (e.g. ``model.config()``; a
-        ``z_range_mm`` among them is ignored), the others at their defaults.
-
-        Raises:
-            OptionError: an unknown option name.
-
-        Example:
-            >>> StereoConfig.from_kwargs(dense=True, full_band=1).search.full_band
-            1
-        """
-        return cls().with_options(**kwargs)
 
     def with_options(self, **options: Any) -> StereoConfig:
         """A copy with some options changed by their flat names: ``preset("fast").with_options(smoothing=0)``.
@@ -310,8 +301,6 @@ class StereoConfig:
         owner = _owners()
         groups: dict[str, dict[str, Any]] = {}
         for key, value in options.items():
-            if key == "z_range_mm":
-                continue  # the model's range is not part of its config
             if key not in owner:
                 raise OptionError(f"unknown option {key!r}; valid: {', '.join(sorted(owner))}")
             groups.setdefault(owner[key], {})[key] = value
@@ -384,6 +373,30 @@ PRESETS: dict[str, StereoConfig] = {
                           validity=ValidityConfig(dense=True)),
     "reference": StereoConfig(search=SearchConfig(downsample=1, coarse_factor=1)),
 }
+
+
+def as_config(config: StereoConfig | str | Mapping[str, Any] | None) -> StereoConfig:
+    """The :class:`StereoConfig` a model's ``config`` argument names: a config as it is, a preset's name
+    (:func:`preset`), a dict of flat options on top of the default (:meth:`StereoConfig.with_options`) or None
+    (the default, 'accurate').
+
+    Raises:
+        OptionError: anything else, an unknown preset or option, a bad value.
+
+    Example:
+        >>> as_config({"coarse_factor": 1}).search.coarse_factor, as_config("fast") == preset("fast")
+        (1, True)
+    """
+    if config is None:
+        return PRESETS["accurate"]
+    if isinstance(config, str):
+        return preset(config)
+    if isinstance(config, Mapping):
+        return StereoConfig().with_options(**config)
+    if not isinstance(config, StereoConfig):
+        raise OptionError(f"config must be a StereoConfig, a preset name or a dict of options, got "
+                          f"{type(config).__name__}")
+    return config
 
 
 def preset(name: str) -> StereoConfig:

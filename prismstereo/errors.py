@@ -23,6 +23,7 @@ __all__ = [
     "check_option",
     "check_int",
     "check_number",
+    "check_odd",
     "check_floating",
 ]
 
@@ -105,6 +106,22 @@ def check_int(value: Any, name: str, least: int, *, none: bool = False) -> Any:
         return value
     if isinstance(value, bool) or not isinstance(value, int) or value < least:
         raise OptionError(f"{name} must be an int >= {least}{' or None' if none else ''}, got {value!r}")
+    return value
+
+
+def check_odd(value: Any, name: str, least: int = 1, *, zero: bool = False) -> Any:
+    """Return ``value`` if it is an odd int >= ``least`` (not a bool; or 0 with ``zero``, an "off" value), else
+    raise an :class:`OptionError` saying so: the check of every window size.
+
+    Example:
+        >>> check_odd(5, "window")
+        5
+    """
+    ok = isinstance(value, int) and not isinstance(value, bool) and (
+        (zero and value == 0) or (value >= least and value % 2 == 1))
+    if not ok:
+        what = f"an odd int >= {least}" if least > 1 else "a positive odd int"
+        raise OptionError(f"{name} must be {'0 (off) or ' if zero else ''}{what}, got {value!r}")
     return value
 
 

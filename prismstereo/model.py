@@ -4,13 +4,14 @@ The layers, in order:
 
 1. :class:`~prismstereo.matching.split.SplitImage` at the apex column (moves with the prism offset).
 2. The exact sweep m(u, v, s) (:mod:`prismstereo.epipolar.sweep`): where reference pixel (u, v) appears in
-   the other half at sweep coordinate s (linear in 1/Z), fitted once per rig to ~1e-10 px.
+   the other half at sweep coordinate s (linear in 1/Z), fitted once per rig to within its checked tolerance.
 3. **Coarse level** (``coarse_factor`` f > 1): both halves box-downsampled by f and searched over the full
    range (hypotheses <= 1 coarse px apart) with one of two samplings behind the same interface:
 
    * ``'rectified'`` (default here): both halves are row-rectified by vertical warps fitted to the exact sweep
-     (:mod:`prismstereo.epipolar.row_rectify`; correspondences share a row to 2e-4 px with ``thesis_setup1``,
-     0.1 px with ``thesis_setup2``), so every hypothesis is an integer column shift: a 1-D cost volume built by
+     (:mod:`prismstereo.epipolar.row_rectify`; the residual off a common row is measured per rig,
+     :attr:`~prismstereo.depth.level.DepthLevel.rectification_residual_px`), so every hypothesis is an integer
+     column shift: a 1-D cost volume built by
      one gather (:func:`~prismstereo.matching.sweep_cost.shift_cost`), the winning shift turned into the
      sweep coordinate exactly (:func:`~prismstereo.epipolar.sweep_table.column_to_sweep`);
    * ``'sweep'``: every hypothesis warps the other half onto the reference pixels with the exact per-pixel
@@ -18,10 +19,10 @@ The layers, in order:
 
    Then matching cost (ZNCC by default), box + semi-global aggregation (4 directions), winner-take-all with
    sub-pixel refinement, uniqueness confidence; the estimate is extended by ``coarse_reach`` coarse pixels
-   into invalid neighbours (:func:`~prismstereo.matching.levels.extend_estimate`).
+   into invalid neighbours (:func:`~prismstereo.matching.band.extend_estimate`).
 4. **Fine level**: the coarse estimate upsampled to full resolution; a band of 2 R + 1 hypotheses (<= 1 px
    apart) around it per pixel, evaluated on the exact per-pixel sweep (truncated power series,
-   :mod:`prismstereo.epipolar.series`, within ~2e-4 px of the polynomials); cost, box, winner and
+   :mod:`prismstereo.epipolar.series`, within a checked tolerance of the polynomials); cost, box, winner and
    sub-pixel refinement (equiangular, parabola or a differentiable local soft-argmin).
    With f = 1 the full range is searched at full resolution in one level (the reference mode).
 5. Depth from the sweep coordinate (exact: s is linear in 1/Z), a confidence (the calibrated probability of a
@@ -32,43 +33,36 @@ The layers, in order:
 Steps 1-5 at one resolution are a :class:`~prismstereo.depth.level.DepthLevel`. With ``downsample`` k and
 ``full_band`` R the model composes two: the level of the k x k-binned capture (:attr:`PrismStereo.binned`, its own
 coarse level and band) places a band of 2 R + 1 full-resolution hypotheses of the full-resolution level
-(:attr:`PrismStereo.final`): a pyramid with full lateral resolution in about half the time of the
+(:attr:`PrismStereo.final`): a pyramid with full lateral resolution at a fraction of the cost of the
 full-resolution coarse level. It is the default on sensors whose reference half is >= 384 px on its shorter
-side (k = 2, R = 2: the thesis setups at 1024 x 768; :meth:`PrismStereo.default_downsample`); smaller sensors
-get steps 3-4 at full resolution (``downsample=1``), as any sensor does when asked.
+side (k = 2, R = 2: the thesis setups at 1024 x 768); smaller sensors get steps 3-4 at full resolution
+(``downsample=1``), as any sensor does when asked.
 
-Why these defaults (coarse-to-fine, the rectified coarse level, the pyramid, each option's value) and what the
-alternatives measured: ``docs/design.md`` (*How the model picks its defaults*; the rules: :mod:`prismstereo.defaults`).
+Every option left None in the config is picked by one function, :func:`~prismstereo.defaults.resolve_config` (the
+rules: :mod:`prismstereo.defaults`; why each, and the command that measures it: ``docs/design.md``).
 """
 
 from __future__ import annotations
 
-import inspect
-import warnings
 from collections.abc import Mapping
-from typing import Any, Literal, NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from prismstereo._graph import tracing
-from prismstereo.batching import per_image
-from prismstereo.config import StereoConfig, preset
-from prismstereo.defaults import default_coarse_factor, default_downsample
+from prismstereo.config import StereoConfig, as_config
+from prismstereo.defaults import resolve_config
 from prismstereo.depth.level import DepthLevel, upsample
-from prismstereo.depth.range import default_z_range
 from prismstereo.depth.result import DepthResult
-from prismstereo.epipolar.sweep import sweep_hypotheses, sweep_to_depth
-from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.epipolar.sweep import sweep_to_depth
+from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.matching.confidence import FITTED_PLACEMENT
+from prismstereo.threads import per_image
 
-__all__ = ["ConfidenceInputs", "DepthResult", "PrismStereo", "sweep_hypotheses"]
-
-Matcher = Literal["classical", "learned"]
-MATCHERS: tuple[str, ...] = ("classical", "learned")
+__all__ = ["ConfidenceInputs", "DepthResult", "PrismStereo"]
 
 
 class ConfidenceInputs(NamedTuple):
@@ -90,44 +84,6 @@ class ConfidenceInputs(NamedTuple):
     smoothed_depth: torch.Tensor | None = None
 
 
-def _learned_model(rig: BiPrismRig, z_range_mm: tuple[float, float] | None = None, num_hypotheses: int | None = None,
-                   *, matcher: str = "learned", weights: str = "default", **options: object) -> nn.Module:
-    """``PrismStereo(..., matcher='learned')``: the :class:`~prismstereo.learned.LearnedStereo` of the rig."""
-    from prismstereo.learned import LearnedStereo
-
-    if options:
-        raise OptionError(f"matcher='learned' takes z_range_mm, num_hypotheses and weights, not "
-                          f"{', '.join(sorted(options))}")
-    check_rig_images(rig)  # before default_z_range traces it
-    z_range = default_z_range(rig) if z_range_mm is None else z_range_mm
-    return LearnedStereo(rig, tuple(z_range), num_hypotheses=num_hypotheses or 48, weights=weights)
-
-
-def resolve_config(config: StereoConfig | str | Mapping[str, Any] | None = None,
-                   options: Mapping[str, Any] | None = None) -> StereoConfig:
-    """The :class:`~prismstereo.config.StereoConfig` of ``PrismStereo``'s ``config`` argument: a config, a preset's
-    name, a dict of options (flat, as :meth:`StereoConfig.from_kwargs`, on top of the default) or None (the
-    default), with ``options`` (flat) on top.
-
-    Raises:
-        OptionError: anything else, an unknown preset or option, a bad value.
-
-    Example:
-        >>> resolve_config("fast", {"smoothing": 0}).refinement.smoothing
-        0
-    """
-    if config is None or isinstance(config, str):
-        config = preset("accurate" if config is None else config)
-    elif isinstance(config, Mapping):
-        config = StereoConfig.from_kwargs(**config)
-    elif not isinstance(config, StereoConfig):
-        raise OptionError(f"config must be a StereoConfig, a preset name or a dict of options, got "
-                          f"{type(config).__name__}")
-    if options:
-        config = config.with_options(**options)
-    return config
-
-
 class PrismStereo(nn.Module):
     """Depth from one bi-prism capture: exact plane sweep, coarse-to-fine (the chain: the module docstring).
 
@@ -139,20 +95,16 @@ class PrismStereo(nn.Module):
         config: the options: a :class:`~prismstereo.config.StereoConfig` (every option, grouped by stage and
             documented there), a preset's name ('accurate' = None, 'fast', 'dense', 'reference';
             :data:`~prismstereo.config.PRESETS`) or a dict of options on top of the default
-            (``{"coarse_factor": 1}``).
-        matcher: 'classical' (this model) or 'learned': then the constructor returns a
-            :class:`~prismstereo.learned.LearnedStereo` (shipped weights, or ``weights=PATH``; it takes
-            ``z_range_mm`` and ``num_hypotheses`` (default 48), no other option) with the same
-            :class:`DepthResult` output, which is not a ``PrismStereo`` instance.
-        **options: deprecated: the options as keyword arguments (``PrismStereo(rig, z, coarse_factor=1)``) still
-            work, with a ``FutureWarning``; pass ``config={"coarse_factor": 1}`` instead.
+            (``{"coarse_factor": 1}``); the options left None are picked by
+            :func:`~prismstereo.defaults.resolve_config`.
 
     Attributes:
         levels: the :class:`~prismstereo.depth.level.DepthLevel` s, coarsest first: one, or a pyramid's binned
             level and full-resolution level.
+        resolved: the :class:`~prismstereo.defaults.ResolvedConfig` the levels were built from.
         rig, downsample: the sensor's rig and the binning k of the first level.
 
-    The measurements behind each default and the alternatives: ``docs/design.md``.
+    The learned model is :class:`~prismstereo.learned.LearnedStereo`, with the same :class:`DepthResult` output.
 
     Example:
         >>> small = thesis_setup1().downscaled(8)
@@ -161,51 +113,32 @@ class PrismStereo(nn.Module):
         torch.Size([1, 1, 96, 64])
     """
 
-    def __new__(cls, *args: object, **kwargs: object):
-        """``matcher='learned'`` returns the learned model instead (see the class docstring)."""
-        if kwargs.get("matcher") == "learned":
-            return _learned_model(*args, **kwargs)
-        return super().__new__(cls)
-
     def __init__(self, rig: BiPrismRig, z_range_mm: tuple[float, float] | None = None,
-                 config: StereoConfig | str | Mapping[str, Any] | None = None, *, matcher: Matcher = "classical",
-                 **options: Any) -> None:
+                 config: StereoConfig | str | Mapping[str, Any] | None = None) -> None:
         super().__init__()
         check_rig_images(rig)  # the rig's geometry, before anything traces it
-        check_option(matcher, MATCHERS, "matcher")  # 'learned' never gets here: see __new__
-        if isinstance(config, int) and not isinstance(config, bool):  # the former third argument
-            options = {"num_hypotheses": config, **options}
-            config = None
-        if options:
-            warnings.warn("PrismStereo's keyword options are deprecated: pass config={...} (a dict of options, "
-                          "a StereoConfig or a preset name) instead", FutureWarning, stacklevel=2)
-        config = resolve_config(config, options)
-        search = config.search
-        k, full_band = search.downsample, search.full_band
-        if k is None:  # the default: the pyramid on large sensors
-            k = self.default_downsample(rig)
-            full_band = (2 if k > 1 else 0) if full_band is None else full_band
-        full_band = full_band or 0
-        if rig.image_height // k < 16:
-            raise OptionError(f"downsample must be an int >= 1 leaving >= 16 rows, got {k!r}")
-        if full_band and k == 1:
-            raise OptionError(f"full_band must be an int >= 0, and > 0 only with downsample > 1, got {full_band!r}")
+        self.resolved = resolved = resolve_config(rig, z_range_mm, as_config(config))
+        k, z_range = resolved.downsample, resolved.z_range_mm
         self.rig, self.downsample = rig, k
-        z_range = default_z_range(rig) if z_range_mm is None else z_range_mm
-        config = config.replace(search={"downsample": k, "full_band": full_band})
-        if full_band:  # a pyramid: the binned level places a full-resolution band of 2 full_band + 1 hypotheses
-            # its thresholds decide which estimates are extended; its NCC is a feature of the calibrated confidence
-            validity = {"validity": "thresholds", "dense": False}
-            if config.validity.validity in (None, "calibrated"):  # the placement the confidence was fitted with
-                validity.update(FITTED_PLACEMENT)
-            binned = DepthLevel(rig.binned(k), z_range, config.replace(validity=validity, aggregation={"wide_box": 0}),
-                                places_band=True)
-            final = DepthLevel(rig, z_range, config.replace(search={"num_hypotheses": None,
-                                                                    "sampling": binned.config.search.sampling}),
-                               placed_by=k)
-            self.levels = nn.ModuleList([binned, final])
+        if resolved.full_band:  # a pyramid: the binned level places a band of 2 full_band + 1 hypotheses
+            binned_config, final_config = resolved.levels
+            self.levels = nn.ModuleList([DepthLevel(rig.binned(k), z_range, binned_config),
+                                         DepthLevel(rig, z_range, final_config, placed_by=k)])
         else:  # one level, on the capture binned by k (block values) or at full resolution
-            self.levels = nn.ModuleList([DepthLevel(rig.binned(k) if k > 1 else rig, z_range, config)])
+            self.levels = nn.ModuleList([DepthLevel(rig.binned(k) if k > 1 else rig, z_range, resolved.levels[0])])
+
+    @property
+    def config(self) -> StereoConfig:
+        """The options as asked, with the model-wide choices (``downsample``, ``full_band``) set:
+        ``PrismStereo(model.rig, model.z_range, model.config)`` rebuilds the model (each level's own resolved
+        options: ``model.levels[i].config``).
+
+        Example:
+            >>> model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0))
+            >>> PrismStereo(model.rig, model.z_range, model.config).summary() == model.summary()
+            True
+        """
+        return self.resolved.config
 
     @property
     def binned(self) -> DepthLevel | None:
@@ -237,34 +170,16 @@ class PrismStereo(nn.Module):
         """The final level's :class:`~prismstereo.matching.split.SplitImage`."""
         return self.final.split
 
-    @classmethod
-    def from_config(cls, rig: BiPrismRig, z_range_mm: tuple[float, float] | None = None,
-                    config: StereoConfig | str | None = None) -> PrismStereo:
-        """``PrismStereo(rig, z_range_mm, config)`` for a config or a preset's name only.
+    def describe(self) -> dict[str, Any]:
+        """What the model is, JSON-ready (the ONNX export's metadata and cache key): its class, range, hypotheses
+        and options.
 
         Example:
-            >>> PrismStereo.from_config(thesis_setup1().downscaled(8), (400.0, 700.0), "fast").summary()
-            '2x2-binned model (8 hypotheses in one level), then a full-resolution band +-1 of 15, band edges clamped'
+            >>> PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0)).describe()["num_hypotheses"]
+            15
         """
-        if not (config is None or isinstance(config, (str, StereoConfig))):
-            raise OptionError(f"config must be a StereoConfig or a preset name, got {type(config).__name__}")
-        return cls(rig, z_range_mm, config)
-
-    def config(self) -> dict[str, object]:
-        """The options as resolved (defaults filled in), flat and JSON-ready, with ``z_range_mm``:
-        ``PrismStereo(rig, model.z_range, model.config())`` rebuilds the model (a pyramid's search options are its
-        binned level's).
-
-        Example:
-            >>> model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0))
-            >>> PrismStereo(model.rig, model.z_range, model.config()).num_hypotheses == model.num_hypotheses
-            True
-        """
-        options = self.final.config.to_kwargs()
-        if self.binned is not None:  # the search options went to the binned level
-            search = self.binned.config.search
-            options.update(num_hypotheses=search.num_hypotheses, coarse_factor=search.coarse_factor, band=search.band)
-        return {"z_range_mm": list(self.z_range), **options}
+        return {"model": "PrismStereo", "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses,
+                "config": self.config.to_dict()}
 
     def summary(self) -> str:
         """The model's levels in one line (for logs, the CLI and the benchmarks).
@@ -273,7 +188,7 @@ class PrismStereo(nn.Module):
             >>> PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0)).summary()
             '15 hypotheses in one level'
             >>> PrismStereo(thesis_setup1(), (228.0, 1374.0)).summary()
-            '2x2-binned model (192 hypotheses, rectified coarse level ... +-3), then a full-resolution band +-2 of 382'
+            '2x2-binned model (192 hypotheses, ... +-3), then a full-resolution band +-2 of 382, band edges clamped'
         """
         k, final = self.downsample, self.final
         has_band = self.binned is not None or final.factor > 1  # a single level has no band to clamp
@@ -283,33 +198,13 @@ class PrismStereo(nn.Module):
                     f"{final.num_hypotheses}{edges}")
         return final.summary() + (f", on {k}x{k}-binned pixels" if k > 1 else "") + edges
 
-    @staticmethod
-    def default_downsample(rig: BiPrismRig) -> int:
-        """:func:`prismstereo.defaults.default_downsample`.
-
-        Example:
-            >>> [PrismStereo.default_downsample(thesis_setup1().downscaled(k)) for k in (1, 2)]
-            [2, 1]
-        """
-        return default_downsample(rig)
-
-    @staticmethod
-    def default_coarse_factor(num_hypotheses: int, height: int, width: int) -> int:
-        """:func:`prismstereo.defaults.default_coarse_factor`.
-
-        Example:
-            >>> PrismStereo.default_coarse_factor(368, 768, 512), PrismStereo.default_coarse_factor(40, 96, 64)
-            (4, 1)
-        """
-        return default_coarse_factor(num_hypotheses, height, width)
-
     def forward(self, image: torch.Tensor) -> DepthResult:
         """Depth of the reference half of ``image`` (B, C, H, W) in [0, 1], C = 1 or 3; a
         :class:`DepthResult` of (B, *, H, W_ref) tensors.
 
         In torch eager a batch is evaluated image by image on worker threads, each with a share of the caller's
-        intra-op threads and its grad / inference mode (:func:`~prismstereo.batching.per_image`, which also gives
-        the measurements behind it); traced or exported it is one graph for the whole batch.
+        intra-op threads and its grad / inference mode (:func:`~prismstereo.threads.per_image`); traced or exported
+        it is one graph for the whole batch.
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
         if image.shape[0] > 1 and not tracing():
@@ -370,7 +265,3 @@ class PrismStereo(nn.Module):
         return ConfidenceInputs(est.features, sweep_to_depth(s, z_range), sampled, features,
                                 sweep_to_depth(smoothed, z_range))
 
-
-# help() and inspect show the constructor's parameters, not __new__'s (*args, **kwargs: it only picks the matcher)
-PrismStereo.__signature__ = inspect.signature(PrismStereo.__init__).replace(
-    parameters=list(inspect.signature(PrismStereo.__init__).parameters.values())[1:])

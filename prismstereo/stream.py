@@ -18,9 +18,9 @@ below ``min_valid_ratio`` times the key frame's. The temporal prior is off by de
 need not be a video; an ONNX stream needs the second graph), on by default for videos in ``prismstereo depth``.
 
 An ONNX stream does its own tensor work (the frame's conversion, the cut test's block means, the extrapolated
-prior, the valid shares: a few passes over one plane) on one torch thread (:func:`one_torch_thread`): between the
-graph's runs torch's OpenMP workers and onnxruntime's spinning intra-op threads otherwise compete for the same
-cores, and each waits for the other (measurements: ``docs/usage.md``, *Video and streams*).
+prior, the valid shares: a few passes over one plane) on one torch thread
+(:func:`~prismstereo.threads.torch_threads`): between the graph's runs torch's OpenMP workers and onnxruntime's
+spinning intra-op threads otherwise compete for the same cores, and each waits for the other.
 """
 
 from __future__ import annotations
@@ -28,7 +28,6 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -39,45 +38,13 @@ from torch import nn
 
 from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 from prismstereo.errors import OptionError, ShapeError
+from prismstereo.threads import torch_threads
 from prismstereo.video import frame_to_tensor
 
 if TYPE_CHECKING:
     from prismstereo.export import OnnxDepth
 
-__all__ = ["StreamResult", "DepthStream", "one_torch_thread"]
-
-_THREADS = threading.Lock()
-_single = {"depth": 0, "saved": 1}  # open one_torch_thread scopes (any thread), torch's thread count before them
-
-
-@contextlib.contextmanager
-def one_torch_thread() -> Iterator[None]:
-    """Run the block with one torch intra-op thread, then restore the count.
-
-    torch's thread count is process-wide (it has no per-thread setting), so while any such block is open every
-    thread's torch work runs on one thread; nested and concurrent blocks (several streams) restore the count
-    that was set before the first of them, when the last one closes.
-
-    Example:
-        >>> before = torch.get_num_threads()
-        >>> with one_torch_thread():
-        ...     inside = torch.get_num_threads()
-        >>> inside, torch.get_num_threads() == before
-        (1, True)
-    """
-    with _THREADS:
-        if _single["depth"] == 0:
-            _single["saved"] = torch.get_num_threads()
-            torch.set_num_threads(1)
-        _single["depth"] += 1
-    try:
-        yield
-    finally:
-        with _THREADS:
-            _single["depth"] -= 1
-            if _single["depth"] == 0:
-                torch.set_num_threads(_single["saved"])
-
+__all__ = ["StreamResult", "DepthStream"]
 
 class StreamResult(NamedTuple):
     """One pushed frame's depth.
@@ -229,7 +196,7 @@ class DepthStream:
             ShapeError: a frame of the wrong size, channels or type.
         """
         # an ONNX stream's own tensor work on one torch thread (the module docstring); a torch model keeps them all
-        with one_torch_thread() if self.backend == "onnx" else contextlib.nullcontext():
+        with torch_threads(1) if self.backend == "onnx" else contextlib.nullcontext():
             return self._push(frame)
 
     def _push(self, frame: torch.Tensor | np.ndarray) -> StreamResult:

@@ -37,7 +37,7 @@ def test_model_config():
     assert model_config('a={"downsample": 1}') == ("a", {"downsample": 1})
     name, options = model_config('no fill={"preset": "dense", "dense_fill": 0}')
     assert name == "no fill"
-    assert options == preset("dense").with_options(dense_fill=0).to_kwargs()
+    assert options == preset("dense").with_options(dense_fill=0).to_options()
     assert model_config('c>=0.1={"min_confidence": 0.1}') == ("c>=0.1", {"min_confidence": 0.1})
     for bad, message in (("nothing", "NAME=JSON"), ("a={", "not JSON"), ("a=[1]", "JSON object")):
         with pytest.raises(SystemExit, match=message):
@@ -62,17 +62,17 @@ def test_fit_options_reject_edges_only_where_the_preset_leaves_them():
     fast preset keeps its clamp, a dense preset its own rule, and 'preset' changes nothing."""
     accurate = fit_options("accurate")
     assert accurate["band_edges"] == "reject"
-    assert accurate == preset("accurate").with_options(band_edges="reject").to_kwargs()
+    assert accurate == preset("accurate").with_options(band_edges="reject").to_options()
     assert fit_options("accurate", "clamp")["band_edges"] == "clamp"
-    assert fit_options("accurate", "preset") == preset("accurate").to_kwargs()
+    assert fit_options("accurate", "preset") == preset("accurate").to_options()
     for name in ("fast", "dense"):
-        assert fit_options(name) == preset(name).to_kwargs()
+        assert fit_options(name) == preset(name).to_options()
     from prismstereo import thesis_setup1
     from prismstereo.model import PrismStereo
 
     rig = thesis_setup1().downscaled(8)
-    assert PrismStereo(rig, (400.0, 700.0), fit_options("accurate")).final.band_edges == "reject"
-    assert PrismStereo(rig, (400.0, 700.0), fit_options("fast")).final.clamped_band
+    assert PrismStereo(rig, (400.0, 700.0), fit_options("accurate")).final.config.search.band_edges == "reject"
+    assert PrismStereo(rig, (400.0, 700.0), fit_options("fast")).final.config.validity.confidence_weights == "clamped"
 
 
 def test_edge_strength_tells_marked_jumps_from_hidden_ones():

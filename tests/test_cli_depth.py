@@ -216,9 +216,9 @@ def test_directory_of_two_images_batched_with_ply(scene, tmp_path, capsys):
         (["{far}", "--out", "{tmp}/d.exr"], "--out must end in .npy, .png or .tiff (one image) or be a directory"),
         (["{far}", "--out", "{tmp}/d.npy", "--format", "png"], "--format png contradicts --out"),
         (["{far}", "--out", "{tmp}/d.npy", "--batch-size", "0"], "--batch-size must be >= 1"),
-        (["{far}", "--out", "{tmp}/d.npy", "--hypotheses", "1"], "--hypotheses must be >= 2"),
-        (["{far}", "--out", "{tmp}/d.npy", "--downsample", "0"], "--downsample must be >= 1"),
-        (["{far}", "--out", "{tmp}/d.npy", "--full-band", "2"], "--full-band must be >= 0 and needs --downsample"),
+        (["{far}", "--out", "{tmp}/d.npy", "--hypotheses", "1"], "--hypotheses must be an int >= 2, got 1"),
+        (["{far}", "--out", "{tmp}/d.npy", "--downsample", "0"], "--downsample must be an int >= 1, got 0"),
+        (["{far}", "--out", "{tmp}/d.npy", "--full-band", "2"], "--full-band must be an int >= 0, and > 0 only"),
         (["{far}", "--out", "{tmp}/d.png", "--png-scale", "0"], "--png-scale must be a positive number"),
     ],
 )
@@ -262,7 +262,7 @@ def test_export_writes_a_loadable_model(scene, tmp_path, capsys):
     assert "dense needs a coarse-to-fine model" in capsys.readouterr().err
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(dense), "--z-range", "400", "700",
                  "--dense", "--downsample", "2", "--full-band", "1"]) == 0
-    assert json.loads(OnnxDepth(dense).metadata["prismstereo.config"])["dense"] is True
+    assert json.loads(OnnxDepth(dense).metadata["prismstereo.config"])["config"]["validity"]["dense"] is True
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(tmp_path / "m.txt")]) == 2
     assert "--out must end in .onnx" in capsys.readouterr().err
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(out), "--opset", "12"]) == 2
@@ -298,5 +298,5 @@ def test_export_learned(scene, tmp_path, capsys):
     from prismstereo.export import OnnxDepth
 
     runner = OnnxDepth(tmp_path / "l.onnx")
-    assert '"matcher": "learned"' in runner.metadata["prismstereo.config"]
+    assert '"model": "LearnedStereo"' in runner.metadata["prismstereo.config"]
     assert runner(torch.rand(1, 1, 96, 128)).depth.shape == (1, 1, 96, 64)

@@ -4,37 +4,40 @@ import numpy as np
 import pytest
 import torch
 
-from prismstereo import OptionError, thesis_setup1
+from prismstereo import PRESETS, OptionError, PrismStereo, StereoConfig, preset, thesis_setup1
 from prismstereo.cli import main
-from prismstereo.config import PRESETS, StereoConfig, preset
-from prismstereo.model import PrismStereo
+from prismstereo.config import as_config
 
 RIG = thesis_setup1().downscaled(2)  # 512 x 384: coarse-to-fine by default (the dense output needs it)
 Z = (400.0, 900.0)
 
 
 def test_default_config_is_the_models_default():
-    assert PrismStereo.from_config(RIG, Z).config() == PrismStereo(RIG, Z).config()
-    assert PrismStereo.from_config(RIG, Z, "accurate").config() == PrismStereo(RIG, Z).config()
-    assert PrismStereo.from_config(RIG, Z, StereoConfig()).config() == PrismStereo(RIG, Z).config()
+    default = PrismStereo(RIG, Z).resolved
+    assert as_config(None) == as_config("accurate") == StereoConfig()
+    assert PrismStereo(RIG, Z, "accurate").resolved == PrismStereo(RIG, Z, StereoConfig()).resolved == default
+    # every option of every level is set (None only where it means "off")
+    for level in default.levels:
+        unset = {k for k, v in level.to_options().items() if v is None}
+        assert unset <= {"lr_threshold", "occlusion_tolerance", "occluder_confidence"}, unset
 
 
 @pytest.mark.parametrize("name", list(PRESETS))
 def test_presets_build_the_model_of_their_options_and_round_trip(name, tmp_path):
-    model = PrismStereo.from_config(RIG, Z, name)
-    assert model.config() == PrismStereo(RIG, Z, preset(name)).config()
-    rebuilt = PrismStereo.from_config(RIG, Z, StereoConfig.from_kwargs(**model.config()))
-    assert rebuilt.config() == model.config()  # the resolved options are a config too
+    model = PrismStereo(RIG, Z, name)
+    assert model.resolved == PrismStereo(RIG, Z, preset(name)).resolved
+    flat = StereoConfig().with_options(**model.config.to_options())  # the flat options are a config too
+    assert PrismStereo(RIG, model.z_range, flat).resolved == model.resolved
     preset(name).to_json(tmp_path / "c.json")
     assert StereoConfig.from_json(tmp_path / "c.json") == preset(name)
 
 
 def test_presets_differ_where_they_say():
-    assert PrismStereo.from_config(RIG, Z, "dense").final.config.validity.dense
-    fast = PrismStereo.from_config(RIG, Z, "fast")
+    assert PrismStereo(RIG, Z, "dense").final.config.validity.dense
+    fast = PrismStereo(RIG, Z, "fast")
     assert fast.downsample == 2 and fast.binned is not None and fast.final.band == 1
     assert fast.final.config.search.band_edges == "clamp"
-    reference = PrismStereo.from_config(RIG, Z, "reference")
+    reference = PrismStereo(RIG, Z, "reference")
     assert reference.final.factor == 1 and reference.binned is None and reference.downsample == 1
     image = torch.rand(1, 1, 384, 512, generator=torch.Generator().manual_seed(0))
     assert fast(image).depth.shape == (1, 1, 384, RIG.reference_width)
@@ -44,7 +47,7 @@ def test_config_errors(tmp_path):
     with pytest.raises(OptionError, match="unknown preset 'quick'. Choose from: accurate, fast, dense, reference"):
         preset("quick")
     with pytest.raises(OptionError, match="unknown option 'zoom'; valid: .*band_edges"):
-        StereoConfig.from_kwargs(zoom=2)
+        StereoConfig().with_options(zoom=2)
     with pytest.raises(OptionError, match="unknown config group 'speed'; valid: search, cost"):
         StereoConfig().replace(speed={})
     with pytest.raises(OptionError, match="config group 'search': .*unexpected keyword argument 'zoom'"):
@@ -55,10 +58,10 @@ def test_config_errors(tmp_path):
         StereoConfig.from_dict([1])
     with pytest.raises(OptionError, match="cannot read the config"):
         StereoConfig.from_json(tmp_path / "missing.json")
-    with pytest.raises(OptionError, match="config must be a StereoConfig or a preset name"):
-        PrismStereo.from_config(RIG, Z, 3)
+    with pytest.raises(OptionError, match="config must be a StereoConfig, a preset name or a dict of options"):
+        PrismStereo(RIG, Z, 3)
     with pytest.raises(OptionError, match="band_edges"):  # values are checked by the model
-        PrismStereo.from_config(RIG, Z, StereoConfig().replace(search={"band_edges": "wrap"}))
+        PrismStereo(RIG, Z, StereoConfig().replace(search={"band_edges": "wrap"}))
 
 
 def test_cli_preset_and_config(tmp_path, capsys):
@@ -92,20 +95,17 @@ def test_cli_preset_and_config(tmp_path, capsys):
     assert "unexpected keyword argument 'zoom'" in capsys.readouterr().err
 
 
-def test_model_takes_a_config_a_preset_or_a_dict_and_warns_on_keyword_options():
+def test_model_takes_a_config_a_preset_or_a_dict_only():
+    """One constructor, PrismStereo(rig, z_range_mm, config): no keyword options, no other positional forms."""
     small, z = thesis_setup1().downscaled(8), (400.0, 700.0)
     by_dict = PrismStereo(small, z, {"coarse_factor": 2, "smoothing": 0})
-    by_config = PrismStereo(small, z, StereoConfig.from_kwargs(coarse_factor=2, smoothing=0))
-    assert by_dict.config() == by_config.config() and by_dict.final.factor == 2
-    assert PrismStereo(small, z, "fast").config() == PrismStereo.from_config(small, z, "fast").config()
-    assert preset("fast").with_options(smoothing=0).to_kwargs() == {**preset("fast").to_kwargs(), "smoothing": 0}
-    with pytest.warns(FutureWarning, match="keyword options are deprecated: pass config="):
-        old = PrismStereo(small, z, coarse_factor=2, smoothing=0)
-    assert old.config() == by_dict.config()
-    with pytest.warns(FutureWarning, match="deprecated"):  # the former positional num_hypotheses
-        assert PrismStereo(small, z, 20).num_hypotheses == 20
+    by_config = PrismStereo(small, z, StereoConfig().with_options(coarse_factor=2, smoothing=0))
+    assert by_dict.resolved == by_config.resolved and by_dict.final.factor == 2
+    assert preset("fast").with_options(smoothing=0).to_options() == {**preset("fast").to_options(), "smoothing": 0}
+    with pytest.raises(TypeError, match="unexpected keyword argument 'coarse_factor'"):
+        PrismStereo(small, z, coarse_factor=2)
     with pytest.raises(OptionError, match="config must be a StereoConfig, a preset name or a dict of options"):
-        PrismStereo(small, z, 2.5)
+        PrismStereo(small, z, 20)
     with pytest.raises(OptionError, match="unknown option 'zoom'"):
         PrismStereo(small, z, {"zoom": 2})
     with pytest.raises(OptionError, match="unknown preset 'quick'"):

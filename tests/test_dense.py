@@ -79,7 +79,7 @@ def test_defaults_and_option_errors():
     with pytest.raises(OptionError, match="needs validity='calibrated'"):
         single.confidence_inputs(torch.rand(1, 1, rig.image_height, rig.image_width))
     model = PrismStereo(rig, Z_RANGE, dict(coarse_factor=2, dense=True))
-    assert PrismStereo(rig, model.z_range, model.config()).config() == model.config()
+    assert PrismStereo(rig, model.z_range, model.config).resolved == model.resolved
 
 
 def test_propagation_fills_a_weak_texture_patch_between_textured_regions(weak):

@@ -4,12 +4,11 @@ import threading
 import pytest
 import torch
 
-from prismstereo import OptionError, RigError, ShapeError, thesis_setup1, thesis_setup2
+from prismstereo import OptionError, PrismStereo, RigError, ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.defaults import default_coarse_factor, pyramid_coarse_factor
 from prismstereo.epipolar import exact_sampling_grid
-from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients
-from prismstereo.matching.levels import RectifiedSearch, SweepSearch
-from prismstereo.model import PrismStereo, sweep_hypotheses
+from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_hypotheses
+from prismstereo.matching import RectifiedSearch, SweepSearch
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, slanted_plane, step_scene
 from tests.conftest import scaled_rig
 
@@ -274,10 +273,10 @@ def test_batch_on_worker_threads_equals_single_images_and_keeps_grad_mode(setup1
         PrismStereo(rig, (400.0, 800.0), dict(census_threshold=-0.1))
     with pytest.raises(RigError, match="beyond the prism's back plane"):
         PrismStereo(rig, (100.0, 800.0))
-    assert PrismStereo.default_coarse_factor(382, 768, 512) == 4
-    assert PrismStereo.default_coarse_factor(100, 192, 128) == 4  # a narrow range: f = 4, not one level
-    assert PrismStereo.default_coarse_factor(60, 192, 128) == 2
-    assert PrismStereo.default_coarse_factor(40, 96, 64) == 1
+    assert default_coarse_factor(382, 768, 512) == 4
+    assert default_coarse_factor(100, 192, 128) == 4  # a narrow range: f = 4, not one level
+    assert default_coarse_factor(60, 192, 128) == 2
+    assert default_coarse_factor(40, 96, 64) == 1
 
 
 def test_occlusion_test_rejects_pixels_hidden_from_the_right_half():
@@ -355,7 +354,7 @@ def test_downsample_matches_the_binned_capture_on_the_full_grid():
             assert torch.equal(res.match[block], ref.match * 2 + 0.5)
     rel, coverage = _errors(rig, res, cap)
     assert coverage > 0.9 and rel.median() < 0.002
-    assert PrismStereo(rig, model.z_range, model.config()).downsample == 2
+    assert PrismStereo(rig, model.z_range, model.config).downsample == 2
     with pytest.raises(OptionError, match="downsample must be an int >= 1"):
         PrismStereo(rig, (400.0, 800.0), dict(downsample=0))
     with pytest.raises(ShapeError, match="but the rig's sensor is"):
@@ -398,24 +397,28 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
     s = res.index[res.valid] * step - 1
     z = 1 / (1 / 300.0 + (s + 1) / 2 * (1 / 900.0 - 1 / 300.0))
     assert torch.allclose(z, res.depth[res.valid], rtol=1e-4)
-    config = model.config()
-    assert config["full_band"] == 2 and config["num_hypotheses"] == blocks.num_hypotheses
-    assert PrismStereo(rig, config["z_range_mm"], config).config() == config
-    assert blocks.config()["full_band"] == 0
+    config = model.config
+    assert config.search.full_band == 2 and config.search.downsample == 2
+    assert model.binned.config.search.num_hypotheses == blocks.num_hypotheses
+    assert PrismStereo(rig, model.z_range, config).resolved == model.resolved
+    assert blocks.config.search.full_band == 0
     with pytest.raises(OptionError, match="full_band must be an int >= 0, and > 0 only with downsample > 1"):
         PrismStereo(rig, z_range, dict(full_band=2))  # this sensor's default downsample is 1
     with pytest.raises(OptionError, match="full_band must be"):
         PrismStereo(rig, z_range, dict(downsample=2, full_band=-1))
     fast = PrismStereo(rig, z_range, dict(downsample=2, full_band=1, band_edges="clamp"))
-    assert fast.binned.fine.options.band_edges == "clamp" and fast.final.fine.options.band_edges == "clamp"
-    assert fast.config()["band_edges"] == "clamp"
-    assert PrismStereo(rig, fast.z_range, fast.config()).config() == fast.config()
+    assert fast.binned.fine.band_edges == "clamp" and fast.final.fine.band_edges == "clamp"
+    assert fast.config.search.band_edges == "clamp"
+    assert PrismStereo(rig, fast.z_range, fast.config).resolved == fast.resolved
     assert fast.summary() == (f"2x2-binned model ({model.binned.num_hypotheses} hypotheses, rectified coarse level "
                               f"with factor {model.binned.factor} ({model.binned.search.num_hypotheses} hypotheses), "
                               f"band "
                               f"+-{model.binned.band}), then a full-resolution band +-1 of {model.num_hypotheses}, "
                               f"band edges clamped")
-    assert model.summary().startswith("2x2-binned model (") and "band edges" not in model.summary()
+    # the default's final band clamps its edges too (the calibrated confidence judges its pixels)
+    assert model.summary().startswith("2x2-binned model (") and model.summary().endswith("band edges clamped")
+    rejecting = PrismStereo(rig, z_range, dict(downsample=2, full_band=2, band_edges="reject"))
+    assert "band edges" not in rejecting.summary()
     single = PrismStereo(rig, z_range, dict(coarse_factor=1, band_edges="clamp"))  # no band: nothing to clamp
     assert single.summary() == f"{single.num_hypotheses} hypotheses in one level"
     with pytest.raises(OptionError, match="band_edges.*'reject'.*'clamp'"):
@@ -424,16 +427,14 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
 
 def test_default_is_the_pyramid_on_large_sensors_only(monkeypatch):
     """downsample=None resolves to default_downsample(rig), with full_band 2 when that is > 1; an explicit
-    downsample keeps block values unless full_band is given; config() holds the resolved values."""
-    assert PrismStereo.default_downsample(thesis_setup1()) == 2 and PrismStereo.default_downsample(thesis_setup2()) == 2
+    downsample keeps block values unless full_band is given; the model's config holds the resolved values."""
     rig = scaled_rig(thesis_setup1(), 2)  # 512 x 384: a reference half of 256 x 384
-    assert PrismStereo.default_downsample(rig) == 1
     plain = PrismStereo(rig, (400.0, 800.0))
-    assert plain.binned is None and plain.config()["downsample"] == 1 and plain.config()["full_band"] == 0
-    monkeypatch.setattr(PrismStereo, "default_downsample", staticmethod(lambda rig: 2))
+    assert plain.binned is None and plain.config.search.downsample == 1 and plain.config.search.full_band == 0
+    monkeypatch.setattr("prismstereo.defaults.default_downsample", lambda rig: 2)  # the rule resolve_config uses
     pyramid = PrismStereo(rig, (400.0, 800.0))
     assert pyramid.binned is not None and pyramid.final.band == 2
-    assert pyramid.config()["downsample"] == 2 and pyramid.config()["full_band"] == 2
+    assert pyramid.config.search.downsample == 2 and pyramid.config.search.full_band == 2
     assert PrismStereo(rig, (400.0, 800.0), dict(full_band=3)).final.band == 3
     assert PrismStereo(rig, (400.0, 800.0), dict(downsample=2)).binned is None  # explicit: block values
     assert PrismStereo(rig, (400.0, 800.0), dict(downsample=1)).binned is None
@@ -495,8 +496,8 @@ def test_smoothing_averages_the_estimate_over_agreeing_neighbours():
     rel, cover = _errors(rig, smooth, cap)
     assert rel.mean() < 0.6 * rel_raw.mean() and cover > cover_raw - 0.03, (rel.mean(), rel_raw.mean(), cover)
     model = PrismStereo(rig, (300.0, 900.0), dict(coarse_factor=2, smoothing=9, smoothing_tolerance=2.5))
-    rebuilt = PrismStereo(rig, model.z_range, model.config())
-    assert model.config()["smoothing"] == 9 and rebuilt.final.config.refinement.smoothing_tolerance == 2.5
+    rebuilt = PrismStereo(rig, model.z_range, model.config)
+    assert model.config.refinement.smoothing == 9 and rebuilt.final.config.refinement.smoothing_tolerance == 2.5
     for bad in (1, 4, -3, True, 2.0):
         with pytest.raises(OptionError, match="smoothing must be 0 .off. or an odd int >= 3"):
             PrismStereo(rig, (300.0, 900.0), dict(smoothing=bad))

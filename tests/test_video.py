@@ -12,7 +12,7 @@ from prismstereo import thesis_setup1
 from prismstereo.cli import main
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.io import read_depth, write_image
-from prismstereo.stream import DepthStream, one_torch_thread
+from prismstereo.stream import DepthStream
 from prismstereo.video import VideoError, is_sequence_source, read_frames, sequence_length
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -186,11 +186,6 @@ def test_onnx_stream_does_its_tensor_work_on_one_torch_thread(export_once):
         streams["torch"].push(frames[0])
         assert seen == {"onnx": {1}, "onnx 2": {1}, "torch": {2}}
         assert torch.get_num_threads() == 2  # restored after the last of the overlapping pushes
-        with one_torch_thread():
-            with one_torch_thread():
-                assert torch.get_num_threads() == 1
-            assert torch.get_num_threads() == 1
-        assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
 

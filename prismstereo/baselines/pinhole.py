@@ -106,7 +106,7 @@ def pinhole_from_virtual(camera: VirtualCamera) -> Pinhole:
         CalibrationError: ``camera`` is not a :class:`~prismstereo.geometry.virtual_camera.VirtualCamera`.
 
     Example:
-        >>> from prismstereo import virtual_camera
+        >>> from prismstereo.geometry import virtual_camera
         >>> cam = pinhole_from_virtual(virtual_camera(thesis_setup1().downscaled(4), "left", "two_point"))
         >>> cam.matrix.shape, round(float(cam.centre[0]), 2)
         (torch.Size([3, 3]), -9.27)

@@ -142,7 +142,7 @@ def triangulate_exact(rig: BiPrismRig, uv_left: torch.Tensor, uv_right: torch.Te
         ShapeError: shapes that are not (N, 2) or differ.
 
     Example:
-        >>> from prismstereo import project_points
+        >>> from prismstereo.geometry import project_points
         >>> rig = thesis_setup1().downscaled(4)
         >>> x = torch.tensor([[5.0, -3.0, 600.0]], dtype=torch.float64)
         >>> uv_l, uv_r = project_points(rig, x, "left").uv, project_points(rig, x, "right").uv

@@ -6,21 +6,22 @@ final band and the final band itself, the confidence, the smoothing of the estim
 Its band is placed in one of two ways:
 
 * by its own coarse level (``coarse_factor`` f > 1): both halves box-downsampled by f and searched over the whole
-  range (:func:`~prismstereo.matching.build.build_search`), the estimate extended by ``coarse_reach`` coarse
+  range (:func:`~prismstereo.matching.search.build_search`), the estimate extended by ``coarse_reach`` coarse
   pixels and upsampled; with f = 1 that search is the only (full-resolution) level;
 * by a coarser level's estimate (a pyramid's full-resolution level, ``placed_by`` = k): the model passes the
   binned level's :meth:`~DepthLevel.placement` to :meth:`DepthLevel.depth`.
 
 Then a band of 2 R + 1 hypotheses around every pixel on the exact sweep
-(:class:`~prismstereo.matching.levels.FineBand`), depth from the sweep coordinate (s is linear in 1/Z), the
+(:class:`~prismstereo.matching.band.FineBand`), depth from the sweep coordinate (s is linear in 1/Z), the
 calibrated confidence (:mod:`prismstereo.matching.confidence`), validity and a z-buffer occlusion test in the
 other half. :class:`~prismstereo.model.PrismStereo` composes one level, or a binned level and a
-full-resolution level (the pyramid).
+full-resolution level (the pyramid). A level's options are resolved by
+:func:`~prismstereo.defaults.resolve_level` (the model resolves them all at once,
+:func:`~prismstereo.defaults.resolve_config`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Literal, NamedTuple
 
@@ -29,28 +30,27 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.config import StereoConfig
-from prismstereo.defaults import default_coarse_factor, pyramid_band, pyramid_coarse_factor
+from prismstereo.defaults import resolve_level
 from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.series import series_at, sweep_series
-from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_hypotheses, sweep_to_depth
+from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.epipolar.sweep_table import tabulate_sweep, valid_interval
 from prismstereo.errors import OptionError, check_option
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_std
-from prismstereo.matching.build import build_search
+from prismstereo.matching.band import FineBand, extend_estimate
 from prismstereo.matching.confidence import (
     CLAMPED_WEIGHTS,
-    FITTED_PLACEMENT,
     SMOOTHED_FEATURES,
     ConfidenceModel,
     confidence_features,
     local_spread,
     smoothed_features,
 )
-from prismstereo.matching.levels import FineBand, SearchOptions, extend_estimate
 from prismstereo.matching.postprocess import robust_mean
+from prismstereo.matching.search import build_search
 from prismstereo.matching.split import SplitImage
 
 __all__ = ["DepthLevel", "LevelEstimate", "Placement", "upsample"]
@@ -93,12 +93,6 @@ class LevelEstimate(NamedTuple):
     sampled: torch.Tensor
 
 
-def _resolved_search(config: StereoConfig, num_hypotheses: int, factor: int, band: int, sampling: str,
-                     validity: str) -> StereoConfig:
-    return config.replace(search={"num_hypotheses": num_hypotheses, "coarse_factor": factor, "band": band,
-                                  "sampling": sampling}, validity={"validity": validity})
-
-
 def upsample(t: torch.Tensor, factor: int, size: tuple[int, int], mode: Literal["nearest", "bilinear"] = "nearest",
              beyond: Literal["replicate", "zero"] = "replicate") -> torch.Tensor:
     """A level's (B, C, h, w) map at the ``factor`` times finer resolution of ``size`` (H, W): level pixel i covers
@@ -127,22 +121,14 @@ class DepthLevel(nn.Module):
     Args:
         rig: the level's rig (the sensor, or the sensor binned by the model's ``downsample``).
         z_range_mm: (z_min, z_max) searched.
-        config: the options (:class:`~prismstereo.config.StereoConfig`); the level resolves the None ones
-            (:mod:`prismstereo.defaults`) and keeps the result as :attr:`config`.
+        config: the options (:class:`~prismstereo.config.StereoConfig`), resolved by
+            :func:`~prismstereo.defaults.resolve_level` (a resolved config stays as it is) and kept as
+            :attr:`config`.
         placed_by: k > 1: the band is placed by the estimate of a level binned by k (the pyramid's
             full-resolution level: f = k, R = ``full_band``, no search of its own); 0: its own coarse search.
-        places_band: the level only places a pyramid's full-resolution band: its coarse factor and band take the
-            pyramid's rules (:func:`~prismstereo.defaults.pyramid_coarse_factor`,
-            :func:`~prismstereo.defaults.pyramid_band`).
-
-    Attributes:
-        band_edges: the band's rule, resolved ('clamp' for a dense model, else the config's ``band_edges``; by
-            default 'clamp' where the calibrated confidence judges the band's pixels, 'reject' where thresholds
-            do: a pyramid's binned level, ``validity='thresholds'``).
 
     Raises:
-        OptionError: options that do not fit the rig (a coarse factor leaving < 8 rows, a calibrated or dense
-            single level).
+        OptionError: options that do not fit the rig (:func:`~prismstereo.defaults.resolve_level`).
 
     Example:
         >>> level = DepthLevel(thesis_setup1().downscaled(8), (400.0, 700.0), StereoConfig())
@@ -151,43 +137,23 @@ class DepthLevel(nn.Module):
     """
 
     def __init__(self, rig: BiPrismRig, z_range_mm: tuple[float, float], config: StereoConfig, *,
-                 placed_by: int = 0, places_band: bool = False) -> None:
+                 placed_by: int = 0) -> None:
         super().__init__()
+        self.z_range = tuple(float(z) for z in z_range_mm)
+        self.config = config = resolve_level(rig, self.z_range, config, placed_by=placed_by)
         search, validity = config.search, config.validity
         self.rig, self.split = rig, SplitImage(rig)
-        fit = fit_sweep(rig, z_range_mm)
+        fit = fit_sweep(rig, self.z_range)
         h, w_ref = rig.image_height, rig.reference_width
-        self.z_range = tuple(float(z) for z in z_range_mm)
         f64 = torch.float64
         uv = torch.stack(torch.meshgrid(torch.arange(w_ref, dtype=f64), torch.arange(h, dtype=f64),
                                         indexing="xy"), -1)  # (H, W_ref, 2)
         fine = sweep_coefficients(fit, uv).permute(2, 0, 1, 3).contiguous()  # (N, H, W_ref, 2) pixels
-        num_hypotheses = search.num_hypotheses or sweep_hypotheses(fine)
-        if placed_by:
-            factor, band = placed_by, search.full_band
-        else:
-            rule = pyramid_coarse_factor if places_band else default_coarse_factor
-            factor = search.coarse_factor or rule(num_hypotheses, h, w_ref)
-            band = search.band or (pyramid_band(factor) if places_band and factor > 1 else factor + 1)
-        if h // factor < 8:
-            raise OptionError(f"coarse_factor must be an int >= 1 leaving >= 8 rows, got {factor!r}")
-        level_validity = validity.validity or ("calibrated" if factor > 1 else "thresholds")
-        if level_validity == "calibrated" and factor == 1:
-            raise OptionError("validity 'calibrated' needs a coarse-to-fine model (coarse_factor > 1 or a pyramid); "
-                              "a single level has 'thresholds'")
-        if validity.dense and factor == 1:
-            raise OptionError("dense needs a coarse-to-fine model (coarse_factor > 1 or a pyramid): a single level "
-                              "has no band to place everywhere")
-        sampling = search.sampling or ("rectified" if factor > 1 else "sweep")
-        self.config = _resolved_search(config, num_hypotheses, factor, band, sampling, level_validity)
-        self.num_hypotheses, self.factor, self.band, self.placed_by = num_hypotheses, factor, band, placed_by
-        calibrated = level_validity == "calibrated"
+        self.num_hypotheses, self.factor, self.band = search.num_hypotheses, search.coarse_factor, search.band
+        self.placed_by = placed_by
+        calibrated = validity.validity == "calibrated"
         smoothing = config.refinement.smoothing
-        # by default a band clamps where the calibrated confidence judges its pixels and rejects where thresholds do
-        # (a pyramid's binned level, validity 'thresholds')
-        self.clamped_band = self.has_clamped_weights(search.band_edges, validity.dense)
-        self.band_edges = "clamp" if validity.dense else search.band_edges or ("clamp" if calibrated else "reject")
-        stage1, stage2 = CLAMPED_WEIGHTS if self.clamped_band else (None, None)
+        stage1, stage2 = CLAMPED_WEIGHTS if validity.confidence_weights == "clamped" else (None, None)
         self.calibration = ConfidenceModel(stage1) if calibrated else None
         self.smoothed_calibration = ConfidenceModel(stage2, SMOOTHED_FEATURES) if calibrated and smoothing else None
 
@@ -199,46 +165,22 @@ class DepthLevel(nn.Module):
         rays_o = trace_pixels(rig, uv_o.view(-1, 2))
         other_valid = (rays_o.valid & ~rays_o.left).view(h, w_o)
         self.register_buffer("other_valid", other_valid)
-        self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, num_hypotheses, dtype=f64),
+        self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, self.num_hypotheses, dtype=f64),
                                                       fit.z_range).float())
         # the final band and the match output evaluate the sweep as truncated power series in s (Horner's rule,
-        # ~2e-4 px from the polynomials) and the band's validity from each pixel's interval of real samples
-        # (found on a table of positions, at build time only); a single-level search keeps the polynomials
+        # within a fraction of a thousandth of a pixel of the polynomials) and the band's validity from each pixel's
+        # interval of real samples (found on a table of positions, at build time only); a single-level search keeps
+        # the polynomials
         self.register_buffer("series", sweep_series(fine).float())
         self.register_buffer("interval", valid_interval(tabulate_sweep(fine).float(), other_valid, self.split.split))
-        cost, aggregation = config.cost, config.aggregation
-        options = SearchOptions(cost=cost.cost, window=cost.window, census_threshold=float(cost.census_threshold),
-                                box=aggregation.box, aggregation=aggregation.aggregation,
-                                directions=aggregation.directions, p1=aggregation.p1, p2=aggregation.p2,
-                                refinement=config.refinement.refinement,
-                                min_uniqueness=FITTED_PLACEMENT["min_uniqueness"] if calibrated
-                                else validity.min_uniqueness)
         self.search = None
         self.rectification_residual_px: float | None = None
         if not placed_by:
-            built = build_search(rig, fit, fine, options, sampling, factor, num_hypotheses, other_valid,
-                                 search.lr_threshold)
+            built = build_search(rig, fit, fine, config, other_valid)
             self.search, self.rectification_residual_px = built.search, built.rectification_residual_px
         self.fine = None
-        if factor > 1:
-            fine_options = dataclasses.replace(
-                options, cost=cost.fine_cost, box=aggregation.fine_box,
-                band_edges=self.band_edges, wide_box=aggregation.wide_box,
-                weak_texture=float(aggregation.weak_texture))
-            self.fine = FineBand(fine_options, band, 2.0 / (num_hypotheses - 1), self.split.split,
-                                 with_match=not smoothing)  # a smoothed s gets its match afterwards
-
-    @staticmethod
-    def has_clamped_weights(band_edges: str | None, dense: bool) -> bool:
-        """Whether a band asked for ``band_edges`` is judged by the confidence weights fitted to clamped bands
-        (:data:`~prismstereo.matching.confidence.CLAMPED_WEIGHTS`): a band asked to clamp its edges (the 'fast'
-        preset, the temporal band), except a dense model's (fitted with the default weights).
-
-        Example:
-            >>> DepthLevel.has_clamped_weights("clamp", False), DepthLevel.has_clamped_weights(None, False)
-            (True, False)
-        """
-        return band_edges == "clamp" and not dense
+        if self.factor > 1:  # a smoothed s gets its match afterwards
+            self.fine = FineBand(config, self.band, self.step, self.split.split, with_match=not smoothing)
 
     @property
     def step(self) -> float:
@@ -312,7 +254,7 @@ class DepthLevel(nn.Module):
     def search_band(self, ref: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
                     rejected: torch.Tensor, similarity: torch.Tensor | None, *, fine: FineBand | None = None,
                     calibration: ConfidenceModel | None = None, free_offset: float = 0.0) -> LevelEstimate:
-        """The final band around a placement, judged: the band (:class:`~prismstereo.matching.levels.FineBand`),
+        """The final band around a placement, judged: the band (:class:`~prismstereo.matching.band.FineBand`),
         then the calibrated confidence, or the stricter match of pixels the placement only reached from a
         neighbour. :meth:`estimate` places it by a coarser estimate, :class:`~prismstereo.depth.temporal.TemporalDepth`
         by the previous frame.

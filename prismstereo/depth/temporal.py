@@ -6,23 +6,21 @@ validity and confidence, at full resolution) instead of on the binned level's es
 level's band, or one on the binned frame (``downsample``, below); no coarse search, and a band of 2 ``band`` + 1
 hypotheses (default 3, against the pyramid's 5). With
 ``band_edges='clamp'`` the sub-pixel fit may move the estimate up to the band's outer sample (``vertex_limit`` 1
-of :class:`~prismstereo.matching.levels.FineBand`, not the search's half step): a plane moving by one hypothesis
+of :class:`~prismstereo.matching.band.FineBand`, not the search's half step): a plane moving by one hypothesis
 step per frame is then followed in the frame it moves, where a half-step limit left the first tracked frames
-0.25 % off until the extrapolation caught up (1024 x 768 moving plane: mean error 0.25 % -> 0.017 % in the first
-tracked frame, ~0.010 % after it as per frame). Prior pixels that
+off until the extrapolation caught up. Prior pixels that
 are invalid or less confident than ``min_prior_confidence`` take the mean sweep coordinate of the others within
-``reach`` pixels (:func:`~prismstereo.matching.levels.extend_estimate`); where neither exists the pixel is invalid.
+``reach`` pixels (:func:`~prismstereo.matching.band.extend_estimate`); where neither exists the pixel is invalid.
 The calibrated confidence sees the band's own NCC where the per-frame model sees the binned level's similarity:
 evidence of the frame itself, so that a band that a scene cut or fast motion has left behind is judged unsure
-(after a cut to a plane 250 mm further, 7 % of the pixels stay valid instead of 76 % at 31 % error; the stream
-then computes the frame with the full model).
+(the stream then computes the frame with the full model).
 
 With ``downsample`` k > 1 (by default 2 for a pyramid model) the band runs on the capture binned by k x k instead,
 in a level of its own on the binned rig with the model's options (its sweep, calibrated confidence and
 smoothing): the prior is binned (the mean sweep coordinate of each block's usable pixels, where at least half of
 them are), and the estimate comes back to full resolution by a validity-weighted bilinear interpolation of the
 sweep coordinate (valid pixels interpolate valid neighbours only), with validity and confidence per block: k^2
-times fewer voxels for the binned level's accuracy (``docs/benchmarks.md``, *Video*).
+times fewer voxels for the binned level's accuracy.
 
 Which frames get the full model instead (the first, every ``keyframe_interval``-th, scene cuts, a prior that lost
 too much of its coverage) is :class:`TemporalOptions`' part, applied by :class:`~prismstereo.stream.DepthStream`;
@@ -38,13 +36,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo.defaults import resolve_level
 from prismstereo.depth.level import DepthLevel, upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.series import series_at
 from prismstereo.epipolar.sweep import depth_to_sweep, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_int, check_number, check_option, check_shape
+from prismstereo.matching.band import FineBand, extend_estimate
 from prismstereo.matching.confidence import CLAMPED_WEIGHTS, ConfidenceModel
-from prismstereo.matching.levels import FineBand, extend_estimate
 
 __all__ = ["TEMPORAL_BAND_EDGES", "TemporalDepth", "TemporalOptions", "supports_temporal", "temporal_downsample"]
 
@@ -119,9 +118,8 @@ def supports_temporal(model: nn.Module) -> bool:
         >>> supports_temporal(PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0), {"coarse_factor": 2}))
         True
     """
-    from prismstereo.model import PrismStereo
-
-    return isinstance(model, PrismStereo) and model.final.fine is not None and (
+    final = getattr(model, "final", None)  # a model made of DepthLevels (the learned model is not)
+    return isinstance(final, DepthLevel) and final.fine is not None and (
         model.downsample == 1 or model.binned is not None)
 
 
@@ -186,15 +184,18 @@ class TemporalDepth(nn.Module):
             except OptionError as exc:
                 raise OptionError(f"downsample {k} leaves no level for the temporal band: {exc}") from exc
         self.level = final
-        band_options = dataclasses.replace(final.fine.options, band_edges=self.options.band_edges)
+        # the band's own edge rule, and the confidence weights fitted to it (resolved as for any band)
+        band_config = resolve_level(final.rig, final.z_range, final.config.replace(
+            search={"band_edges": self.options.band_edges}, validity={"confidence_weights": None}),
+            placed_by=final.placed_by)
         # 'clamp': the fit may reach the band's outer sample (a prior one step behind the motion is followed within
         # the frame, not over several: see the module docstring)
         limit = 1.0 if self.options.band_edges == "clamp" else 0.5
-        self.fine = FineBand(band_options, self.options.band, final.step, final.split.split,
+        self.fine = FineBand(band_config, self.options.band, final.step, final.split.split,
                              with_match=final.fine.with_match, vertex_limit=limit)
         self.calibration = None
-        if final.calibration is not None:  # weights fitted to the band's edge rule
-            clamped = DepthLevel.has_clamped_weights(self.options.band_edges, final.config.validity.dense)
+        if final.calibration is not None:
+            clamped = band_config.validity.confidence_weights == "clamped"
             self.calibration = ConfidenceModel(CLAMPED_WEIGHTS[0] if clamped else None)
 
     @property
@@ -246,7 +247,6 @@ class TemporalDepth(nn.Module):
         # of this frame (the prior's confidence would vouch for a band a scene cut or fast motion has left, see the
         # module docstring); moves up to half a step from the prior count as none in the offset feature: on a moving
         # scene a prior one step behind is expected, and the per-frame weights would judge it a misplaced band
-        # (a 256 x 192 plane moved by one step: coverage 95.1 % -> 97.8 %, per-frame 97.6 %)
         estimate = level.search_band(ref, other, s0, reach, ~placed, None, fine=self.fine,
                                      calibration=self.calibration, free_offset=0.5)
         result = level.finish(estimate)
@@ -255,7 +255,7 @@ class TemporalDepth(nn.Module):
     def _full_resolution(self, result: DepthResult, z_range: torch.Tensor) -> DepthResult:
         """A binned level's result (B, *, h, w) at the model's full resolution (B, *, H, W_ref): the sweep
         coordinate interpolated bilinearly, after each binned pixel without a depth (not valid; dense: not
-        covered) took the mean of its neighbours with one (:func:`~prismstereo.matching.levels.extend_estimate`,
+        covered) took the mean of its neighbours with one (:func:`~prismstereo.matching.band.extend_estimate`,
         radius 1: valid pixels interpolate valid neighbours only);
         validity and confidence per block, none beyond the binned level's last row and column."""
         final, k = self.model.final, self.downsample

@@ -9,7 +9,7 @@ evaluates them at per-pixel coordinates by Horner's rule, 2 D multiply-adds per 
 table lookups. With the default 2e-4 px over 228-1374 mm at 1024 x 768, ``thesis_setup1`` needs D = 4 (its
 correspondences are nearly linear in s), ``thesis_setup2`` D = 8; float32 evaluation adds ~6e-5 px of rounding
 (measured against the float64 polynomials on every 3rd pixel at 5 random s each: 1.4e-4 / 2.5e-4 px in all).
-The fine bands of :class:`~prismstereo.matching.levels.FineBand` sample through it; in onnxruntime that
+The fine bands of :class:`~prismstereo.matching.band.FineBand` sample through it; in onnxruntime that
 replaced 4 gathers from a 53 MB table per band (and their index arithmetic) by 2 D multiply-adds per sample,
 the full-resolution band of 3 alone 0.75x its time. :func:`series_band` evaluates a band of offsets around
 each pixel's s0 from the series' Taylor coefficients at s0 (multiply-adds on planes and one matrix product

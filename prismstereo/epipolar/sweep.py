@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 import torch
 
-from prismstereo.errors import OptionError, RigError, check_shape
+from prismstereo.errors import OptionError, RigError, check_int, check_shape
 from prismstereo.geometry.optics import pixel_directions, points_at_depth, trace_rays
 from prismstereo.geometry.projection import solve_projection
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
@@ -47,7 +47,11 @@ __all__ = [
     "sweep_positions",
     "positions_at",
     "sweep_hypotheses",
+    "SWEEP_PROBE_STRIDE",
 ]
+
+SWEEP_PROBE_STRIDE = 4
+""":func:`sweep_hypotheses` probes the sweep's speed on every 4th row and column of the pixel grid."""
 
 
 class SweepFit(NamedTuple):
@@ -294,21 +298,25 @@ def positions_at(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
     return (basis @ coefficients.reshape(n, -1)).view(-1, *coefficients.shape[1:])
 
 
-def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0) -> int:
+def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0, stride: int = SWEEP_PROBE_STRIDE) -> int:
     """Number of hypotheses, uniform in s over [-1, 1], with neighbours at most ``max_step_px`` apart in
     the other half for every pixel of the per-pixel sweep polynomials ``coefficients`` (N, H, W, 2).
+
+    The speed of the sweep (px per unit s) is probed at 257 values of s on every ``stride``-th row and column of
+    the grid (the sweep varies slowly across the image; 1: every pixel given).
 
     Example:
         >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 700.0))
         >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1)
         >>> coef = sweep_coefficients(fit, uv.double()).permute(2, 0, 1, 3)
-        >>> sweep_hypotheses(coef) >= 10
+        >>> sweep_hypotheses(coef) == sweep_hypotheses(coef[:, ::4, ::4], stride=1)
         True
     """
     if max_step_px <= 0:
         raise OptionError(f"max_step_px must be > 0, got {max_step_px}")
+    check_int(stride, "stride", 1)
     probe = torch.linspace(-1.0, 1.0, 257, dtype=coefficients.dtype, device=coefficients.device)
-    sub = coefficients[:, ::4, ::4]
+    sub = coefficients[:, ::stride, ::stride]
     pos = positions_at(sub, probe)  # (257, h, w, 2)
     speed = (pos[1:] - pos[:-1]).norm(dim=-1).amax() * 256 / 2  # px per unit s (max over pixels)
     return max(2, math.ceil(float(speed) * 2 / max_step_px * 1.02) + 1)

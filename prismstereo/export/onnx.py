@@ -149,14 +149,14 @@ def _metadata(model: nn.Module, channels: int, opset: int, temporal: TemporalOpt
     from prismstereo import __version__
 
     rig = model.rig
-    config = model.config()
+    described = model.describe()
     return {
         "prismstereo.version": __version__,
         "prismstereo.source": source_digest(),
         "prismstereo.rig": json.dumps(rig.to_dict(), sort_keys=True),
-        "prismstereo.config": json.dumps(config, sort_keys=True),
-        "prismstereo.num_hypotheses": str(config["num_hypotheses"]),
-        "prismstereo.z_range_mm": json.dumps(config["z_range_mm"]),
+        "prismstereo.config": json.dumps(described, sort_keys=True),
+        "prismstereo.num_hypotheses": str(described["num_hypotheses"]),
+        "prismstereo.z_range_mm": json.dumps(described["z_range_mm"]),
         "prismstereo.input_shape": json.dumps(["B", channels, rig.image_height, rig.image_width]),
         "prismstereo.opset": str(opset),
         **({} if temporal is None else {"prismstereo.temporal": json.dumps(temporal.to_dict(), sort_keys=True)}),

@@ -14,7 +14,7 @@ from typing import Any
 from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["PRESETS", "load_rig", "thesis_setup1", "thesis_setup2"]
+__all__ = ["RIG_PRESETS", "load_rig", "thesis_setup1", "thesis_setup2"]
 
 
 def thesis_setup1() -> BiPrismRig:
@@ -63,7 +63,7 @@ def thesis_setup2() -> BiPrismRig:
     )
 
 
-PRESETS = {"thesis_setup1": thesis_setup1, "thesis_setup2": thesis_setup2}
+RIG_PRESETS = {"thesis_setup1": thesis_setup1, "thesis_setup2": thesis_setup2}
 
 
 def load_rig(source: str | Path | dict[str, Any]) -> BiPrismRig:
@@ -96,8 +96,8 @@ def load_rig(source: str | Path | dict[str, Any]) -> BiPrismRig:
     """
     if isinstance(source, dict):
         rig = BiPrismRig.from_dict(source)
-    elif isinstance(source, (str, Path)) and str(source) in PRESETS:
-        rig = PRESETS[str(source)]()
+    elif isinstance(source, (str, Path)) and str(source) in RIG_PRESETS:
+        rig = RIG_PRESETS[str(source)]()
     else:
         rig = BiPrismRig.from_json(source)
     check_rig_images(rig)

@@ -282,14 +282,14 @@ class LearnedStereo(nn.Module):
                      self.with_match if with_match is None else with_match)
         return twin.to(next(self.parameters()))
 
-    def config(self) -> dict[str, Any]:
-        """What the model is, JSON-ready (the ONNX export's metadata and cache key): the range, hypotheses,
+    def describe(self) -> dict[str, Any]:
+        """What the model is, JSON-ready (the ONNX export's metadata and cache key): its class, range, hypotheses,
         architecture and a digest of the weights.
 
         Example:
-            >>> model = LearnedStereo(thesis_setup1().downscaled(8), (450.0, 1000.0), num_hypotheses=16)
-            >>> model.config()["matcher"], model.config()["num_hypotheses"], len(model.config()["weights_sha256"])
-            ('learned', 16, 16)
+            >>> described = LearnedStereo(thesis_setup1().downscaled(8), (450.0, 1000.0), num_hypotheses=16).describe()
+            >>> described["model"], described["num_hypotheses"], len(described["weights_sha256"])
+            ('LearnedStereo', 16, 16)
         """
         import hashlib
 
@@ -298,7 +298,7 @@ class LearnedStereo(nn.Module):
             if not name.startswith("volume."):
                 digest.update(name.encode())
                 digest.update(tensor.detach().float().cpu().numpy().tobytes())
-        return {"matcher": "learned", "z_range_mm": list(self.z_range_mm), "num_hypotheses": self.num_hypotheses,
+        return {"model": "LearnedStereo", "z_range_mm": list(self.z_range_mm), "num_hypotheses": self.num_hypotheses,
                 "architecture": dataclasses.asdict(self.architecture), "with_match": self.with_match,
                 "weights_sha256": digest.hexdigest()[:16]}
 

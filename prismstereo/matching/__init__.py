@@ -1,14 +1,16 @@
 """Matching layers: split the capture, build cost volumes, select hypotheses, post-process estimates.
 
-The depth model's path: :class:`SplitImage`, the coarse level (:class:`RectifiedSearch` / :class:`SweepSearch`
-with :class:`SweepSampler`, the plane sweep's sampling that :class:`~prismstereo.nn.PrismCostVolume` shares,
-:func:`sweep_cost` / :func:`shift_cost`, :func:`box_filter`, :func:`sgm_aggregate`), the fine bands
-(:class:`FineBand`), the smoothing (:func:`robust_mean`) and the calibrated confidence
+The depth model's path: :class:`SplitImage`, the coarse level (:mod:`~prismstereo.matching.search`:
+:class:`RectifiedSearch` / :class:`SweepSearch` with :class:`SweepSampler`, the plane sweep's sampling that
+:class:`~prismstereo.nn.PrismCostVolume` shares, :func:`sweep_cost` / :func:`shift_cost`, and one :func:`decide`:
+:func:`box_filter`, :func:`sgm_aggregate`, winner, sub-pixel fit), the fine bands (:mod:`~prismstereo.matching.band`:
+:class:`FineBand`), the smoothing (:func:`robust_mean`) and the calibrated confidence
 (:class:`ConfidenceModel`). The rectified-pair matcher (``prismstereo match``) uses the same costs on column
 shifts (:func:`cost_volume`) with its own post-processing (:mod:`~prismstereo.matching.rectified`).
 """
 
 from prismstereo.matching.aggregate import box_filter, box_std, guided_filter, sgm_aggregate, sgm_aggregate_guided
+from prismstereo.matching.band import FineBand, extend_estimate
 from prismstereo.matching.confidence import (
     FEATURES,
     SMOOTHED_FEATURES,
@@ -30,18 +32,20 @@ from prismstereo.matching.cost import (
     sweep_cost,
     worst_cost,
 )
-from prismstereo.matching.levels import (
-    FineBand,
+from prismstereo.matching.postprocess import RobustMean, fill_background, median_filter, robust_mean, weighted_median
+from prismstereo.matching.search import (
+    BuiltSearch,
+    Decision,
     LevelResult,
     RectifiedSearch,
-    SearchOptions,
     SweepSearch,
-    extend_estimate,
+    build_search,
+    decide,
 )
-from prismstereo.matching.postprocess import RobustMean, fill_background, median_filter, robust_mean, weighted_median
 from prismstereo.matching.select import (
     Subpixel,
     left_right_check,
+    refine,
     soft_argmin_local,
     subpixel_refine,
     subpixel_refine_guarded,
@@ -55,9 +59,12 @@ from prismstereo.matching.sweep_sampler import SweepSampler, sweep_sampler
 __all__ = [
     "SplitImage",
     "Halves",
-    "SearchOptions",
     "SweepSearch",
     "RectifiedSearch",
+    "build_search",
+    "BuiltSearch",
+    "decide",
+    "Decision",
     "FineBand",
     "LevelResult",
     "extend_estimate",
@@ -97,6 +104,7 @@ __all__ = [
     "left_right_check",
     "soft_argmin_local",
     "subpixel_refine",
+    "refine",
     "subpixel_refine_guarded",
     "uniqueness",
     "winner_take_all",

@@ -15,13 +15,13 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo._graph import box_mean, in_place, scan_eager, scan_traced
-from prismstereo.errors import OptionError, ShapeError, check_int, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_int, check_odd, check_shape
 
 __all__ = ["box_filter", "box_std", "guided_filter", "sgm_aggregate", "sgm_aggregate_guided"]
 
 # the guided filter's radius, regularisation and subsampling (chosen on Middlebury): the defaults of the rectified
 # matcher (prismstereo.matching.rectified.MatchOptions) and the depth model's 'guided' aggregation
-# (prismstereo.matching.levels)
+# (prismstereo.matching.search)
 GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE = 13, 1e-4, 2
 
 # (scan dim, reverse, row shift of the predecessor): dim 3 scans columns, dim 2 rows; a shift of +-1 makes
@@ -48,8 +48,7 @@ def box_filter(volume: torch.Tensor, window: int) -> torch.Tensor:
         2.5
     """
     check_shape(volume, ["B", "D", "H", "W"], "volume")
-    if not isinstance(window, int) or window < 1 or window % 2 == 0:
-        raise OptionError(f"window must be a positive odd int, got {window!r}")
+    check_odd(window, "window")
     if window == 1:
         return volume
     return box_mean(volume, window)

@@ -30,7 +30,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo._graph import box_max
-from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_odd, check_shape
 from prismstereo.matching.aggregate import box_std
 
 __all__ = [
@@ -66,7 +66,7 @@ CLAMPED_WEIGHTS: tuple[tuple[float, ...], tuple[float, ...]] = (
     (0.000, -0.525, 6.879, -0.950, -1.798),
 )
 """(stage 1, stage 2) weights of models whose final band clamps its edges instead of rejecting them
-(``band_edges='clamp'``, the ``'fast'`` preset: ``PrismStereo.clamped_band``; fitted by
+(``band_edges='clamp'``, the ``'fast'`` preset: ``confidence_weights='clamped'``; fitted by
 ``benchmarks/fit_confidence.py --presets fast``): their wrong estimates agree with their neighbours more often,
 and the default weights trusted them too much. In stage 2 the spread carries what the agreement did (the two
 describe the same window; the fit leaves the agreement a small negative weight). The own-confidence weight of
@@ -154,8 +154,7 @@ def local_spread(values: torch.Tensor, mask: torch.Tensor, window: int) -> torch
     if mask.shape != values.shape or mask.dtype != torch.bool:
         raise ShapeError(f"mask must be a bool tensor of the shape of values {tuple(values.shape)}, got "
                          f"{mask.dtype} {tuple(mask.shape)}")
-    if isinstance(window, bool) or not isinstance(window, int) or window < 1 or window % 2 == 0:
-        raise OptionError(f"window must be a positive odd int, got {window!r}")
+    check_odd(window, "window")
     if window == 1:
         return torch.zeros_like(values)
     # unmasked pixels take the extreme of all values on the other side: they never set a box's max or min, and a

@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo._graph import fill_invalid
-from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_odd, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter
 
 __all__ = ["Cost", "COSTS", "CostVolume", "Warped", "ad_gradient_cost", "ad_gradient_volume", "census_transform",
@@ -73,11 +73,6 @@ class CostVolume(NamedTuple):
     valid: torch.Tensor
 
 
-def _check_window(window: int) -> None:
-    if not isinstance(window, int) or window < 1 or window % 2 == 0:
-        raise OptionError(f"window must be a positive odd int, got {window!r}")
-
-
 def _darker(padded: torch.Tensor, centre: torch.Tensor, window: int) -> Iterator[torch.Tensor]:
     """Census bits of ``centre`` (..., H, W) against each neighbour of the replicate-padded ``padded``
     (..., H + 2 r, W + 2 r), in raster order without the centre: bool, neighbour < centre."""
@@ -112,7 +107,7 @@ def census_transform(image: torch.Tensor, window: int = 5, threshold: float = 0.
         torch.Size([1, 8, 6, 7])
     """
     check_shape(image, ["B", "C", "H", "W"], "image")
-    _check_window(window)
+    check_odd(window, "window")
     if window < 3:
         raise OptionError(f"census window must be >= 3, got {window}")
     if not threshold >= 0:
@@ -236,8 +231,7 @@ def sweep_cost(
     check_option(cost, COSTS, "cost")
     check_shape(reference, ["B", "C", "H", "W"], "reference")
     check_shape(warped.image, ["B", "C", "D", "H", "W"], "warped.image")
-    if not isinstance(window, int) or window < 1 or window % 2 == 0 or (cost == "census" and window < 3):
-        raise OptionError(f"window must be an odd int (>= 3 for census), got {window!r}")
+    check_odd(window, "window", 3 if cost == "census" else 1)
     if warped.image.shape[:2] != reference.shape[:2] or warped.image.shape[-2:] != reference.shape[-2:]:
         raise ShapeError(f"reference {tuple(reference.shape)} does not match slices {tuple(warped.image.shape)}")
     if not census_threshold >= 0:
@@ -314,7 +308,7 @@ def cost_volume(
     check_shape(reference, ["B", "C", "H", "W"], "reference")
     check_shape(other, ["B", "C", "H", "W"], "other")
     check_shape(offsets, ["D"], "offsets")
-    _check_window(window)
+    check_odd(window, "window")
     if reference.shape[:3] != other.shape[:3]:
         raise ShapeError(f"reference {tuple(reference.shape)} and other {tuple(other.shape)} must share B, C, H")
     if cost == "zncc":  # ZNCC compares grey windows: shift the grey image (linear)

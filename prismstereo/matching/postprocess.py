@@ -30,7 +30,7 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 
-from prismstereo.errors import OptionError, ShapeError, check_int, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_int, check_odd, check_shape
 from prismstereo.matching.aggregate import box_filter
 
 __all__ = ["RobustMean", "median_filter", "fill_background", "robust_mean", "weighted_median"]
@@ -84,8 +84,7 @@ def median_filter(disparity: torch.Tensor, window: int = 5, valid: torch.Tensor 
         3.0
     """
     mask = _check_mask(disparity, valid)
-    if not isinstance(window, int) or window < 1 or window % 2 == 0:
-        raise OptionError(f"window must be a positive odd int, got {window!r}")
+    check_odd(window, "window")
     if window == 1:
         return disparity
     r = window // 2
@@ -185,8 +184,7 @@ def robust_mean(values: torch.Tensor, weight: torch.Tensor, window: int, toleran
     check_shape(values, ["B", 1, "H", "W"], "values")
     if weight.shape != values.shape:
         raise ShapeError(f"weight {tuple(weight.shape)} must have the shape of values {tuple(values.shape)}")
-    if isinstance(window, bool) or not isinstance(window, int) or window < 3 or window % 2 == 0:
-        raise OptionError(f"window must be an odd int >= 3, got {window!r}")
+    check_odd(window, "window", 3)
     if not (isinstance(tolerance, (int, float)) and 0 < tolerance < math.inf):
         raise OptionError(f"tolerance must be a finite number > 0, got {tolerance!r}")
     w = weight.detach().to(values.dtype).clamp_min(0.0)

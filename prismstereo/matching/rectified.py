@@ -17,7 +17,7 @@ from typing import Literal, NamedTuple
 
 import torch
 
-from prismstereo.errors import OptionError, ShapeError, check_int, check_option, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_int, check_odd, check_option, check_shape
 from prismstereo.matching.aggregate import (
     GUIDED_EPS,
     GUIDED_RADIUS,
@@ -167,9 +167,7 @@ class MatchOptions:
         check_option(self.out_of_range, ("worst", "replicate"), "out_of_range")
         check_option(self.subpixel_cost, ("local", "sad"), "subpixel_cost")
         for name in ("window", "box", "subpixel_window", "median"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1 or value % 2 == 0:
-                raise OptionError(f"{name} must be a positive odd int, got {value!r}")
+            check_odd(getattr(self, name), name)
         for name, low in (("guided_radius", 1), ("guided_subsample", 1), ("weighted_median", 0),
                           ("weighted_median_step", 1)):
             check_int(getattr(self, name), name, low)

@@ -23,6 +23,7 @@ from prismstereo.errors import OptionError, ShapeError, check_number, check_opti
 
 __all__ = [
     "Subpixel",
+    "refine",
     "winner_take_all",
     "subpixel_refine",
     "subpixel_refine_guarded",
@@ -32,6 +33,10 @@ __all__ = [
 ]
 
 Subpixel = Literal["equiangular", "parabola"]
+Refinement = Literal["equiangular", "parabola", "soft_argmin"]
+
+# soft-argmin temperature per cost's units
+_TEMPERATURE = {"census": 1.0, "sad": 0.02, "zncc": 0.05, "ad_gradient": 0.05}
 
 
 def winner_take_all(cost: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -251,3 +256,33 @@ def left_right_check(
     a = (x - x0).clamp(0, 1)
     back = (1 - a) * disparity_right.gather(-1, x0) + a * disparity_right.gather(-1, x1)
     return inside & ((back - disparity_left).abs() <= threshold)
+
+
+def refine(local: torch.Tensor, total: torch.Tensor, index: torch.Tensor | int, method: Refinement, cost: str,
+           limit: float = 0.5) -> torch.Tensor:
+    """The sub-pixel index of each pixel's winner ``index``: the fit ``method`` ('equiangular', 'parabola',
+    :func:`subpixel_refine`) on ``local``, or 'soft_argmin' (:func:`soft_argmin_local`, radius 2, a temperature
+    in the units of ``cost``) over ``total``.
+
+    Args:
+        local: (B, D, H, W) the cost the fits read.
+        total: (B, D, H, W) the cost the soft-argmin reads (the aggregated one).
+        index: (B, 1, H, W) long winners, or one int for every pixel.
+        method: 'equiangular', 'parabola' or 'soft_argmin'.
+        cost: the cost's name (:data:`~prismstereo.matching.cost.COSTS`), for the soft-argmin's temperature.
+        limit: the fits' largest move from the winner (hypothesis steps).
+
+    Returns:
+        (B, 1, H, W) fractional index.
+
+    Example:
+        >>> c = torch.tensor([4.0, 1.0, 2.0]).view(1, 3, 1, 1)
+        >>> round(float(refine(c, c, 1, "equiangular", "sad")), 3)
+        1.333
+    """
+    check_option(method, ("equiangular", "parabola", "soft_argmin"), "refinement")
+    if method == "soft_argmin":
+        if isinstance(index, int):  # one winner for all pixels
+            index = torch.full_like(total[:, :1], index, dtype=torch.long)
+        return soft_argmin_local(total, index, radius=2, temperature=_TEMPERATURE[cost])
+    return subpixel_refine(local, index, method, limit)

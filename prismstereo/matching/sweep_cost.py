@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo._graph import fill_invalid, sample_bilinear
-from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_odd, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.cost import (
     COSTS,
@@ -232,8 +232,7 @@ def shift_cost(
         if fill is not None:  # sweep_cost filled the worst cost
             volume = fill_invalid(volume, valid_t, float(fill))
         return volume if transposed else volume.transpose(-1, -2)
-    if not isinstance(window, int) or window < 1 or window % 2 == 0:
-        raise OptionError(f"window must be an odd int, got {window!r}")
+    check_odd(window, "window")
     r = window // 2
     ref = grey(ref_t) - 0.5
     oth = grey(other_t) - 0.5

@@ -8,7 +8,7 @@ half, and samples that half at D hypotheses uniform in s with one ``grid_sample`
 (:func:`~prismstereo.matching.sweep_cost.warp_slices`).
 
 It is the one implementation of the plane sweep's sampling in the library: the classical model's searches
-(:class:`~prismstereo.matching.levels.SweepSearch`: a coarse level of f x f blocks, or a single full-resolution
+(:class:`~prismstereo.matching.search.SweepSearch`: a coarse level of f x f blocks, or a single full-resolution
 level) and the learned-feature volume :class:`~prismstereo.nn.PrismCostVolume` both sample through it, and
 :func:`sweep_sampler` builds it for either. A level of f x f blocks is the rig seen through f x f binning: its
 pixel i is centred on full-resolution pixel f i + (f - 1) / 2, so its sweep is the full-resolution fit evaluated at

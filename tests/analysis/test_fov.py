@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from prismstereo import OptionError, apex_ray, thesis_setup1, thesis_setup2
+from prismstereo import OptionError, thesis_setup1, thesis_setup2
 from prismstereo.analysis import (
     AnalysisError,
     boundary_angles,
@@ -24,6 +24,7 @@ from prismstereo.analysis import (
     ray2_angle,
     ray2_intercept,
 )
+from prismstereo.geometry import apex_ray
 
 F64 = torch.float64
 N, F = 1.48, 25.0

@@ -2,8 +2,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from prismstereo import RigError, thesis_setup1, thesis_setup2, virtual_cameras
+from prismstereo import RigError, thesis_setup1, thesis_setup2
 from prismstereo.analysis.pinhole_rectify import full_image_grid, rectification_residual, rectify_virtual_cameras
+from prismstereo.geometry import virtual_cameras
 
 F64 = torch.float64
 

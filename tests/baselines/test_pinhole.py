@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 import torch
 
-from prismstereo import CalibrationError, ShapeError, virtual_camera
+from prismstereo import CalibrationError, ShapeError
 from prismstereo.baselines import Pinhole, pinhole_from_opencv, pinhole_from_virtual, project_pinhole
+from prismstereo.geometry import virtual_camera
 from tests.baselines.conftest import RIG
 
 pytestmark = pytest.mark.usefixtures("one_thread")

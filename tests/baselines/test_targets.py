@@ -1,9 +1,10 @@
 import pytest
 import torch
 
-from prismstereo import CalibrationError, project_points
+from prismstereo import CalibrationError
 from prismstereo.baselines import checkerboard_corners, reference_points
 from prismstereo.calibration import ViewDetection
+from prismstereo.geometry import project_points
 from prismstereo.synthetic import checkerboard_target, fronto_parallel_plane
 from tests.baselines.conftest import BOARD, RIG
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from prismstereo import PrismStereoError, ShapeError, project_points
+from prismstereo import PrismStereoError, ShapeError
 from prismstereo.baselines import (
     PinholePair,
     Triangulation,
@@ -12,6 +12,7 @@ from prismstereo.baselines import (
     triangulate_exact,
     triangulate_pinholes,
 )
+from prismstereo.geometry import project_points
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 from tests.baselines.conftest import RIG
 

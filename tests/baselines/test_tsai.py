@@ -2,8 +2,9 @@ import numpy as np
 import pytest
 import torch
 
-from prismstereo import CalibrationError, virtual_cameras
+from prismstereo import CalibrationError
 from prismstereo.baselines import TsaiResult, calibrate_tsai, pinhole_from_opencv, project_pinhole, tsai_camera
+from prismstereo.geometry import virtual_cameras
 from tests.baselines.conftest import RIG, SIZE
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -1,9 +1,10 @@
 import pytest
 import torch
 
-from prismstereo import CalibrationError, OptionError, virtual_cameras
+from prismstereo import CalibrationError, OptionError
 from prismstereo.baselines import ZhangResult, calibrate_zhang, check_image_size
 from prismstereo.calibration import ViewDetection
+from prismstereo.geometry import virtual_cameras
 from tests.baselines.conftest import BOARD, RIG, SIZE
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -58,9 +58,9 @@ def cases() -> Iterator[tuple[str, Callable[[], PrismStereo], Callable[[], torch
     step = lambda rig: steps[id(rig)]  # noqa: E731
     slant = lambda rig: slanted  # noqa: E731
     for name in ("accurate", "fast", "dense"):
-        yield f"setup1 1024x768 {name}", lambda n=name: PrismStereo.from_config(full, z, n), step(full)
+        yield f"setup1 1024x768 {name}", lambda n=name: PrismStereo(full, z, n), step(full)
     for name in ("accurate", "fast", "dense", "reference"):
-        yield f"setup1 512x384 {name}", lambda n=name: PrismStereo.from_config(half, z, n), step(half)
+        yield f"setup1 512x384 {name}", lambda n=name: PrismStereo(half, z, n), step(half)
     options = {
         "thresholds": {"validity": "thresholds", "smoothing": 0},
         "sweep sampling": {"sampling": "sweep"},
@@ -75,9 +75,7 @@ def cases() -> Iterator[tuple[str, Callable[[], PrismStereo], Callable[[], torch
 
 
 def _model(rig, z, options: dict) -> PrismStereo:
-    from prismstereo.config import StereoConfig
-
-    return PrismStereo.from_config(rig, z, StereoConfig.from_kwargs(**options))
+    return PrismStereo(rig, z, options)
 
 
 def describe(result) -> dict:

@@ -1,17 +1,10 @@
 import pytest
 import torch
 
-from prismstereo import (
-    RigError,
-    ShapeError,
-    points_at_depth,
-    project_points,
-    thesis_setup1,
-    thesis_setup2,
-    trace_pixels,
-)
+from prismstereo import RigError, ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.depth import depth_to_disparity, depth_to_index, disparity_to_depth, index_to_depth
 from prismstereo.epipolar import depth_hypotheses
+from prismstereo.geometry import points_at_depth, project_points, trace_pixels
 
 F64 = torch.float64
 

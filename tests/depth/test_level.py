@@ -3,11 +3,9 @@
 import pytest
 import torch
 
-from prismstereo import OptionError, thesis_setup1
-from prismstereo.config import StereoConfig
+from prismstereo import OptionError, PrismStereo, StereoConfig, thesis_setup1
 from prismstereo.depth.level import DepthLevel, Placement, upsample
 from prismstereo.epipolar.sweep import depth_to_sweep
-from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 
 RIG = thesis_setup1().downscaled(4)  # 256 x 192
@@ -21,7 +19,7 @@ def capture():
 
 
 def test_a_level_with_its_own_search_finds_the_plane(capture):
-    level = DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=2))
+    level = DepthLevel(RIG, Z, StereoConfig().with_options(coarse_factor=2))
     assert level.factor == 2 and level.band == 3 and level.config.validity.validity == "calibrated"
     assert level.config.search.sampling == "rectified" and level.search is not None
     with torch.no_grad():
@@ -61,12 +59,12 @@ def test_band_edges_resolve_per_level(options, binned, final, own_weights, captu
     ``validity='thresholds'``); an explicit rule applies to every band (a clamping one with the weights of
     :data:`~prismstereo.matching.confidence.CLAMPED_WEIGHTS`)."""
     model = PrismStereo(RIG, Z, {"downsample": 2, "full_band": 2, "coarse_factor": 2, **options})  # both with a band
-    assert (model.binned.band_edges, model.final.band_edges) == (binned, final)
-    assert (model.binned.fine.options.band_edges, model.final.fine.options.band_edges) == (binned, final)
-    assert model.final.clamped_band is own_weights
-    assert model.config()["band_edges"] == options.get("band_edges")  # None round-trips as None
+    levels = (model.binned.config.search.band_edges, model.final.config.search.band_edges)
+    assert levels == (model.binned.fine.band_edges, model.final.fine.band_edges) == (binned, final)
+    assert (model.final.config.validity.confidence_weights == "clamped") is own_weights
+    assert model.config.search.band_edges == options.get("band_edges")  # the model's config: as asked
     one = PrismStereo(RIG, Z, {"coarse_factor": 2, **options})  # one level: its only band is the final one
-    assert one.final.band_edges == final
+    assert one.final.config.search.band_edges == final
 
 
 def test_the_default_clamped_band_covers_more_than_rejecting_edges(capture):
@@ -117,7 +115,7 @@ def test_a_guided_binned_level_searching_the_whole_range_places_by_its_search_as
 def test_the_ad_gradient_cost_serves_any_level(capture, options):
     """'ad_gradient' is one of the costs: as the fine band's (its gradients along each band slice's rows) and on
     the exact-sweep coarse level with the guided filter, the plane comes out within 0.1 % (median)."""
-    level = DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=2, validity="thresholds", **options))
+    level = DepthLevel(RIG, Z, StereoConfig().with_options(coarse_factor=2, validity="thresholds", **options))
     with torch.no_grad():
         res = level.depth(capture)
     rel = ((res.depth - 600.0).abs() / 600.0)[res.valid]
@@ -126,12 +124,12 @@ def test_the_ad_gradient_cost_serves_any_level(capture, options):
 
 def test_level_errors(capture):
     with pytest.raises(OptionError, match="validity 'calibrated' needs a coarse-to-fine model"):
-        DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=1, validity="calibrated"))
+        DepthLevel(RIG, Z, StereoConfig().with_options(coarse_factor=1, validity="calibrated"))
     with pytest.raises(OptionError, match="dense needs a coarse-to-fine model"):
-        DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=1, dense=True))
+        DepthLevel(RIG, Z, StereoConfig().with_options(coarse_factor=1, dense=True))
     with pytest.raises(OptionError, match="coarse_factor must be an int >= 1 leaving >= 8 rows"):
-        DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=32))
-    level = DepthLevel(RIG, Z, StereoConfig.from_kwargs(coarse_factor=2))
+        DepthLevel(RIG, Z, StereoConfig().with_options(coarse_factor=32))
+    level = DepthLevel(RIG, Z, StereoConfig().with_options(coarse_factor=2))
     with pytest.raises(OptionError, match="a placed level needs the coarser level's result"):
         level.depth(capture, Placement(torch.zeros(1, 1, 96, 64), torch.ones(1, 1, 96, 64, dtype=torch.bool),
                                        torch.ones(1, 1, 96, 64), 2))

@@ -2,8 +2,9 @@ import numpy as np
 import pytest
 import torch
 
-from prismstereo import ShapeError, project_points, thesis_setup1
+from prismstereo import ShapeError, thesis_setup1
 from prismstereo.depth import PointCloudError, depth_to_points, read_ply, write_ply
+from prismstereo.geometry import project_points
 from tests.conftest import ROUND_TRIP_TOL, tilted_rig
 
 F64 = torch.float64

@@ -2,15 +2,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from prismstereo import (
-    OptionError,
-    RigError,
-    points_at_depth,
-    project_points,
-    thesis_setup1,
-    thesis_setup2,
-    trace_pixels,
-)
+from prismstereo import OptionError, RigError, thesis_setup1, thesis_setup2
 from prismstereo.epipolar import (
     band_residual,
     bands_for_tolerance,
@@ -19,6 +11,7 @@ from prismstereo.epipolar import (
     normalise_right_grid,
     shift_bands,
 )
+from prismstereo.geometry import points_at_depth, project_points, trace_pixels
 from tests.conftest import scaled_rig
 
 F64 = torch.float64

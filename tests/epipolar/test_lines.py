@@ -1,16 +1,7 @@
 import pytest
 import torch
 
-from prismstereo import (
-    RigError,
-    ShapeError,
-    points_at_depth,
-    project_points,
-    thesis_setup1,
-    thesis_setup2,
-    trace_pixels,
-    virtual_cameras,
-)
+from prismstereo import RigError, ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.epipolar import (
     epipolar_line_accuracy,
     exact_epipolar_curve,
@@ -21,6 +12,7 @@ from prismstereo.epipolar import (
     projection_matrix,
     thesis_epipolar_lines,
 )
+from prismstereo.geometry import points_at_depth, project_points, trace_pixels, virtual_cameras
 from prismstereo.synthetic import ImageFormation, render, sphere_scene
 
 F64 = torch.float64

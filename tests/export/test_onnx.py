@@ -9,7 +9,7 @@ import onnx
 import pytest
 import torch
 
-from prismstereo import __version__, thesis_setup1
+from prismstereo import StereoConfig, __version__, thesis_setup1
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.export import DepthGraph, ExportError, OnnxDepth, describe, export_onnx, onnx_session, source_digest
 from prismstereo.model import PrismStereo
@@ -58,9 +58,10 @@ def test_metadata(exported, model):
     assert json.loads(meta["prismstereo.rig"]) == model.rig.to_dict()
     config = json.loads(meta["prismstereo.config"])
     assert config["num_hypotheses"] == model.num_hypotheses == int(meta["prismstereo.num_hypotheses"])
-    assert json.loads(meta["prismstereo.z_range_mm"]) == [300.0, 900.0] and config["coarse_factor"] == 2
-    rebuilt = PrismStereo(model.rig, config["z_range_mm"], config)  # the metadata rebuilds the model
-    assert torch.equal(rebuilt.depths, model.depths)
+    assert json.loads(meta["prismstereo.z_range_mm"]) == [300.0, 900.0] == config["z_range_mm"]
+    assert config["model"] == "PrismStereo" and config["config"]["search"]["coarse_factor"] == 2
+    rebuilt = PrismStereo(model.rig, config["z_range_mm"], StereoConfig.from_dict(config["config"]))
+    assert rebuilt.resolved == model.resolved  # the metadata rebuilds the model
     assert "input (B, 1, 96, 128)" in describe(meta)
 
 
@@ -140,13 +141,12 @@ def test_fine_band_strips_keep_the_batch_axis_dynamic(model, exported, captures,
     series (slices of it were constant-folded into copies: the then sweep table stored ~1.9 times at 1024 x 768)."""
     import onnx
 
-    import prismstereo.matching.levels as levels
-
     def stored(path: Path) -> int:
         return sum(len(t.raw_data) for t in onnx.load(str(path)).graph.initializer)
 
     whole = exported  # exported without the patch
-    monkeypatch.setattr(levels, "_EXPORT_STRIP_VOXELS", (2 * model.final.band + 1) * model.rig.reference_width * 20)
+    strip = (2 * model.final.band + 1) * model.rig.reference_width * 20
+    monkeypatch.setattr(model.final.fine, "export_strip_voxels", strip)
     path = export_onnx(model, tmp_path / "strips.onnx")
     series = model.final.series.numel() * 4
     # the strips add their interval slices (2 planes in all, plus halos), not copies of the series

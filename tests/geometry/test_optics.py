@@ -6,20 +6,14 @@ import pytest
 import torch
 from kornia.geometry.camera import PinholeCamera
 
-from prismstereo import (
-    BiPrismRig,
-    OptionError,
-    PrismStereoError,
-    RigError,
-    ShapeError,
+from prismstereo import BiPrismRig, OptionError, PrismStereoError, RigError, ShapeError, thesis_setup1, thesis_setup2
+from prismstereo.geometry import (
     apex_ray,
     half_of_pixels,
     pixel_directions,
     points_at_depth,
     project_points,
     refract,
-    thesis_setup1,
-    thesis_setup2,
     trace_directions,
     trace_pixels,
 )

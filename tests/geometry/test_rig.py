@@ -5,9 +5,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from prismstereo import BiPrismRig, RigError, RigParameters, check_rig_images, load_rig, thesis_setup1, thesis_setup2
+from prismstereo import BiPrismRig, RigError, load_rig, thesis_setup1, thesis_setup2
+from prismstereo.geometry import RigParameters, check_rig_images
 from prismstereo.geometry.optics import trace_pixels
-from prismstereo.geometry.presets import PRESETS
+from prismstereo.geometry.presets import RIG_PRESETS
 
 CONTRACT_FIELDS = [
     "alpha_deg",
@@ -156,7 +157,7 @@ def test_geometry_whole_half_total_internal_reflection():
 
 
 def test_presets_pass_the_geometric_check():
-    for make in PRESETS.values():
+    for make in RIG_PRESETS.values():
         check_rig_images(make())
 
 
@@ -271,7 +272,7 @@ def test_apex_column_moves_with_offset():
 
 
 def test_load_rig_from_preset_name_or_json_path(tmp_path):
-    assert set(PRESETS) == {"thesis_setup1", "thesis_setup2"}
+    assert set(RIG_PRESETS) == {"thesis_setup1", "thesis_setup2"}
     assert load_rig("thesis_setup2") == thesis_setup2()
     path = tmp_path / "rig.json"
     thesis_setup1().replace(prism_offset_x_mm=1.5).to_json(path)

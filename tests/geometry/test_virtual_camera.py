@@ -3,17 +3,13 @@ import math
 import pytest
 import torch
 
-from prismstereo import (
-    OptionError,
-    RigError,
-    ShapeError,
+from prismstereo import OptionError, RigError, ShapeError, thesis_setup1, thesis_setup2
+from prismstereo.geometry import (
     apex_ray,
     closest_point_to_rays,
     pinhole_reprojection_error,
     points_at_depth,
     ray_midpoint,
-    thesis_setup1,
-    thesis_setup2,
     trace_pixels,
     virtual_camera,
     virtual_cameras,

@@ -186,24 +186,26 @@ def test_onnxruntime_matches_torch(tmp_path, rig, model):
     np.testing.assert_allclose(match, ref.match.numpy(), atol=1e-2)
 
 
-def test_prismstereo_matcher_learned_builds_the_learned_model(tmp_path):
+def test_the_learned_model_is_its_own_class_and_describes_its_weights(tmp_path):
+    """LearnedStereo is built by its own class (PrismStereo takes no matcher); describe() tells the two models and
+    two sets of weights apart (the ONNX cache key); both models copy and pickle as themselves."""
     import copy
     import pickle
 
-    from prismstereo import OptionError, PrismStereo
+    from prismstereo import PrismStereo
     from prismstereo.learned import LearnedStereo
 
     small = thesis_setup1().downscaled(8)
-    model = PrismStereo(small, (450.0, 1000.0), 16, matcher="learned")
-    assert isinstance(model, LearnedStereo) and model.num_hypotheses == 16
-    assert model.config()["weights_sha256"] == LearnedStereo(small, (450.0, 1000.0)).config()["weights_sha256"]
+    model = LearnedStereo(small, (450.0, 1000.0), num_hypotheses=16)
+    described = model.describe()
+    assert described["model"] == "LearnedStereo" and described["num_hypotheses"] == 16
+    assert described["weights_sha256"] == LearnedStereo(small, (450.0, 1000.0)).describe()["weights_sha256"]
     saved = LearnedStereo(small, (450.0, 1000.0), weights=None).save(tmp_path / "w.pt")
-    other = PrismStereo(small, (450.0, 1000.0), matcher="learned", weights=saved)
-    assert other.config()["weights_sha256"] != model.config()["weights_sha256"]
-    classical = PrismStereo(small, (450.0, 1000.0), matcher="classical")
-    assert type(classical) is PrismStereo
-    assert type(copy.deepcopy(classical)) is PrismStereo and type(pickle.loads(pickle.dumps(classical))) is PrismStereo
-    with pytest.raises(OptionError, match="Unknown matcher 'deep'. Choose from: 'classical', 'learned'"):
-        PrismStereo(small, (450.0, 1000.0), matcher="deep")
-    with pytest.raises(OptionError, match="matcher='learned' takes z_range_mm, num_hypotheses and weights, not dense"):
-        PrismStereo(small, (450.0, 1000.0), matcher="learned", dense=True)
+    other = LearnedStereo(small, (450.0, 1000.0), weights=saved)
+    assert other.describe()["weights_sha256"] != described["weights_sha256"]
+    classical = PrismStereo(small, (450.0, 1000.0))
+    assert classical.describe()["model"] == "PrismStereo"
+    for m in (model, classical):
+        assert type(copy.deepcopy(m)) is type(m) and type(pickle.loads(pickle.dumps(m))) is type(m)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'matcher'"):
+        PrismStereo(small, (450.0, 1000.0), matcher="learned")

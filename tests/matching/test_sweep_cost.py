@@ -123,7 +123,7 @@ def test_shift_cost_gradients_and_errors():
         shift_cost(reference, other, index, valid, transposed=True)
     with pytest.raises(OptionError, match="'census'"):
         shift_cost(reference, other, index, valid, "ssd")
-    with pytest.raises(OptionError, match="window must be an odd int"):
+    with pytest.raises(OptionError, match="window must be a positive odd int"):
         shift_cost(reference, other, index, valid, "zncc", 4)
     with pytest.raises(OptionError, match="fill must be a number >= 0"):
         shift_cost(reference, other, index, valid, "zncc", 3, fill=-1.0)

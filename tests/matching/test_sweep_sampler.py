@@ -5,11 +5,12 @@ the one sampler behind the classical sweep search and PrismCostVolume."""
 import pytest
 import torch
 
-from prismstereo import points_at_depth, project_points, thesis_setup1, trace_pixels
+from prismstereo import thesis_setup1
 from prismstereo.epipolar.grids import normalise_right_grid
 from prismstereo.epipolar.row_rectify import level_coverage
 from prismstereo.epipolar.sweep import fit_sweep, sweep_positions, sweep_to_depth
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError
+from prismstereo.geometry import points_at_depth, project_points, trace_pixels
 from prismstereo.matching.sweep_sampler import SweepSampler, block_centres, sweep_sampler
 
 pytestmark = pytest.mark.usefixtures("one_thread")

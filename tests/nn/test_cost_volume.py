@@ -9,9 +9,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo import points_at_depth, project_points, thesis_setup1, trace_pixels
+from prismstereo import thesis_setup1
 from prismstereo.epipolar.grids import depth_hypotheses, normalise_right_grid
 from prismstereo.errors import OptionError, PrismStereoError, RigError, ShapeError
+from prismstereo.geometry import points_at_depth, project_points, trace_pixels
 from prismstereo.matching.sweep_cost import sample_points, sample_slices
 from prismstereo.nn import PrismCostVolume, depth_regression, sweep_grid
 

@@ -5,7 +5,8 @@ import math
 import pytest
 import torch
 
-from prismstereo import ShapeError, apex_ray, thesis_setup1, thesis_setup2, trace_pixels
+from prismstereo import ShapeError, thesis_setup1, thesis_setup2
+from prismstereo.geometry import apex_ray, trace_pixels
 from prismstereo.geometry.optics import euler_rotation
 from prismstereo.synthetic import (
     ConstantTexture,

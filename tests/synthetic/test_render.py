@@ -2,7 +2,8 @@
 import pytest
 import torch
 
-from prismstereo import points_at_depth, project_points, thesis_setup1, thesis_setup2, trace_pixels
+from prismstereo import thesis_setup1, thesis_setup2
+from prismstereo.geometry import points_at_depth, project_points, trace_pixels
 from prismstereo.synthetic import (
     Capture,
     ConstantTexture,

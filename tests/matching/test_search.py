@@ -1,21 +1,23 @@
-import dataclasses
-
 import pytest
 import torch
 
-import prismstereo.matching.levels as levels
-from prismstereo import OptionError, ShapeError, thesis_setup1
+from prismstereo import OptionError, PrismStereo, ShapeError, StereoConfig, thesis_setup1
+from prismstereo.defaults import resolve_level
 from prismstereo.epipolar.series import series_at
-from prismstereo.epipolar.sweep import depth_to_sweep
-from prismstereo.matching.levels import (
+from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients
+from prismstereo.matching import (
+    BuiltSearch,
     FineBand,
     LevelResult,
     RectifiedSearch,
     SweepSearch,
+    build_search,
+    decide,
     extend_estimate,
-    similarity,
+    shift_cost,
 )
-from prismstereo.model import PrismStereo
+from prismstereo.matching.cost import grey
+from prismstereo.matching.search import similarity
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 from tests.conftest import scaled_rig
 
@@ -66,9 +68,9 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
         torch.tensor(600.0), torch.tensor(model.z_range)))) + 0.01
     ok0 = torch.ones_like(s0, dtype=torch.bool)
     with torch.no_grad():
-        monkeypatch.setattr(levels, "_STRIP_VOXELS", 10**9)
+        monkeypatch.setattr(model.final.fine, "strip_voxels", 10**9)
         whole = model.final.fine(ref, other, s0, ok0, model.final.series, model.final.interval)
-        monkeypatch.setattr(levels, "_STRIP_VOXELS", 1)  # 16-row strips
+        monkeypatch.setattr(model.final.fine, "strip_voxels", 1)  # 16-row strips
         strips = model.final.fine(ref, other, s0, ok0, model.final.series, model.final.interval)
     for a, b in zip(whole, strips, strict=True):
         assert torch.equal(a, b)
@@ -82,14 +84,16 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     assert (whole.match - exact).abs().amax(1, keepdim=True)[whole.valid].max() < 1e-3
     # without the match (a smoothing model computes it after moving s): the same estimate, whole or in strips
     fine = model.final.fine
-    bare = FineBand(fine.options, fine.band, fine.step, fine.split, with_match=False)
+    bare = FineBand(fine.config, fine.band, fine.step, fine.split, with_match=False)
     for bad in (0.0, 1.5):
         with pytest.raises(OptionError, match=r"vertex_limit must be a number in \(0, 1\]"):
-            FineBand(fine.options, fine.band, fine.step, fine.split, vertex_limit=bad)
+            FineBand(fine.config, fine.band, fine.step, fine.split, vertex_limit=bad)
+    with pytest.raises(OptionError, match="FineBand needs a resolved config"):
+        FineBand(model.config, fine.band, fine.step, fine.split)  # band_edges and refinement still None
     assert PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2)).final.fine.with_match is False
     with torch.no_grad():
         for voxels in (10**9, 1):
-            monkeypatch.setattr(levels, "_STRIP_VOXELS", voxels)
+            monkeypatch.setattr(bare, "strip_voxels", voxels)
             res = bare(ref, other, s0, ok0, model.final.series, model.final.interval)
             assert res.match is None and torch.equal(res.s, whole.s) and torch.equal(res.valid, whole.valid)
 
@@ -102,7 +106,7 @@ def test_fine_band_edges_reject_or_clamp(plane):
     rig, cap = plane
     reject = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, band_edges="reject", smoothing=0))
     clamp = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2, band_edges="clamp", smoothing=0))
-    assert reject.final.fine.options.band_edges == "reject" and clamp.final.fine.options.band_edges == "clamp"
+    assert reject.final.fine.band_edges == "reject" and clamp.final.fine.band_edges == "clamp"
     ref, other = reject.split(cap.image)
     truth = float(depth_to_sweep(torch.tensor(600.0), torch.tensor(reject.z_range)))
     h, w = rig.image_height, rig.reference_width
@@ -207,18 +211,17 @@ def test_fine_band_wide_box_blends_only_in_weak_texture(plane):
 
     def band(**changes):
         band = model.final.fine
-        fine = FineBand(dataclasses.replace(band.options, **changes), band.band, band.step,
-                        model.final.fine.split)
+        fine = FineBand(band.config.with_options(**changes), band.band, band.step, model.final.fine.split)
         with torch.no_grad():
             return fine(ref, other, s0, ok0, model.final.series, model.final.interval)
 
     plain = band(wide_box=0)
     for a, b in zip(band(wide_box=21, weak_texture=1e-12), plain, strict=True):
         assert torch.equal(a, b)
-    wide, boxed = band(wide_box=21, weak_texture=1e9), band(wide_box=0, box=21)
+    wide, boxed = band(wide_box=21, weak_texture=1e9), band(wide_box=0, fine_box=21)
     torch.testing.assert_close(wide.s, boxed.s, atol=1e-5, rtol=0)
     assert torch.equal(wide.valid, boxed.valid)
-    assert model.final.fine.options.wide_box == 21  # the model's default
+    assert model.final.fine.wide_box == 21  # the model's default
 
 
 def test_guided_aggregation_carries_a_shift_through_a_flat_band_and_stops_at_edges():
@@ -235,11 +238,10 @@ def test_guided_aggregation_carries_a_shift_through_a_flat_band_and_stops_at_edg
     reference[..., w // 2:] = other[..., 2 + w // 2:2 + w]  # texture at shift 2 in the right half
     index = (torch.arange(w) + torch.arange(d).view(-1, 1)).clamp(max=w + d - 1)
     valid = torch.ones(1, d, h, w, dtype=torch.bool)
-    volume = levels.shift_cost(reference, other, index, valid, "ad_gradient")
-    from prismstereo.matching.cost import grey
+    volume = shift_cost(reference, other, index, valid, "ad_gradient")
     for aggregation, expect_band in (("guided", True), ("box", False)):
-        search = levels._Search(levels.SearchOptions(cost="ad_gradient", aggregation=aggregation, box=1))
-        index_w, _, confidence, unique, _ = search.decide(volume, 1, final=False, guide=grey(reference))
+        config = resolve_level(thesis_setup1().downscaled(8), (400.0, 700.0), guided_options(aggregation))
+        index_w, _, confidence, unique, _ = decide(volume, config, 1, final=False, guide=grey(reference))
         band = index_w[0, 0, 20:28, 14:w // 2 - 14]
         assert bool((band == 5).all()) == expect_band, band
         if aggregation == "guided":
@@ -248,5 +250,47 @@ def test_guided_aggregation_carries_a_shift_through_a_flat_band_and_stops_at_edg
             right_half = index_w[0, 0, :, w // 2 + 14:w - 3]
             assert float((right_half == 2).float().mean()) > 0.95
             assert float(confidence.min()) >= 0 and float(confidence.max()) <= 1
-            _, _, _, unique_final, _ = search.decide(volume, 1, final=True, guide=grey(reference))
+            _, _, _, unique_final, _ = decide(volume, config, 1, final=True, guide=grey(reference))
             assert not bool(unique_final.all())
+
+
+def guided_options(aggregation: str) -> StereoConfig:
+    """The options of a per-pixel cost aggregated by ``aggregation``."""
+    return StereoConfig().with_options(cost="ad_gradient", aggregation=aggregation, box=1)
+
+
+@pytest.fixture(scope="module")
+def sweep_setup():
+    rig = thesis_setup1().downscaled(8)  # 128 x 96, reference half 64 wide
+    fit = fit_sweep(rig, (400.0, 900.0))
+    uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1).double()
+    fine = sweep_coefficients(fit, uv).permute(2, 0, 1, 3)
+    return rig, fit, fine, torch.ones(96, 64, dtype=torch.bool)
+
+
+@pytest.mark.parametrize("sampling, factor, kind", [("sweep", 1, SweepSearch), ("sweep", 2, SweepSearch),
+                                                    ("rectified", 2, RectifiedSearch)])
+def test_build_search_gives_the_level_the_model_uses(sweep_setup, sampling, factor, kind):
+    rig, fit, fine, other_valid = sweep_setup
+    options = dict(num_hypotheses=30, sampling=sampling, coarse_factor=factor)
+    config = resolve_level(rig, (400.0, 900.0), StereoConfig().with_options(**options))
+    built = build_search(rig, fit, fine, config, other_valid)
+    assert isinstance(built, BuiltSearch) and isinstance(built.search, kind)
+    model = PrismStereo(rig, (400.0, 900.0), options)
+    assert type(model.final.search) is kind and model.final.search.num_hypotheses == built.search.num_hypotheses
+    if factor == 1:
+        assert built.search.num_hypotheses == 30  # a single level keeps the requested hypotheses
+    else:  # the coarse level: hypotheses <= 1 level pixel apart, fewer than the full level's
+        assert 2 <= built.search.num_hypotheses < 30
+    if sampling == "rectified":  # setup 1's non-central rays leave ~1e-4 px (row_rectify's measurement)
+        assert 0 <= built.rectification_residual_px < 1e-3
+        assert built.rectification_residual_px == model.final.rectification_residual_px
+    else:
+        assert built.rectification_residual_px is None
+
+
+def test_build_search_rejects_an_unknown_or_unresolved_sampling(sweep_setup):
+    rig, fit, fine, other_valid = sweep_setup
+    config = resolve_level(rig, (400.0, 900.0), StereoConfig())
+    with pytest.raises(OptionError, match="sampling.*'rectified'.*'sweep'"):
+        build_search(rig, fit, fine, config.replace(search={"sampling": None}), other_valid)

@@ -1,0 +1,341 @@
+"""The coarse searches: the whole depth range at one level, as swappable modules, and how a rig's search is built.
+
+A *search* covers the whole depth range at one pyramid level and returns each pixel's sweep coordinate s
+(linear in 1/Z, -1 at z_min, +1 at z_max), validity and confidence; two implementations share that interface,
+like RAFT-Stereo's correlation blocks, and one decision (:func:`decide`: aggregation, winner, sub-pixel fit,
+confidence, uniqueness):
+
+* :class:`SweepSearch`: every hypothesis warps the other half onto the reference pixels with the exact
+  per-pixel sweep (one ``grid_sample`` of D x H x W samples), cost, aggregation, winner.
+* :class:`RectifiedSearch`: both halves row-rectified by vertical warps fitted to the exact sweep
+  (:mod:`prismstereo.epipolar.row_rectify`); every hypothesis is a column shift (one gather builds the volume,
+  :func:`~prismstereo.matching.sweep_cost.shift_cost`); the winning shift becomes s exactly
+  (:func:`~prismstereo.epipolar.sweep_table.column_to_sweep`), resampled onto the unrectified pixels.
+
+:func:`build_search` builds a rig's search from its resolved config; the fine band that follows a search is
+:mod:`prismstereo.matching.band`'s.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from prismstereo._graph import fill_invalid
+from prismstereo.epipolar.row_rectify import RectifiedLevel, fit_row_rectification, level_coverage, rectified_level
+from prismstereo.epipolar.sweep import SweepFit, sweep_coefficients, sweep_hypotheses
+from prismstereo.epipolar.sweep_table import column_to_sweep
+from prismstereo.errors import check_option
+from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.matching.aggregate import (
+    GUIDED_EPS,
+    GUIDED_RADIUS,
+    GUIDED_SUBSAMPLE,
+    box_filter,
+    guided_filter,
+    sgm_aggregate,
+)
+from prismstereo.matching.cost import grey, sweep_cost, worst_cost
+from prismstereo.matching.select import left_right_check, refine, uniqueness, winner_take_all
+from prismstereo.matching.sweep_cost import sample_slices, shift_cost
+from prismstereo.matching.sweep_sampler import SweepSampler, block_centres, sweep_sampler
+
+if TYPE_CHECKING:
+    from prismstereo.config import StereoConfig
+
+__all__ = ["BuiltSearch", "Decision", "LevelResult", "RectifiedSearch", "SweepSearch", "build_search", "decide",
+           "similarity"]
+
+# the cost of an entry of the rectified shift volume that is not a real sample, as a share of the worst cost (ZNCC:
+# 1.5, between uncorrelated and anti-correlated): the worst cost made the shifts whose windows reach past the other
+# half's edge lose to shorter ones there, a margin of about the aggregated window
+_SHIFT_FILL = 0.75
+
+
+class LevelResult(NamedTuple):
+    """A level's estimate, (B, 1, H, W) each at the level's (unrectified) resolution.
+
+    Attributes:
+        s: sweep coordinate in [-1, 1] (may leave it slightly before clamping).
+        valid: bool.
+        confidence: in [0, 1].
+        match: (B, 2, H, W) full-sensor (u, v) of the match at s, when the level has it (:class:`FineBand`),
+            else None.
+    """
+
+    s: torch.Tensor
+    valid: torch.Tensor
+    confidence: torch.Tensor
+    match: torch.Tensor | None = None
+
+
+def similarity(best: torch.Tensor, cost: str, channels: int, window: int) -> torch.Tensor:
+    """Confidence in [0, 1] from the winner's (box-averaged) cost: the NCC for 'zncc', 1 - cost / worst
+    otherwise.
+
+    Example:
+        >>> similarity(torch.tensor([0.2]), "zncc", 1, 5)
+        tensor([0.8000])
+    """
+    worst = worst_cost(cost, channels, window)
+    return (1.0 - best / (1.0 if cost == "zncc" else worst)).clamp(0.0, 1.0)
+
+
+class Decision(NamedTuple):
+    """:func:`decide`'s result, (B, 1, H, W) per pixel.
+
+    Attributes:
+        index: long, the winning hypothesis.
+        refined: its sub-pixel index.
+        confidence: in [0, 1], the winner's similarity (:func:`similarity`).
+        unique: bool, the winner passed the uniqueness test (``min_uniqueness``).
+        total: (B, D, H, W) the aggregated cost.
+    """
+
+    index: torch.Tensor
+    refined: torch.Tensor
+    confidence: torch.Tensor
+    unique: torch.Tensor
+    total: torch.Tensor
+
+
+def decide(volume: torch.Tensor, config: StereoConfig, channels: int, final: bool,
+           guide: torch.Tensor | None = None) -> Decision:
+    """A cost volume's winners: box (``box``), then semi-global (``'sgm'``: ``directions``, ``p1``, ``p2``) or guided
+    (``'guided'``) aggregation or none, winner-take-all, sub-pixel refinement (``refinement`` for a ``final``
+    search, the fit matching the cost otherwise), confidence and uniqueness (``min_uniqueness``).
+
+    Args:
+        volume: (B, D, H, W) cost of ``config.cost.cost``, lower is better.
+        config: the level's resolved options.
+        channels: the images' channels (the worst census cost counts bits per channel).
+        final: the search's estimate is the level's (a single level), not a placement of a band.
+        guide: (B, 1, H, W) the level's grey reference in the volume's layout, which steers the 'guided'
+            aggregation (:func:`~prismstereo.matching.aggregate.guided_filter`).
+
+    Returns:
+        Decision. The 'guided' aggregation's confidence is the similarity of the filtered cost (a window's evidence
+        spread over its region of similar grey), the others' that of the box-averaged cost.
+
+    Example:
+        >>> from prismstereo.config import StereoConfig
+        >>> volume = torch.rand(1, 8, 12, 16)
+        >>> decide(volume, StereoConfig(), 1, final=False).refined.shape
+        torch.Size([1, 1, 12, 16])
+    """
+    cost, aggregation = config.cost.cost, config.aggregation
+    guided = aggregation.aggregation == "guided"
+    local = box_filter(volume, aggregation.box)
+    if aggregation.aggregation == "sgm":
+        total = sgm_aggregate(local, aggregation.p1, aggregation.p2, aggregation.directions)
+    elif guided:
+        total = guided_filter(local, guide, GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE)
+    else:
+        total = local
+    index, _ = winner_take_all(total.detach())
+    scored = total if guided else local  # the cost the sub-pixel fit and the confidence read
+    method = config.refinement.refinement if final and config.refinement.refinement else (
+        "parabola" if cost == "zncc" else "equiangular")
+    refined = refine(scored, total, index, method, cost)
+    confidence = similarity(scored.gather(1, index), cost, channels, config.cost.window)
+    if guided and not final:  # a placement: the band after it judges it (the filtered cost is flat in weak
+        unique = torch.ones_like(index, dtype=torch.bool)  # texture, where the ratio test rejects right winners)
+    else:  # costs >= 0
+        unique = uniqueness(total.detach(), index, 1.0, nonnegative=True)[1] >= config.validity.min_uniqueness
+    return Decision(index, refined, confidence, unique, total)
+
+
+class SweepSearch(nn.Module):
+    """The whole range at one level by the exact plane sweep: the other half sampled on every pixel's sweep
+    (:class:`~prismstereo.matching.sweep_sampler.SweepSampler`, the sampling :class:`~prismstereo.nn.PrismCostVolume`
+    uses too), cost, aggregation, winner.
+
+    Args:
+        config: the level's resolved options (:func:`~prismstereo.defaults.resolve_level`).
+        sampler: the level's sampler (:func:`~prismstereo.matching.sweep_sampler.sweep_sampler`).
+
+    Example:
+        >>> from prismstereo.config import StereoConfig
+        >>> from prismstereo.matching.sweep_sampler import SweepSampler
+        >>> sampler = SweepSampler(torch.zeros(3, 8, 6, 2), 4, other_valid=torch.ones(8, 6, dtype=torch.bool))
+        >>> search = SweepSearch(StereoConfig(), sampler)
+        >>> search(torch.rand(1, 1, 8, 6), torch.rand(1, 1, 8, 6), final=False).s.shape
+        torch.Size([1, 1, 8, 6])
+    """
+
+    def __init__(self, config: StereoConfig, sampler: SweepSampler) -> None:
+        super().__init__()
+        self.config, self.sampler = config, sampler
+        self.num_hypotheses = sampler.num_hypotheses
+
+    def forward(self, reference: torch.Tensor, other: torch.Tensor, final: bool) -> LevelResult:
+        """Search the level images ``reference`` (B, C, H, W) and ``other`` (B, C, H_o, W_o)."""
+        warped = self.sampler(other)
+        cost = self.config.cost
+        volume = sweep_cost(reference, warped, cost.cost, cost.window, cost.census_threshold)
+        index, refined, confidence, unique, _ = decide(volume, self.config, reference.shape[1], final,
+                                                       grey(reference))
+        ok = warped.valid.gather(1, index) & unique
+        return LevelResult(-1.0 + refined * (2.0 / (self.num_hypotheses - 1)), ok, confidence)
+
+
+class RectifiedSearch(nn.Module):
+    """The whole range at one level as a 1-D shift volume on the row-rectified halves.
+
+    Both level images are rectified by one ``grid_sample`` each; shift k compares rectified column u with
+    column u + k of the other; the volume stays transposed, (B, D, W, H), until the winner (see
+    :func:`~prismstereo.matching.sweep_cost.shift_cost`) unless the aggregation is not symmetric in H and W
+    (2-direction SGM scans rows only). The shift becomes the sweep coordinate exactly on each rectified
+    pixel's own sweep and is resampled onto the unrectified level pixels (bilinear; validity nearest).
+
+    Args:
+        config: the level's resolved options (:func:`~prismstereo.defaults.resolve_level`; ``lr_threshold``: the
+            left-right check, level px).
+        level: :func:`~prismstereo.epipolar.row_rectify.rectified_level` of this level.
+        factor: the level's downsampling f.
+        split: the other half's first full-sensor column.
+
+    Example:
+        >>> from prismstereo.epipolar.row_rectify import fit_row_rectification, rectified_level
+        >>> from prismstereo.epipolar.sweep import fit_sweep
+        >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 900.0))
+        >>> level = rectified_level(fit_row_rectification(rig, fit), fit, 2, torch.ones(96, 64, dtype=torch.bool))
+        >>> from prismstereo.config import StereoConfig
+        >>> search = RectifiedSearch(StereoConfig(), level, 2, rig.reference_width)
+        >>> search(torch.rand(1, 1, 48, 32), torch.rand(1, 1, 48, 32), final=False).s.shape
+        torch.Size([1, 1, 48, 32])
+    """
+
+    def __init__(self, config: StereoConfig, level: RectifiedLevel, factor: int, split: int) -> None:
+        super().__init__()
+        self.config, self.factor, self.split = config, factor, split
+        self.lr_threshold = lr_threshold = config.search.lr_threshold
+        aggregation = config.aggregation
+        self.transposed = not (aggregation.aggregation == "sgm" and aggregation.directions == 2)
+        for name in ("reference_grid", "other_grid", "shifts", "back_grid", "table"):
+            self.register_buffer(name, getattr(level, name).float())
+        self.register_buffer("index", level.index)
+        valid = level.valid.transpose(-1, -2).contiguous() if self.transposed else level.valid
+        self.register_buffer("valid", valid)
+        if lr_threshold is not None:  # the other half's view of the volume: its entry (k, x) is (k, x - k)
+            valid_t = level.valid.transpose(-1, -2)  # (D, W_l, H_r)
+            d, w_l, _ = valid_t.shape
+            ref_col = torch.arange(level.other_grid.shape[1]).view(1, -1) - level.shifts.long().view(-1, 1)
+            inside = (ref_col >= 0) & (ref_col < w_l)
+            ref_col = ref_col.clamp(0, w_l - 1)
+            self.register_buffer("right_index", (torch.arange(d).view(-1, 1) * w_l + ref_col).reshape(-1))
+            right_valid = valid_t.gather(1, ref_col.unsqueeze(-1).expand(-1, -1, valid_t.shape[2]))
+            self.register_buffer("right_valid", right_valid & inside.unsqueeze(-1))  # (D, W_ol, H_r)
+
+    @property
+    def num_hypotheses(self) -> int:
+        """The number of shifts."""
+        return int(self.shifts.numel())
+
+    def forward(self, reference: torch.Tensor, other: torch.Tensor, final: bool) -> LevelResult:
+        """Search the level images ``reference`` (B, C, H, W) and ``other`` (B, C, H_o, W_o)."""
+        b, cost, t = reference.shape[0], self.config.cost, self.transposed
+        ref_r = sample_slices(reference, self.reference_grid.to(reference)[None, None], shared=True)[:, :, 0]
+        oth_r = sample_slices(other, self.other_grid.to(other)[None, None], shared=True)[:, :, 0]
+        # 'ad_gradient' saturates at its worst on mismatches (truncated): a fill below it would win there
+        fill = (1.0 if cost.cost == "ad_gradient" else _SHIFT_FILL) * worst_cost(cost.cost, reference.shape[1],
+                                                                               cost.window)
+        volume = shift_cost(ref_r, oth_r, self.index, self.valid.unsqueeze(0), cost.cost, cost.window,
+                            cost.census_threshold, transposed=t, fill=fill)
+        guide = grey(ref_r).transpose(-1, -2) if t else grey(ref_r)
+        index, refined, confidence, unique, total = decide(volume, self.config, reference.shape[1], final, guide)
+        ok = self.valid.unsqueeze(0).expand(b, -1, -1, -1).gather(1, index) & unique
+        if t:
+            refined, ok, confidence = refined.transpose(-1, -2), ok.transpose(-1, -2), confidence.transpose(-1, -2)
+        first = self.shifts[0].to(reference)
+        if self.lr_threshold is not None:  # the other half's winners over the same aggregated volume
+            vol = (total if t else total.transpose(-1, -2)).detach()  # (B, D, W_l, H_r)
+            d, w_l, h_r = vol.shape[1:]
+            right = vol.reshape(b, d * w_l, h_r).index_select(1, self.right_index).view(b, d, -1, h_r)
+            # no winner at invalid entries: the largest finite value, so that the fill is bounded (total >= 0): a
+            # Max in an exported graph instead of a Where, which onnxruntime runs on one thread; winners unchanged
+            right = fill_invalid(right, self.right_valid, torch.finfo(right.dtype).max, bounded=True)
+            k_right = winner_take_all(right)[0].transpose(-1, -2).to(reference.dtype)  # (B, 1, H_r, W_ol)
+            # disparity in left_right_check's convention (other column = reference column - d): d = -shift
+            ok = ok & left_right_check(-(first + refined.detach()), -(first + k_right), self.lr_threshold)
+        w_l, f = reference.shape[-1], self.factor
+        u = (torch.arange(w_l, device=reference.device).to(reference.dtype) + 0.5) * f - 0.5
+        column = u + self.split + (first + refined) * f  # full-sensor column of the match
+        s = column_to_sweep(self.table.to(reference), column)
+        grid = self.back_grid.to(reference).unsqueeze(0).expand(b, -1, -1, -1)
+        s = F.grid_sample(s, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        confidence = F.grid_sample(confidence, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        ok = F.grid_sample(ok.to(reference.dtype), grid, mode="nearest", padding_mode="zeros", align_corners=False)
+        return LevelResult(s, ok > 0.5, confidence)
+
+
+class BuiltSearch(NamedTuple):
+    """A rig's coarse (or single) level search (:func:`build_search`).
+
+    Attributes:
+        search: :class:`RectifiedSearch` or :class:`SweepSearch`.
+        rectification_residual_px: the row rectification's largest residual (px) for 'rectified', else None.
+    """
+
+    search: nn.Module
+    rectification_residual_px: float | None
+
+
+def build_search(rig: BiPrismRig, fit: SweepFit, fine: torch.Tensor, config: StereoConfig,
+                 other_valid: torch.Tensor) -> BuiltSearch:
+    """The search over a rig's whole range at its coarse level (or, with ``coarse_factor`` 1, its single level).
+
+    'rectified': a 1-D shift volume on halves row-rectified for this rig and sweep
+    (:func:`~prismstereo.epipolar.row_rectify.fit_row_rectification`). 'sweep': the exact per-pixel sweep, at full
+    resolution with ``num_hypotheses`` (``fine``, the polynomials of every reference pixel) or, with
+    ``coarse_factor`` f > 1, at the f x f box-downsampled level with hypotheses <= 1 level pixel apart and each
+    sample's validity fixed in advance (the level's grid is).
+
+    Args:
+        rig: the rig (full resolution of the level's input).
+        fit: its sweep fit (:func:`~prismstereo.epipolar.sweep.fit_sweep`).
+        fine: (N, H, W_ref, 2) sweep polynomials of every reference pixel, full-sensor pixels.
+        config: the level's resolved options (:func:`~prismstereo.defaults.resolve_level`): ``sampling``,
+            ``coarse_factor`` f, ``num_hypotheses`` (D of a single full-resolution level), the matching options.
+        other_valid: (H, W_o) bool, the other half's pixels that see through the prism.
+
+    Returns:
+        BuiltSearch.
+
+    Raises:
+        OptionError: unknown sampling.
+
+    Example:
+        >>> from prismstereo.config import StereoConfig
+        >>> from prismstereo.defaults import resolve_level
+        >>> from prismstereo.epipolar.sweep import fit_sweep
+        >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 700.0))
+        >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1).double()
+        >>> fine = sweep_coefficients(fit, uv).permute(2, 0, 1, 3)
+        >>> config = resolve_level(rig, (400.0, 700.0), StereoConfig())
+        >>> built = build_search(rig, fit, fine, config, torch.ones(96, 64, dtype=torch.bool))
+        >>> built.search.num_hypotheses, built.rectification_residual_px
+        (15, None)
+    """
+    search = config.search
+    sampling, factor = check_option(search.sampling, ("rectified", "sweep"), "sampling"), search.coarse_factor
+    h, w_ref = rig.image_height, rig.reference_width
+    if sampling == "rectified":  # a 1-D shift volume on row-rectified halves
+        rect = fit_row_rectification(rig, fit)
+        level = rectified_level(rect, fit, factor, other_valid)
+        return BuiltSearch(RectifiedSearch(config, level, factor, w_ref), rect.max_residual_px)
+    if factor == 1:
+        sampler = sweep_sampler(fit, search.num_hypotheses, other_start=w_ref, other_valid=other_valid,
+                                precompute=False, dtype=torch.float32, coefficients=fine)
+        return BuiltSearch(SweepSearch(config, sampler), None)
+    # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
+    coarse = sweep_coefficients(fit, block_centres(math.ceil(h / factor), math.ceil(w_ref / factor), factor,
+                                                   fit.coefficients)).permute(2, 0, 1, 3)
+    sampler = sweep_sampler(fit, sweep_hypotheses(coarse / factor), factor=factor, other_start=w_ref,
+                            other_valid=level_coverage(other_valid, factor) > 0.999, dtype=torch.float32,
+                            coefficients=coarse)
+    return BuiltSearch(SweepSearch(config, sampler), None)
