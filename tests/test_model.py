@@ -504,3 +504,17 @@ def test_smoothing_averages_the_estimate_over_agreeing_neighbours():
     for bad in (0.0, -1.0, float("inf"), True):
         with pytest.raises(OptionError, match="smoothing_tolerance must be a finite number > 0"):
             PrismStereo(rig, (300.0, 900.0), dict(smoothing_tolerance=bad))
+
+
+def test_a_model_does_not_depend_on_the_callers_thread_count():
+    """The same rig and options give the same buffers (so the same exported graph, which the ONNX cache finds by
+    the model's description) whether the model is built on one torch thread or two: the build's threaded LAPACK
+    fit rounded differently before it ran on one thread."""
+    from prismstereo.threads import torch_threads
+
+    rig = scaled_rig(thesis_setup1(), 8)
+    with torch_threads(2):
+        two = PrismStereo(rig, (300.0, 900.0), {"coarse_factor": 2}).state_dict()
+    with torch_threads(1):
+        one = PrismStereo(rig, (300.0, 900.0), {"coarse_factor": 2}).state_dict()
+    assert [k for k in two if not torch.equal(two[k], one[k])] == []

@@ -40,6 +40,7 @@ from prismstereo.epipolar.sweep_table import tabulate_sweep
 from prismstereo.errors import OptionError, RigError, check_option
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.threads import torch_threads
 
 __all__ = ["RectifiedLevel", "RowRectification", "fit_row_rectification", "level_coverage", "rectified_level",
            "rectified_rows", "source_rows"]
@@ -175,7 +176,8 @@ def fit_row_rectification(
     keep[:n] = False  # A[0, :] multiplies T_0 - T_0(0) = 0
     rhs = y[ok] - v_s
     sol = torch.zeros(2 * n * n, dtype=f64)
-    sol[keep] = torch.linalg.lstsq(design[:, keep], rhs.unsqueeze(1), driver="gelsd").solution[:, 0]
+    with torch_threads(1):  # LAPACK's threaded reductions round differently on other thread counts: one model, one fit
+        sol[keep] = torch.linalg.lstsq(design[:, keep], rhs.unsqueeze(1), driver="gelsd").solution[:, 0]
     residual = design @ sol - rhs
     return RowRectification(sol[:n * n].view(n, n), sol[n * n:].view(n, n), w_ref, w, h,
                             float(residual.abs().max()), float(residual.pow(2).mean().sqrt()))
