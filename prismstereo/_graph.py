@@ -14,7 +14,9 @@ algorithm (the power series of :mod:`~prismstereo.epipolar.series`, the table ga
 * :func:`box_mean`: window mean (in-place shifted sums vs one AveragePool).
 * :func:`box_max`: window maximum (shifted maxima vs two MaxPools).
 * :func:`scan_traced` / :func:`scan_eager`: one SGM scan (Concat of steps vs a preallocated buffer).
-* :func:`sample_bilinear`: bilinear samples at pixel positions (``grid_sample`` vs element gathers).
+* :func:`sample_bilinear`: bilinear samples at pixel positions (``grid_sample`` vs element gathers); its eager form,
+  :func:`sample_grid` (bilinear samples at normalised positions, border padding), is the package's one bilinear
+  ``grid_sample``, which the plane-sweep slices and the rectified level's resampling call in both runtimes.
 * :func:`scatter_min`: a scatter with a minimum (``scatter_reduce`` vs one ScatterElements).
 """
 
@@ -24,7 +26,7 @@ import torch
 import torch.nn.functional as F
 
 __all__ = ["GATHER_ROWS", "box_max", "box_mean", "exporting", "fill_invalid", "flat_index", "gather_bilinear",
-           "in_place", "sample_bilinear", "scan_eager", "scan_traced", "scatter_min", "tracing"]
+           "in_place", "sample_bilinear", "sample_grid", "scan_eager", "scan_traced", "scatter_min", "tracing"]
 
 # onnxruntime's GatherElements runs the rows of its index (all axes before the gathered one) on its threads and one
 # row on one thread: the bilinear taps gather from the image repeated on this many rows (a Concat, a copy of the
@@ -203,8 +205,14 @@ def sample_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> to
     b, h, w = image.shape[0], *image.shape[-2:]
     d, hs, ws = x.shape[1:]
     grid = torch.stack([(2.0 * x + 1.0) / w - 1.0, (2.0 * y + 1.0) / h - 1.0], -1)
-    return F.grid_sample(image, grid.reshape(b, d * hs, ws, 2), mode="bilinear", padding_mode="border",
-                         align_corners=False).view(b, -1, d, hs, ws)
+    return sample_grid(image, grid.reshape(b, d * hs, ws, 2)).view(b, -1, d, hs, ws)
+
+
+def sample_grid(image: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples of (B, C, H, W) at (B, H', W', 2) positions normalised as ``grid_sample``'s
+    (align_corners=False: -1 and +1 are the outer edges of the first and last pixel), border padding: (B, C, H', W').
+    One ``grid_sample`` (a GridSample node when exported) in both runtimes."""
+    return F.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=False)
 
 
 def gather_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:

@@ -18,9 +18,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import torch
-import torch.nn.functional as F
 
-from prismstereo._graph import exporting
+from prismstereo._graph import exporting, sample_bilinear
 from prismstereo.epipolar.sweep import positions_at
 from prismstereo.errors import OptionError, ShapeError, check_shape
 
@@ -225,9 +224,7 @@ def valid_interval(table: torch.Tensor, other_valid: torch.Tensor, split: int, s
     def real(xy: torch.Tensor) -> torch.Tensor:  # (S, H, W, 2) full-sensor positions -> (S, H, W) bool
         x, y = xy[..., 0] - split, xy[..., 1]
         inside = (x >= -eps) & (x <= w_o - 1 + eps) & (y >= -eps) & (y <= h_o - 1 + eps)
-        grid = torch.stack([(2 * x + 1) / w_o - 1, (2 * y + 1) / h_o - 1], -1)
-        seen = F.grid_sample(mask.expand(xy.shape[0], -1, -1, -1), grid, mode="bilinear", padding_mode="border",
-                             align_corners=False)[:, 0] > 0.999
+        seen = sample_bilinear(mask.expand(xy.shape[0], -1, -1, -1), x.unsqueeze(1), y.unsqueeze(1))[:, 0, 0] > 0.999
         return inside & seen
 
     k, h, w, _ = table.shape

@@ -34,6 +34,7 @@ from prismstereo.epipolar.sweep import depth_to_sweep, evaluate_sweep, fit_sweep
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.matching.aggregate import box_filter
 from prismstereo.nn import PrismCostVolume, depth_regression
 
 __all__ = ["DEFAULT_WEIGHTS", "FORMAT", "Architecture", "LearnedStereo", "WeightsError", "load_weights"]
@@ -137,10 +138,8 @@ def normalise_image(image: torch.Tensor, window: int = 9) -> torch.Tensor:
     grey = image.mean(1, keepdim=True)
     mean = grey.mean((2, 3), keepdim=True)
     std = (grey - mean).square().mean((2, 3), keepdim=True).sqrt()
-    pad = window // 2
-    local = F.avg_pool2d(grey, window, 1, pad, count_include_pad=False)
-    local_sq = F.avg_pool2d(grey.square(), window, 1, pad, count_include_pad=False)
-    local_std = (local_sq - local.square()).clamp_min(0.0).sqrt()
+    local, local_sq = box_filter(torch.cat([grey, grey.square()], 1), window).split(1, 1)
+    local_std = (local_sq - local.square()).clamp_min(1e-12).sqrt()  # floored: a flat window's gradient stays finite
     return torch.cat([(grey - mean) / (std + 0.01), (grey - local) / (local_std + 0.01)], 1)
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, NamedTuple
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from prismstereo._graph import tracing
@@ -217,14 +216,10 @@ def extend_estimate(s: torch.Tensor, valid: torch.Tensor, radius: int) -> Extend
         raise OptionError(f"radius must be an int >= 0, got {radius!r}")
     if radius == 0:
         return Extended(s, valid)
-    k = 2 * radius + 1
-
-    def window_mean(t: torch.Tensor) -> torch.Tensor:  # separable: 2 k instead of k^2 terms per pixel
-        t = F.avg_pool2d(t, (k, 1), 1, (radius, 0), count_include_pad=False)
-        return F.avg_pool2d(t, (1, k), 1, (0, radius), count_include_pad=False)
-
-    total = window_mean(torch.where(valid, s, s.new_tensor(0.0)))
-    share = window_mean(valid.to(s.dtype))  # same normalisation: the ratio is the mean
+    # the window's sum of valid estimates and its count of valid pixels, as means over the same pixels: the ratio is
+    # the valid pixels' mean
+    total, share = box_filter(torch.cat([torch.where(valid, s, s.new_tensor(0.0)), valid.to(s.dtype)], 1),
+                              2 * radius + 1).split(1, 1)
     mean = total / share.clamp_min(torch.finfo(s.dtype).tiny)
     reach = valid | (share > 0)
     return Extended(torch.where(valid | ~reach, s, mean), reach)

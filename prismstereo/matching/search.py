@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo._graph import fill_invalid
+from prismstereo._graph import fill_invalid, sample_grid
 from prismstereo.epipolar.row_rectify import RectifiedLevel, fit_row_rectification, level_coverage, rectified_level
 from prismstereo.epipolar.sweep import SweepFit, sweep_coefficients, sweep_hypotheses
 from prismstereo.epipolar.sweep_table import column_to_sweep
@@ -267,8 +267,8 @@ class RectifiedSearch(nn.Module):
         column = u + self.split + (first + refined) * f  # full-sensor column of the match
         s = column_to_sweep(self.table.to(reference), column)
         grid = self.back_grid.to(reference).unsqueeze(0).expand(b, -1, -1, -1)
-        s = F.grid_sample(s, grid, mode="bilinear", padding_mode="border", align_corners=False)
-        confidence = F.grid_sample(confidence, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        s, confidence = sample_grid(s, grid), sample_grid(confidence, grid)
+        # validity: the nearest rectified pixel's (no blend of valid and invalid ones), none beyond the level
         ok = F.grid_sample(ok.to(reference.dtype), grid, mode="nearest", padding_mode="zeros", align_corners=False)
         return LevelResult(s, ok > 0.5, confidence)
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from prismstereo._graph import fill_invalid, sample_bilinear
+from prismstereo._graph import fill_invalid, sample_bilinear, sample_grid
 from prismstereo.errors import OptionError, ShapeError, check_odd, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.cost import (
@@ -36,7 +36,8 @@ __all__ = ["sample_points", "sample_slices", "shift_cost", "warp_slices"]
 
 
 def sample_slices(other: torch.Tensor, grid: torch.Tensor, shared: bool | None = None) -> torch.Tensor:
-    """Sample ``other`` at a plane-sweep grid with one bilinear ``grid_sample`` call (border padding).
+    """Sample ``other`` at a plane-sweep grid with one bilinear ``grid_sample`` call (border padding,
+    :func:`~prismstereo._graph.sample_grid`).
 
     Args:
         other: (B, C, H_o, W_o) the other half-image.
@@ -71,12 +72,10 @@ def sample_slices(other: torch.Tensor, grid: torch.Tensor, shared: bool | None =
     if shared:  # one grid for the batch: the images go to the channel axis (no copy of the grid per image)
         if g.shape[0] != 1:
             raise ShapeError(f"a shared grid must have batch 1, got {g.shape[0]}")
-        return F.grid_sample(other.reshape(1, -1, h_o, w_o), g.reshape(1, d * h, w, 2), mode="bilinear",
-                             padding_mode="border", align_corners=False).view(b, -1, d, h, w)
+        return sample_grid(other.reshape(1, -1, h_o, w_o), g.reshape(1, d * h, w, 2)).view(b, -1, d, h, w)
     if g.shape[0] != b:  # (an Expand is a copy in onnxruntime: only when the grid really has batch 1)
         g = g.expand(b, -1, -1, -1, -1)
-    return F.grid_sample(other, g.reshape(b, d * h, w, 2), mode="bilinear",
-                         padding_mode="border", align_corners=False).view(b, -1, d, h, w)
+    return sample_grid(other, g.reshape(b, d * h, w, 2)).view(b, -1, d, h, w)
 
 
 def sample_points(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
