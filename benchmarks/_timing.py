@@ -27,12 +27,12 @@ def interleaved_ms(fns: dict[str, Callable[[], object]], rounds: int = 9, gap_s:
     """Wall times (ms) of each function over ``rounds`` rounds that call every function once, in the given order
     on even rounds and reversed on odd ones, with a pause of ``gap_s`` before each call; one warm-up call each.
 
-    On a shared VM the speed of the host drifts between phases by up to ~2-3x within minutes, and not equally
-    for every kind of code (single-threaded OpenCV and 2-thread onnxruntime were seen swinging in different
-    phases): times taken block by block compare different phases. Round by round, times of the same round
+    On a shared VM the speed of the host drifts between phases within minutes, and not equally for every kind
+    of code (single-threaded OpenCV and 2-thread onnxruntime swing in different phases): times taken block by
+    block compare different phases. Round by round, times of the same round
     compare like with like; the ratio of two methods is then best read as the median of their per-round ratios
     (:func:`paired_ratio`). The pause lets a previous run's spinning threads (onnxruntime's, OpenMP's) go idle
-    before the next call: without it the second of two onnxruntime sessions run back to back was ~20 % slower.
+    before the next call: without it the second of two onnxruntime sessions run back to back is the slower.
     """
     for fn in fns.values():
         fn()

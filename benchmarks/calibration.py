@@ -19,7 +19,7 @@ runs, and the summary against the targets: parameters within 3 standard errors, 
 the true rig's. ``--board none`` self-calibrates from three textured scenes instead (no target).
 
 Captures come from this package's renderer at half resolution (512 x 384) by default (``--scale 1`` for the full
-1024 x 768 sensor, ~4x slower). ``--setup 2`` uses thesis setup 2.
+1024 x 768 sensor, slower). ``--setup 2`` uses thesis setup 2.
 """
 
 from __future__ import annotations

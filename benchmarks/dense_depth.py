@@ -35,9 +35,10 @@ invalid instead of refined from the inner neighbour and judged by the confidence
 ``cost='ad_gradient', aggregation='guided', box=1``; coverage counts every pixel with a depth, and its ``valid``
 mask is reported as ``dense valid``), ``dense sgm`` = the previous 'dense' preset (the default's semi-global ZNCC
 coarse level), ``dense cf1`` = the 'dense' preset with ``coarse_factor=1`` (in the pyramid: the binned model
-filters the whole range at its own resolution; ~5x the time; not on sensors without a pyramid), ``reference`` =
+filters the whole range at its own resolution, several times the work; not on sensors without a pyramid),
+``reference`` =
 the ``'reference'`` preset: no coarse-to-fine placement at all, one level that searches the whole range at full
-resolution (semi-global ZNCC on the exact sweep; ~30 s per 1024 x 768 capture in torch), reported on its valid
+resolution (semi-global ZNCC on the exact sweep; slow in torch), reported on its valid
 pixels (NCC thresholds) and as ``reference all`` on every co-visible pixel with a finite depth, before its
 validity rules.
 ``--model NAME=JSON`` adds a model by its options (``PrismStereo``'s config keywords; ``{"preset": "dense",

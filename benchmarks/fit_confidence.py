@@ -9,8 +9,9 @@ blur. ``--photos skimage`` (scikit-image's installed sample data, ``pip install 
 (a folder with its files) adds photographs per setup and sensor size: its sample of the Middlebury 2014
 *Motorcycle* pair with its true disparity (:func:`~prismstereo.synthetic.disparity_scene`, three depth ranges, one
 mirrored) and two of its other sample photographs on procedural bumps; the shipped weights were fitted without
-them (what they changed: ``docs/design.md``, *Dense depth on weak texture and defocus*). None of the held-out scenes
-of ``benchmarks/dense_depth.py`` (the Middlebury photographs Tsukuba and Venus, the defocus captures) is used.
+them (what they changed: ``docs/design.md``, *How the model picks its defaults*, confidence weights). None of the
+held-out scenes of ``benchmarks/dense_depth.py`` (the Middlebury photographs Tsukuba and Venus, the defocus
+captures) is used.
 Every pixel with an estimate is a sample: correct when it is co-visible and its depth is within 1 % of the truth,
 wrong otherwise (pixels the other half does not see included). Prints the fitted weights (paste them into
 ``DEFAULT_WEIGHTS``), the training log-loss and, per capture, the coverage and wrong share at p >= 0.5. Then the
@@ -21,9 +22,9 @@ final band clamps its edges (``CLAMPED_WEIGHTS``).
 
 ``--band-edges`` (default ``reject``) sets the final band's edge rule of the presets that leave it to the model
 (``band_edges=None``; not dense ones): the shipped ``DEFAULT_WEIGHTS`` and ``SMOOTHED_WEIGHTS`` were fitted on
-bands that reject their edges and are kept for the default's clamped final band (``docs/design.md``,
-``band_edges``: refitted on its estimates they were more conservative on the held-out captures without a better
-trade-off); ``--band-edges preset`` fits each preset as it is.
+bands that reject their edges and are kept for the default's clamped final band (``docs/design.md``, *How the
+model picks its defaults*, confidence weights: refitted on its estimates they were more conservative on the held-out
+captures without a better trade-off); ``--band-edges preset`` fits each preset as it is.
 
 Run: .venv/bin/python benchmarks/fit_confidence.py [--cache DIR] [--scenes N] [--photos skimage | DIR]
 [--presets NAME ...] [--band-edges reject | clamp | preset] [--z-range ZMIN ZMAX]

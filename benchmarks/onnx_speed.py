@@ -6,9 +6,9 @@ and 1 inter-op thread, all graph optimisations) with ``thesis_setup1`` at 1024 x
 sensor by K for quick runs). Times: ``--repeats`` interleaved rounds after one warm-up call each
 (``benchmarks/_timing.py``: every method once per round, in reversed order every other round, 0.1 s apart), the
 median and fastest per method; the "x SGBM" column is the median over rounds of the method's time divided by
-SGBM's time in the same round. (This host drifts between phases of up to ~2x within minutes,
-and not equally for every method: in one run the 2-thread onnxruntime and torch rows were ~2x slower than in the
-next while single-threaded SGBM was not, so ratios of medians timed block by block compared different phases.)
+SGBM's time in the same round. (A shared host drifts between speed phases within minutes, and not equally for
+every method: 2-thread onnxruntime and torch may slow down while single-threaded SGBM does not, so ratios of
+medians timed block by block would compare different phases.)
 Each table says how many cores other processes used meanwhile (/proc/stat minus this process): on a shared 2-core
 machine torch's 2-thread eager mode slows down several-fold (and erratically) as soon as another process is busy,
 onnxruntime and OpenCV much less, so only trust runs where that is ~0.
@@ -39,17 +39,15 @@ onnxruntime and OpenCV much less, so only trust runs where that is ~0.
    coverage columns score its ``valid`` mask).
 2. **Narrow range** 600-1450 mm: the same with ``PrismStereo(rig, (600, 1450))`` (its default coarse factor,
    printed; ``--narrow-coarse-factor F`` forces one, for the binned model of the pyramid and ``downsample=1``),
-   numDisparities 96 / K and ``slanted_plane(rig, 900, 30)`` (Z 878-923 mm). (A single full-resolution level,
-   what the model picked for this range before its default became f = 2, is ~9x slower in torch and its
-   unrolled ONNX graph took ~7 min to export at half resolution.) Both ranges print the correspondence over
-   the range from the exact sweep: how far the match moves along u between z_min and z_max, the OpenCV
-   disparity interval that means, the largest vertical offset of the match from the pixel's row, and the
-   ground-truth disparities of the capture.
+   numDisparities 96 / K and ``slanted_plane(rig, 900, 30)`` (Z 878-923 mm). (A single full-resolution level is
+   not timed: it is far slower in torch and its unrolled ONNX graph takes minutes to export.) Both ranges print
+   the correspondence over the range from the exact sweep: how far the match moves along u between z_min and
+   z_max, the OpenCV disparity interval that means, the largest vertical offset of the match from the pixel's
+   row, and the ground-truth disparities of the capture.
 3. **Batching**: torch eager images/s at batch 8 (and 2) vs batch 1, wide model, the sizes timed alternately,
    with the CPU time split into user and system and the minor page faults per call (fresh large temporaries
    are page-faulted in on every call; that is system time). The ratio is printed from the medians and from the
-   fastest runs: on this shared VM a single image's time swings by up to 2x between host phases, and the
-   ratio with it (0.99-1.30x over 14 runs with the full-resolution coarse level, 1.07x in one with the pyramid).
+   fastest runs: on a shared VM a single image's time swings between host phases, and the ratio with it.
 4. **Peak RSS** of a fresh process (``subprocess`` + ``sys.executable``) that loads the exported wide graph
    with ``OnnxDepth`` and runs one frame, and of one that builds the torch model and runs one frame in eager
    mode: the high-water mark VmHWM of /proc/self/status after the imports, after loading / building, after
@@ -80,7 +78,7 @@ OpenCV on bi-prism halves:
     144 of the 512 reference columns can be valid: that, not matching quality, bounds its wide-range coverage.
 
 Run (from the repository root; the default run takes a few minutes on a quiet 2-core machine, most of it the
-two full-resolution ONNX exports of ~25-70 s each):
+two full-resolution ONNX exports):
     .venv/bin/python benchmarks/onnx_speed.py [--scale 1] [--repeats 9] [--narrow-coarse-factor F] [--sampling]
 """
 

@@ -31,57 +31,34 @@ For thesis setups 1 and 2 (512 x 384 by default, ``--scale 1`` for the full 1024
    frame. "depth" there is the median over
    the valid pixels, "|err| %" the mean relative error, "cover %" the share of co-visible pixels with a depth.
 
-Measured (default run: 512 x 384, seed 0, one torch thread, ~1 min on 2 shared cores; ``--scale 1`` on the full
-1024 x 768 sensor, ~2 min per setup). Average recovered-depth error over the ten groups, % (the thesis' Tables
-4.3 / 4.4 on real captures in brackets):
+Printed per setup: the recovered depth and its error per group and calibration column with their average (the
+thesis' own averages on real captures beside them), the matched pairs' distance from the exact correspondences,
+and the conventional pipeline against PrismStereo per group. The current tables: ``docs/benchmarks.md``, *The
+thesis' tables* (``benchmarks/report.py --only thesis_tables``). ``--seed N`` draws other board sets (the Zhang and
+Tsai columns move with them, the geometric and all-pixel ones only with the sampled pixels), ``--native-two-point``
+puts the thesis' two pixels twice as far from the apex (the two-point camera depends on them), ``--truth-matches``
+isolates calibration from matching.
 
-=================================  ==============  ==============  ==============  ==============
-column                             setup 1, 512    setup 1, 1024   setup 2, 512    setup 2, 1024
-=================================  ==============  ==============  ==============  ==============
-geometric two-point (thesis)       0.327  (3.65)   0.330           4.02  (1.98)    4.04
-all-pixel least squares (ours)     0.455           0.434           1.90            1.72
-Zhang (``calibrate_zhang``)        1.044  (10.24)  0.192           2.43  (8.29)    2.18
-Tsai (``calibrate_tsai``)          0.065  (8.48)   0.059           3.04  (7.63)    3.10
-exact optics, true rig             0.006           0.009           0.009           0.003
-exact optics, ``calibrate_board``  0.448           0.253           0.825           0.279
-=================================  ==============  ==============  ==============  ==============
-
-Other board sets (``--seed 1..3``; the geometric and all-pixel columns move by < 0.1 points with the sampled
-pixels): Zhang 0.61 / 0.79 / 1.01 % (setup 1, 512), 3.26 / 1.51 / 2.38 % (setup 2, 512), 0.35 / 0.35 % (setup
-1, 1024, seeds 1-2); Tsai 0.04-0.09 % (setup 1), 2.3-3.6 % (setup 2). The matcher's pairs are 0.04-0.05 px
-(median) from the exact correspondences; with ``--truth-matches`` the exact column is 0.000 %. The two-point
-camera depends on its two pixels: 50 and 100 px of the 512-px sensor from the apex (twice as far,
-``--native-two-point``) give 0.10 / 1.52 % instead of 0.33 / 4.02 %. Dense, per co-visible pixel: PrismStereo
-0.04-0.20 % mean error on 94-99 % of the pixels (1024: 0.011-0.087 % on 96-99 %), Zhang -> stereoRectify ->
-SGBM -> reprojectImageTo3D 0.56-14 % / 0.63-13 % on 93-99 % (setup 1 / 2; 1024: 0.29-6.4 % on 98-100 %, 0.33-12 %
-on 74-99 %).
-
-**The thesis' ordering (geometric better than Zhang) does not hold robustly on exact captures.** It holds on
-setup 1 at 512 x 384 (0.33 against 0.61-1.04 % over four board sets); at 1024 x 768 the two are level (Zhang
-0.19-0.35 % against 0.32-0.33 %), and on setup 2 it is reversed (Zhang 1.5-3.3 % against 4.0 %). Why: the
-geometric camera is exact in its inputs (the rig) but is a pinhole through the rays of two pixels next to the
-apex line, and the prism's rays share no centre (they miss one by up to 0.14 mm on setup 1, 4.9 mm on setup
-2): its error is fixed by the geometry and the two pixels, the same at every resolution. Zhang's error is
-calibration noise, which shrinks with the corner precision (0.61-1.04 -> 0.19-0.35 % from 512 to 1024 px on
-setup 1), in a narrow half field of view where the principal point trades against the rotation and the centre's
-distance against the focal length (its left centre lands 1.5-10 mm off along the axis), plus a fitted model
-whose distortion polynomial absorbs part of the prism's anamorphic distortion where the boards were: its error
-is smallest at the calibration distances (setup 1 at 512: 0.15-0.22 % at 625-780 mm, boards at 550-850 mm;
-setup 2: 0.02-0.21 % at 228-418 mm, boards at 300-500 mm) and grows away from them (3.0 % at 228 mm; 9.0 % at
-1374 mm), as the thesis' errors grow with depth (its Zhang boards stood at 2 m). A least-squares pinhole fitted
-to every pixel without distortion terms (all-pixel) sits in between. So the thesis' 3.65 against 10.24 % on
-setup 1's real captures, 10-50x the errors here, came from its data (a board at 2 m, real corners, bench misalignment,
-matching), not from a limit of Zhang's model; the only calibration below every pinhole on every setup and
-resolution is the exact model (0.003-0.018 %, the matcher's error). Tsai's known 3-D target is exact here, so
-on setup 1 it is the best pinhole (0.04-0.09 %), unlike on the thesis' bench; on setup 2 its fit extrapolates
-like Zhang's (12 % at 1374 mm). ``calibrate_board`` started at the true rig moves T_o by +1.3 / +2.2 mm and f by
-+0.11 / +0.09 mm from 12 views at 512 x 384 (setup 1 / 2; on setup 2 3.4 and 3.5 standard errors): 0.45 /
-0.83 %, 0.25 / 0.28 % at 1024. (Setup 2's rig is the thesis' prism with a consistent thickness, T = 20 mm instead
-of its 5.6 mm, ``thesis_setup2``: its thesis numbers compare less directly.)
+What the columns show, and why. The thesis' ordering (geometric better than Zhang) need not hold on exact
+captures: it depends on the setup and the resolution. The geometric camera is exact in its inputs (the rig) but is
+a pinhole through the rays of two pixels next to the apex line, and the prism's rays share no centre: its error is
+fixed by the geometry and the two pixels, the same at every resolution. Zhang's error is calibration noise, which
+shrinks with the corner precision, in a narrow half field of view where the principal point trades against the
+rotation and the centre's distance against the focal length, plus a fitted model whose distortion polynomial
+absorbs part of the prism's anamorphic distortion where the boards were: its error is smallest at the
+calibration distances and grows away from them, as the thesis' errors grow with depth (its Zhang boards stood at
+2 m). A least-squares pinhole fitted to every pixel without distortion terms (all-pixel) sits in between. So the
+thesis' 3.65 against 10.24 % on setup 1's real captures came from its data (a board at 2 m, real corners, bench
+misalignment, matching), not from a limit of Zhang's model; the only calibration below every pinhole on every
+setup and resolution is the exact model (down to the matcher's error). Tsai's known 3-D target is exact here, so
+on setup 1 it is a good pinhole, unlike on the thesis' bench; on setup 2 its fit extrapolates like Zhang's.
+``calibrate_board`` starts at the true rig and moves it by what 12 noisy views support. (Setup 2's rig is the
+thesis' prism with a consistent thickness, T = 20 mm instead of its 5.6 mm, ``thesis_setup2``: its thesis numbers
+compare less directly.)
 
 Rendering dominates the run; ``--threads`` (default 1) sets torch's intra-op threads: two threads on two cores
-another process also uses made the renders ~20x slower (oversubscription). ``--scale 1`` renders and matches on
-the full sensor (~2 min per setup).
+that another process also uses oversubscribe them and slow the renders down many times. ``--scale 1`` renders
+and matches on the full sensor.
 
 Run: .venv/bin/python benchmarks/thesis_tables.py [--setups 1 2] [--scale 1] [--views 12] [--seed 0]
 [--points 50] [--truth-matches] [--native-two-point] [--zhang-stereo refine|fix_intrinsic] [--no-board-fit]

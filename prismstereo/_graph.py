@@ -30,9 +30,9 @@ __all__ = ["GATHER_ROWS", "box_max", "box_mean", "exporting", "fill_invalid", "f
 
 # onnxruntime's GatherElements runs the rows of its index (all axes before the gathered one) on its threads and one
 # row on one thread: the bilinear taps gather from the image repeated on this many rows (a Concat, a copy of the
-# image), the samples split between them (micro-benchmark, 2 M samples from a 768 x 512 image, 2 threads, the copy
-# included: 1 row 1.07 ms, 2 rows 0.67 ms, 4 rows 0.73 ms, 8 rows 0.96 ms). One-channel images (the grey samples of
-# ZNCC); images of several channels gather on one row per channel
+# image), the samples split between them. Two rows keep two threads busy; more rows copy the image more often than
+# they gain (the GatherElements row of ``benchmarks/onnx_speed.py``'s profile). One-channel images (the grey samples
+# of ZNCC); images of several channels gather on one row per channel
 GATHER_ROWS = 2
 
 
@@ -54,11 +54,11 @@ def in_place(t: torch.Tensor) -> bool:
 def fill_invalid(volume: torch.Tensor, valid: torch.Tensor, value: float, bounded: bool = False) -> torch.Tensor:
     """``volume`` where ``valid`` (broadcastable bool), ``value`` elsewhere.
 
-    Exported, the fill is a scalar constant of the Where: onnxruntime took 6.8 ms on (1, 11, 768, 512) against a
-    full tensor of the fill (a ConstantOfShape per call), ~2-4 ms less with the scalar (torch eager keeps a full
-    tensor: its broadcasting Where is slower there). ``bounded``: the caller guarantees 0 <= volume <= value, so
-    the fill is max(volume, value * not valid), bitwise the same; exported that is Not, Cast, Mul and Max, which
-    onnxruntime runs multi-threaded where its Where runs on one thread (~1.5 ns per element).
+    Exported, the fill is a scalar constant of the Where: a full tensor of the fill is a ConstantOfShape per call,
+    which onnxruntime's Where then reads element by element (torch eager keeps a full tensor: its broadcasting
+    Where is the slower one there). ``bounded``: the caller guarantees 0 <= volume <= value, so the fill is
+    max(volume, value * not valid), bitwise the same; exported that is Not, Cast, Mul and Max, which onnxruntime
+    runs multi-threaded where its Where runs on one thread.
     """
     if exporting():
         if bounded:
@@ -90,9 +90,9 @@ def box_mean(volume: torch.Tensor, window: int) -> torch.Tensor:
 def box_max(volume: torch.Tensor, window: int) -> torch.Tensor:
     """Maximum over a ``window`` x ``window`` box (odd, > 1) of every slice of a (B, D, H, W) volume, pixels inside
     the image only; separable (rows, then columns). Torch eager takes the maximum with each slice's neighbours
-    1..r rows away on both sides, then the same along W (2 window - 2 maxima over shifted views: 1.5 ms for a
-    15 x 15 box on a 768 x 512 plane, where ``max_pool2d`` took 140 ms, 39 ms as two 1-D pools); exported, and
-    where gradients are recorded, it is two MaxPools."""
+    1..r rows away on both sides, then the same along W (2 window - 2 maxima over shifted views: torch's
+    ``max_pool2d``, even as two 1-D pools, also computes indices and is much slower); exported, and where gradients
+    are recorded, it is two MaxPools."""
     r = window // 2
     if not in_place(volume):
         return F.max_pool2d(F.max_pool2d(volume, (window, 1), 1, (r, 0)), (1, window), 1, (0, r))
@@ -136,13 +136,13 @@ def scan_traced(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
     cannot win there since P1 >= 0): 7 graph nodes per scan step (ReduceMax, Sub, MaxPool, Sub, Max, Clip, Add;
     ONNX has a MaxPool, no MinPool). The slices are taken along axis 0 with one Split and the steps concatenated
     back along it (no Reshape, Squeeze or Unsqueeze per step). Differentiable torch eager keeps the Slice /
-    Maximum / Concat form (its max_pool2d also computes indices, ~5x slower per step).
+    Maximum / Concat form (its max_pool2d also computes indices, a slower step).
     """
     s, n, d, x = volume.shape
     # rank-changing Reshapes (to 5-D and back) before the Split: onnxruntime's transpose optimizer cannot push the
-    # orienting Transposes through them (it folded them into a strided Split along the last axis: 5 ms instead of
-    # ~0.5), and the Split yields the 4-D slices directly (a Reshape per slice before: one graph node per scan step
-    # more; without them the scans of the narrow range's coarse volume, (1, 28, 192, 128), took 0.95x the time)
+    # orienting Transposes through them (it folded them into a strided Split along the last axis, which copies
+    # element by element), and the Split yields the 4-D slices directly (a Reshape per slice would be one graph
+    # node per scan step more)
     slices = volume.reshape(s, 1, n, d, x).reshape(s, n, d, x).split(1, dim=0)
     floors = None if p2s is None else (-p2s).reshape(s, 1, n, 1, x).reshape(s, n, 1, x).split(1, dim=0)
     starts = _starts(volume, shift)
@@ -151,7 +151,7 @@ def scan_traced(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
         prev = out[-1]
         if shift:  # diagonal: position x continues the path of x - 1 in the previous slice
             prev = torch.roll(prev, shifts=shift, dims=-1)  # positions without a predecessor are reset below
-        prev = prev - prev.amax(dim=2, keepdim=True)  # amax: max(dim) also computes indices, ~1000x slower here
+        prev = prev - prev.amax(dim=2, keepdim=True)  # amax: max(dim) also computes indices
         best = torch.maximum(prev, _neighbour_max(prev) - p1)
         best = best.clamp_min(-p2) if floors is None else torch.maximum(best, floors[i])
         cur = slices[i] + best
@@ -196,9 +196,9 @@ def _starts(like: torch.Tensor, shift: int) -> torch.Tensor:
 def sample_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     """Bilinear samples of (B, C, H, W) at (B, D, H', W') pixel positions, clamped to the image: (B, C, D, H', W').
 
-    Torch eager calls ``grid_sample`` (13-20 ms on 11 x 768 x 512 positions in a 768 x 512 image, 2 threads);
-    exported the graph gathers each position's four taps (:func:`gather_bilinear`), because onnxruntime's
-    GridSample kernel is single-threaded and slow there (80-95 ms against ~50 ms for the gather form).
+    Torch eager calls ``grid_sample``; exported the graph gathers each position's four taps
+    (:func:`gather_bilinear`), because onnxruntime's GridSample kernel is single-threaded and slower there than
+    the gathers (``benchmarks/onnx_speed.py --sampling`` times the sweep sampling in both runtimes).
     """
     if exporting():
         return gather_bilinear(image, x, y)
@@ -218,12 +218,11 @@ def sample_grid(image: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
 def gather_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     """:func:`sample_bilinear` by element gathers of the four taps (its exported form, runnable eagerly).
 
-    onnxruntime's GatherElements copies elements in a typed loop, its Gather one memcpy per row (a (H W, 4) table
-    of pixel quads gathered by rows: 5.1 ms for 1.2 M samples against 3.9 ms for the four element gathers,
-    micro-benchmark). The taps are gathered from the top-left pixel and three difference images of the bilinear
-    form, and a one-channel image from :data:`GATHER_ROWS` copies, so that onnxruntime spreads each gather over
-    its threads. The narrow-range pyramid at 1024 x 768 in onnxruntime (paired A/B): the difference form 0.99x,
-    the rows 0.94x.
+    onnxruntime's GatherElements copies elements in a typed loop, its Gather one memcpy per row, and a (H W, 4)
+    table of pixel quads gathered by rows lost to the four element gathers. The taps are gathered from the
+    top-left pixel and three difference images of the bilinear form, and a one-channel image from
+    :data:`GATHER_ROWS` copies, so that onnxruntime spreads each gather over its threads (both timed on the narrow
+    range's pyramid at 1024 x 768 by ``benchmarks/onnx_speed.py``).
     """
     b, c, h, w = image.shape
     d, hs, ws = x.shape[1:]
@@ -252,7 +251,7 @@ def gather_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> to
 def flat_index(row: torch.Tensor, column: torch.Tensor, width: int, size: int) -> torch.Tensor:
     """Flat index ``row * width + column`` of whole-numbered floating-point rows and columns into an image of
     ``size`` pixels, for gathers and scatters: int32 where it fits (onnxruntime casts and clamps int64 on one
-    thread, ~4x slower, and gathers with it ~30 % slower; torch takes either), computed in floating point where
+    thread, and gathers with it more slowly; torch takes either), computed in floating point where
     that is exact (``size`` <= 2 / eps: 2^24 in float32) and cast once, and clamped to [0, size): a NaN position
     (a NaN image upstream), cast to garbage, still indexes a pixel, where onnxruntime would abort the whole
     frame on an out-of-range index.
@@ -279,8 +278,7 @@ def flat_index(row: torch.Tensor, column: torch.Tensor, width: int, size: int) -
 
 def scatter_min(data: torch.Tensor, index: torch.Tensor, updates: torch.Tensor) -> torch.Tensor:
     """``data.scatter_reduce(1, index, updates, "amin")``: in an exported graph one ScatterElements with reduction
-    'min' (the exporter's own form wraps it in an If whose branch copies all three inputs, ~2 ms per 1024 x 768
-    frame in onnxruntime).
+    'min' (the exporter's own form wraps it in an If whose branch copies all three inputs on every frame).
 
     Args:
         data: (B, N) the values before the scatter.

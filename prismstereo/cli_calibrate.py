@@ -81,8 +81,8 @@ def add_calibrate_parser(sub: argparse._SubParsersAction) -> None:
     cal.add_argument("--free", nargs="+", metavar="NAME", default=None,
                      help=f"estimate these default-fixed parameters too ({', '.join(DEFAULT_FIXED)})")
     cal.add_argument("--corners", choices=("symmetric", "opencv"), default="symmetric",
-                     help="sub-pixel corners: refined to their centre of point symmetry (default; 3-10x closer on "
-                          "rendered boards) or OpenCV's detector positions as they are")
+                     help="sub-pixel corners: refined to their centre of point symmetry (default; closer on "
+                          "rendered boards, benchmarks/corners.py) or OpenCV's detector positions as they are")
     cal.add_argument("--plot", default=None, metavar="PNG", help="save a plot of the residuals per view")
     cal.add_argument("--quiet", action="store_true", help="no progress bars")
     cal.set_defaults(func=_cmd_calibrate)

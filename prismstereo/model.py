@@ -39,7 +39,8 @@ side (k = 2, R = 2: the thesis setups at 1024 x 768); smaller sensors get steps 
 (``downsample=1``), as any sensor does when asked.
 
 Every option left None in the config is picked by one function, :func:`~prismstereo.defaults.resolve_config` (the
-rules: :mod:`prismstereo.defaults`; why each, and the command that measures it: ``docs/design.md``).
+rules: :mod:`prismstereo.defaults`; why each, and the command that measures it: ``docs/design.md``, *How the model
+picks its defaults*).
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ thesis; (n - 1) / n from eq. 6.15). :func:`exact_sensitivities` differentiates t
 autograd at fixed pixels. :func:`error_budget` combines either with parameter uncertainties (fig. 6.5
 defaults) into absolute and relative depth errors (eq. 6.17-6.18).
 
-Thesis errata, measured (setup 1: alpha 6.4 deg, n 1.48, f 25 mm, T 5.6 mm, T_o 170 mm):
+Thesis errata, each with its size by the exact model (setup 1: alpha 6.4 deg, n 1.48, f 25 mm, T 5.6 mm, T_o 170 mm):
 
 * Eq. 6.33/6.34 (dZ/dn) end in -T_o / n^2; differentiating eq. 6.15 gives +(T_o + T) / n^2 (the n
   dependence of A = (T_o + T)(n - 1)/n). The printed form is off by (2 T_o + T) / n^2 = 157.8 mm per unit

@@ -19,24 +19,22 @@ Zhang's method (Bouguet's Matlab toolbox, refined by Levenberg-Marquardt), then 
    then Z in the real camera frame, the thesis' origin (sec. 3.3.1: "the optical centre of the CCD camera was
    chosen as the origin"). Without them the left virtual camera's frame is the world (``frame == 'left'``).
 
-Options, decided by measurement (12 views of a 4 x 7-corner board of 6 mm at 550-850 mm (setup 1) / 300-500 mm
-(setup 2), 512 x 384 px, ``calibration_views`` seeds 0-3; depth error = mean over the thesis' ten depths of the
-error of 50 exact correspondences near the common view's centre, triangulated with the registered cameras):
+Options, decided with ``benchmarks/thesis_tables.py`` (12 views of a 4 x 7-corner board of 6 mm at 550-850 mm
+(setup 1) / 300-500 mm (setup 2), 512 x 384 px, ``--seed`` 0-3, ``--zhang-stereo``; depth error = mean over the
+thesis' ten depths of the error of 50 exact correspondences near the common view's centre, triangulated with the
+registered cameras):
 
 * ``flags`` default ``CALIB_FIX_K3``: k1, k2, p1, p2, fx, fy, cx, cy free, the defaults of Bouguet's toolbox
   (the thesis' tool). A narrow-angle half-image hardly separates the principal point from the camera's rotation
   (a shift of cx by f dtheta looks like a turn by dtheta) nor the centre's distance from the focal length: per
-  half, cx lands up to ~300 px from the apex column at 512 x 384, the distortion coefficients come out large
-  (|k2| ~ 10-30) and the left centre 3.7-9.8 mm off our least-squares one along the axis (setup 1, seeds 0-2), the
-  thesis' "quite high" standard
-  deviations. The board's corners are still reprojected to 0.11 px. ``CALIB_FIX_PRINCIPAL_POINT`` holds cx, cy
-  at the sensor centre (worse here: 1.9 % instead of 1.1 % on setup 1, seed 0).
+  half, cx lands hundreds of pixels from the apex column at 512 x 384, the distortion coefficients come out large
+  and the left centre millimetres off our least-squares one along the axis, the thesis' "quite high" standard
+  deviations, while the board's corners are still reprojected to about a tenth of a pixel.
+  ``CALIB_FIX_PRINCIPAL_POINT`` holds cx, cy at the sensor centre (a larger depth error here).
 * ``stereo`` default ``'refine'``: ``stereoCalibrate`` re-estimates both cameras' intrinsics with their relative
   pose, every view's board pose shared by the two halves (as Bouguet's stereo calibration does), instead of
-  ``'fix_intrinsic'`` (``CALIB_FIX_INTRINSIC``, only R and T). Depth errors, seeds 0-3: setup 1 1.08 / 0.63 /
-  0.81 / 1.01 % ('refine') against 0.23 / 0.87 / 1.87 / 0.75 % ('fix_intrinsic'), setup 2 1.97 / 2.94 / 1.23 /
-  2.10 % against 1.76 / 2.97 / 1.93 / 2.11 %: equal on average (0.88 / 0.93 %, 2.06 / 2.19 %), 'refine' with the
-  smaller spread.
+  ``'fix_intrinsic'`` (``CALIB_FIX_INTRINSIC``, only R and T). Over seeds 0-3 the two give the same depth error
+  on average on both setups, 'refine' with the smaller spread.
 """
 
 from __future__ import annotations

@@ -130,7 +130,7 @@ def normal_inverse(jacobian: torch.Tensor) -> torch.Tensor:
 
     The columns of a calibration's Jacobian mix units (mm, px, rad, dimensionless distortion, board poses), so
     J^T J's condition number reaches 1e13 and a plain pseudo-inverse silently truncates weakly determined
-    directions (a principal point traded against tangential distortion) to zero variance: a standard error 100x
+    directions (a principal point traded against tangential distortion) to zero variance: a standard error far
     too small. Normalising the columns first brings the condition number to the geometry's own (~1e8).
 
     Args:

@@ -240,8 +240,8 @@ def detect_board(
     The halves are split at the rig's reference width (:attr:`BiPrismRig.reference_width`) and searched
     separately with OpenCV; positions come back in full-sensor pixels (pixel centres at integers, as OpenCV's).
     With ``corners='symmetric'`` (default) each corner is then refined to the centre of point symmetry of its
-    half-image (:func:`~prismstereo.calibration.corners.refine_corners`, on the full-precision image), 3-10x closer
-    to the exact projections than OpenCV's own sub-pixel corners on rendered boards (``benchmarks/corners.py``);
+    half-image (:func:`~prismstereo.calibration.corners.refine_corners`, on the full-precision image), closer to
+    the exact projections than OpenCV's own sub-pixel corners on rendered boards (``benchmarks/corners.py``);
     ChArUco corners that do not converge (e.g. cut by the half's edge) are dropped, a checkerboard's keep the
     detector's position.
 

@@ -112,8 +112,8 @@ def _bisect(rig: BiPrismRig, lo: float, hi: float, above_at_hi: bool, level: flo
 def _scan(rig: BiPrismRig, far_factor: float = 50.0, steps: int = 32) -> tuple[torch.Tensor, torch.Tensor]:
     z_b = back_plane_depth(rig)
     z = torch.logspace(math.log10(z_b * (1 + 1e-4)), math.log10(z_b * far_factor), steps, dtype=_F64)
-    # one depth per call: ~300 points stay below torch's intra-op threading grain (a shared CPU made the
-    # batched call 10-30x slower through thread contention)
+    # one depth per call: ~300 points stay below torch's intra-op threading grain (on a shared CPU the batched
+    # call is many times slower through thread contention)
     return z, torch.cat([covisible_fraction(rig, zi) for zi in z])
 
 

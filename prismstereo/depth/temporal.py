@@ -23,8 +23,9 @@ sweep coordinate (valid pixels interpolate valid neighbours only), with validity
 times fewer voxels for the binned level's accuracy.
 
 Which frames get the full model instead (the first, every ``keyframe_interval``-th, scene cuts, a prior that lost
-too much of its coverage) is :class:`TemporalOptions`' part, applied by :class:`~prismstereo.stream.DepthStream`;
-the measurements behind the defaults: ``docs/benchmarks.md`` (*Video*).
+too much of its coverage) is :class:`TemporalOptions`' part, applied by :class:`~prismstereo.stream.DepthStream`.
+Why each default: ``docs/design.md``, *How the model picks its defaults* (temporal options); measured by
+``benchmarks/video_speed.py`` (``docs/benchmarks.md``, *Video: frame times, accuracy and flicker*).
 """
 
 from __future__ import annotations
@@ -73,9 +74,9 @@ class TemporalOptions:
             frame before (where both are valid), not the last depth itself.
         downsample: k: the band runs on the capture binned by k x k and its estimate is interpolated back to full
             resolution (>= 1; 1: the model's full-resolution band; see the module docstring). None (default): 2 for
-            a pyramid (the resolution of its binned level: at 1024 x 768 about a third of the full-resolution band's
-            time, its mean error within 0.01 points, ``docs/benchmarks.md``), 1 for a one-level model (smaller
-            sensors, where the binned frame costs more accuracy).
+            a pyramid (the resolution of its binned level: a fraction of the full-resolution band's work at
+            about its accuracy; ``benchmarks/video_speed.py``'s ``temporal k=1`` rows run the other), 1 for a
+            one-level model (smaller sensors, where the binned frame costs accuracy).
 
     Example:
         >>> TemporalOptions(band=2).to_dict()["band"]

@@ -7,14 +7,13 @@ Chebyshev polynomial of degree N - 1 (~1e-10 px); evaluating it costs N terms pe
 within ``tolerance_px`` at every pixel, as power series in s, planar per coordinate; :func:`series_at`
 evaluates them at per-pixel coordinates by Horner's rule, 2 D multiply-adds per sample and coordinate and no
 table lookups. With the default 2e-4 px over 228-1374 mm at 1024 x 768, ``thesis_setup1`` needs D = 4 (its
-correspondences are nearly linear in s), ``thesis_setup2`` D = 8; float32 evaluation adds ~6e-5 px of rounding
-(measured against the float64 polynomials on every 3rd pixel at 5 random s each: 1.4e-4 / 2.5e-4 px in all).
-The fine bands of :class:`~prismstereo.matching.band.FineBand` sample through it; in onnxruntime that
-replaced 4 gathers from a 53 MB table per band (and their index arithmetic) by 2 D multiply-adds per sample,
-the full-resolution band of 3 alone 0.75x its time. :func:`series_band` evaluates a band of offsets around
-each pixel's s0 from the series' Taylor coefficients at s0 (multiply-adds on planes and one matrix product
-instead of Horner's rule over the band's volume): the narrow-range pyramid (600-1450 mm, 1024 x 768) 0.96-0.97x
-its onnxruntime time (paired A/B).
+correspondences are nearly linear in s), ``thesis_setup2`` D = 8; evaluated in float32 the series stay within
+3e-4 px of the float64 polynomials (``tests/epipolar/test_series.py``). The fine bands of
+:class:`~prismstereo.matching.band.FineBand` sample through it: in onnxruntime 2 D multiply-adds per sample
+instead of 4 gathers from a 53 MB table per band (and their index arithmetic). :func:`series_band` evaluates a
+band of offsets around each pixel's s0 from the series' Taylor coefficients at s0 (multiply-adds on planes and
+one matrix product instead of Horner's rule over the band's volume). ``benchmarks/onnx_speed.py`` times the
+models that sample through them.
 """
 
 from __future__ import annotations

@@ -115,12 +115,12 @@ def local_cubic(table: torch.Tensor, s: torch.Tensor, top: int = 0) -> LocalCubi
     base = i.long() * (h * w) + pixels  # flat index of entry i
     if exporting():
         # element gathers of x and y from the flat table: onnxruntime's GatherElements runs a typed loop where
-        # its Gather of (x, y) rows makes one memcpy per row (2.0 against 4.5 ms for 242 k pixels; a 1024 x 768
-        # frame ~8 ms faster); no broadcast along the trailing axis, slow in onnxruntime
+        # its Gather of (x, y) rows makes one memcpy per row, the slower of the two there; no broadcast along the
+        # trailing axis, slow in onnxruntime
         base = torch.stack([2 * base, 2 * base + 1], -1)
         flat = table.reshape(-1)
         taps = [flat.gather(0, (base + o * h * w * 2).reshape(-1)) for o in (-1, 0, 1, 2)]
-    else:  # torch: rows are faster (0.84 against 1.10 ms on 120 x 512 pixels)
+    else:  # torch: rows are the faster of the two
         flat = table.reshape(k * h * w, 2)
         taps = [flat.index_select(0, (base + o * h * w).reshape(-1)) for o in (-1, 0, 1, 2)]
     pm, p0, p1, p2 = (t.view(b, 1, rows, w, 2) for t in taps)
@@ -143,8 +143,8 @@ def cubic_at(cubic: LocalCubic, u: torch.Tensor) -> torch.Tensor:
 
 def _lanes(u: torch.Tensor, n: int) -> torch.Tensor:
     """``u`` (...) as (..., n): n copies along a new last axis, by one Concat. onnxruntime multiplies a trailing
-    axis of 1 against one of n slowly (a (1, 1, 768, 512, 1) x (..., 2) Mul: 2.1 ms, equal shapes 0.07 ms; its
-    Expand is as slow), so the coordinate pairs are multiplied by a u of the same shape."""
+    axis of 1 against one of n far more slowly than two equal shapes (its Expand is as slow), so the coordinate
+    pairs are multiplied by a u of the same shape."""
     x = u.unsqueeze(-1)
     return torch.cat([x] * n, -1) if n > 1 else x
 

@@ -257,9 +257,9 @@ class OnnxDepth:
         threads: intra-op threads (inter-op: 1).
         optimization: onnxruntime graph optimisation level: 'all' (default), 'extended', 'basic', 'disable'.
         spinning: let idle intra-op threads spin for work (onnxruntime's default) instead of sleeping. Spinning
-            wins when the cores are the graph's alone and loses when other processes want them (measurements:
-            ``docs/design.md``, *Implementation measurements*): pass False where the depth graph shares the CPU
-            (an endoscope application's other threads).
+            wins when the cores are the graph's alone and loses when other processes want them (``docs/design.md``,
+            *How the model picks its defaults*, implementation choices): pass False where the depth graph shares
+            the CPU (an endoscope application's other threads).
 
     Attributes:
         metadata: the ``prismstereo.*`` metadata_props (str -> str).

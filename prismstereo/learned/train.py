@@ -13,8 +13,9 @@ hypothesis index (linear in 1/Z): smooth L1 of the refined index plus half that 
 plus 0.2 times the binary cross-entropy of the confidence against |depth error| < 1 % on every valid
 reference ray (pixels the other half does not see are negatives). Adam, cosine learning rate, seeded.
 
-The shipped ``weights/thesis_setup1.pt`` was made with ``prismstereo train`` (the command, its time and loss
-curve: the comment below the imports; the file's metadata holds the options, the curve and the time).
+The shipped ``weights/thesis_setup1.pt`` was made with ``prismstereo train`` (the command: the comment below the
+imports; the file's metadata holds the options, the loss curve and the time; ``benchmarks/learned.py`` measures
+the weights against the classical model).
 """
 
 from __future__ import annotations
@@ -35,13 +36,12 @@ from prismstereo.learned.network import Architecture, LearnedStereo
 
 __all__ = ["TrainResult", "train"]
 
-# The shipped weights/thesis_setup1.pt (2 shared cores, one torch thread: two threads ran ~4x slower while another
-# process used the CPU):
+# The shipped weights/thesis_setup1.pt (80 captures at 512 x 384, 900 steps of 4 captures; one torch thread, as
+# two threads on 2 shared cores compete with any other process for them):
 #   OMP_NUM_THREADS=1 .venv/bin/prismstereo train --rig thesis_setup1 --steps 900 --cache .cache/learned \
 #       --out prismstereo/learned/weights/thesis_setup1.pt
-# 80 captures at 512 x 384 rendered in ~1 min, 900 steps of 4 captures in 601 s; loss (mean per tenth of the run)
-# 4.64, 0.36, 0.29, 0.24, 0.21, 0.20, 0.17, 0.17, 0.16, 0.15 (last 20 steps 0.149). A first run of 450 steps
-# (420 s, last 20 steps 0.244) was ~2.5x less accurate at full resolution (benchmarks/learned.py).
+# Its loss curve and training time are in the file's metadata; half the steps left the weights clearly less
+# accurate at full resolution (benchmarks/learned.py measures them).
 
 
 class TrainResult(NamedTuple):

@@ -95,12 +95,10 @@ def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
     layout (the W-axis ones in ``_DIRECTIONS`` order), the two sums transposed back and added. Without autograd
     in torch eager the scans are :func:`~prismstereo._graph.scan_eager` and the sums are taken in place.
 
-    Measured on the 1/8-resolution coarse volume of a 1024 x 768 frame ((1, 49, 64, 97), 4 directions,
-    2 threads, medians of 20 alternating runs): onnxruntime 13.0-14.3 -> 10.4-10.9 ms (half the graph nodes:
-    161 scan steps instead of 322), torch eager 11-18 -> 7-8 ms. Stacking all four directions into one scan
-    of max(H, W) steps (zero-padding the vertical volume to square) was no faster in onnxruntime: 1.5x the
-    elements per step outweighed the fewer nodes (~2 us each); on the narrow range's coarse volume
-    (1, 28, 192, 128): 192 steps instead of 320, 1.17x the time.
+    Stacking the directions of one axis halves the graph nodes of the exported scans (one scan step per slice
+    for both directions) and the scan calls in eager. Stacking all four directions into one scan of max(H, W)
+    steps (zero-padding the vertical volume to square) was not kept: the padded elements per step outweigh the
+    fewer nodes in onnxruntime. ``benchmarks/onnx_speed.py`` times the coarse levels that run these scans.
     """
     fast = in_place(negated)
     scan = scan_eager if fast else scan_traced
@@ -130,9 +128,8 @@ def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
     if fast:
         return torch.add(along_w, along_h, out=torch.empty_like(negated, memory_format=torch.contiguous_format))
     # added as (B, D, H W): onnxruntime's transpose optimizer turned Add(Transpose(w), Transpose(h)) into
-    # Transpose(Add(w, Transpose(h))), whose inner Transpose swaps the first and last axes (1.6 ms on one thread
-    # for the (64, 1, 49, 97) sum of a 1024 x 768 frame, against 0.06 ms for each of the two written here); it
-    # cannot move Transposes through the rank-changing Reshapes
+    # Transpose(Add(w, Transpose(h))), whose inner Transpose swaps the first and last axes, on one thread and far
+    # slower than the two written here; it cannot move Transposes through the rank-changing Reshapes
     flat = (b, negated.shape[1], -1)
     return (along_w.reshape(flat) + along_h.reshape(flat)).view(negated.shape)
 

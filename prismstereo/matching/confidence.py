@@ -52,7 +52,7 @@ FEATURES: tuple[str, ...] = ("ncc", "coarse", "roughness", "offset", "texture", 
 
 # fitted by benchmarks/fit_confidence.py (the last entry is the bias) on the default chain with its final band
 # rejecting its edges (the script's --band-edges reject; the default model's clamped final band keeps these
-# weights: docs/design.md, band_edges)
+# weights: docs/design.md, *How the model picks its defaults*, Confidence weights)
 DEFAULT_WEIGHTS: tuple[float, ...] = (4.046, 2.069, -2.178, -1.673, 0.051, -0.093, -1.161)
 
 SMOOTHED_FEATURES: tuple[str, ...] = ("confidence", "agreement", "support", "spread")
@@ -70,8 +70,8 @@ CLAMPED_WEIGHTS: tuple[tuple[float, ...], tuple[float, ...]] = (
 ``benchmarks/fit_confidence.py --presets fast``): their wrong estimates agree with their neighbours more often,
 and the default weights trusted them too much. In stage 2 the spread carries what the agreement did (the two
 describe the same window; the fit leaves the agreement a small negative weight). The own-confidence weight of
-stage 2 is held >= 0 as in every fit (a negative one, -2.6 before that rule, made more evidence at a pixel lower
-its confidence): it comes out at 0."""
+stage 2 is held >= 0 as in every fit (a negative one makes more evidence at a pixel lower its confidence): it
+comes out at 0."""
 
 # the thresholds of the coarse level (the binned model of a pyramid) whose validity the features "coarse" and
 # "rejected" describe: those of the renders DEFAULT_WEIGHTS were fitted on (the model's defaults), whatever the

@@ -62,20 +62,19 @@ class MatchOptions:
     fast form, coefficients at half resolution) in each view, winner-take-all with a sub-pixel fit on the
     untruncated colour difference, left-right check, 5x5 medians around a background fill of the rejected
     pixels, and last a colour-weighted median of radius 7. They were chosen on the two Middlebury pairs
-    (``benchmarks/middlebury.py``, one setting for both): bad>1px with unfilled pixels counted as bad 2.9 %
-    (Tsukuba) and 0.6 % (Venus), against 7.1 % and 9.7 % for OpenCV StereoSGBM with the README's settings
-    (0.41x and 0.06x; target 0.5x). One change at a time from the defaults (Tsukuba / Venus, %):
-    ``cost='census'`` 4.5 / 1.4; ``gradient_weight=0.89`` (Rhemann's) 3.1 / 0.6; the right view's cost
-    taken from the left's filtered volume instead of its own filter 3.1 / 1.1; ``lr_threshold=None``
-    3.1 / 2.0; ``fill=False`` 7.0 / 6.9; ``median=1`` 3.0 / 0.8; ``weighted_median=0`` 3.2 / 0.7;
-    ``guided_subsample=1`` and ``weighted_median_step=1`` the same figures (within 0.03) in up to 2x the time.
-    The sub-pixel fit on the truncated cost (``subpixel_cost='local'``, ``subpixel_window=3``) scores
-    2.7 / 0.7: it pulls estimates towards integers (0.15-0.2 px off on a 6.2 px shift), which Tsukuba's
-    integer ground truth rewards and Venus's sub-pixel one does not.
+    (``benchmarks/middlebury.py``, one setting for both; bad>1px with unfilled pixels counted as bad, against
+    OpenCV StereoSGBM with the README's settings, target half of SGBM's: the current scores are in
+    ``docs/benchmarks.md``, *The rectified matcher on the Middlebury pairs*). Each of these changes from the
+    defaults, one at a time, scored worse on at least one pair and better on neither: ``cost='census'``;
+    ``gradient_weight=0.89`` (Rhemann's); the right view's cost taken from the left's filtered volume instead of
+    its own filter; ``lr_threshold=None``; ``fill=False``; ``median=1``; ``weighted_median=0``.
+    ``guided_subsample=1`` and ``weighted_median_step=1`` give the same scores in more time. The sub-pixel fit on
+    the truncated cost (``subpixel_cost='local'``, ``subpixel_window=3``) pulls estimates towards integers, which
+    Tsukuba's integer ground truth rewards and Venus's sub-pixel one does not.
 
-    The previous defaults (census 7x7 with a 2-grey-level threshold, 8-direction SGM with P1 32 / P2 384 and
-    ``p2_edge`` 0.013, 5x5 medians: 5.2 % / 2.1 %) are ``cost='census'``, ``aggregation='sgm'``,
-    ``subpixel_cost='local'``, ``subpixel_window=3``, ``weighted_median=0``.
+    A semi-global census matcher (census 7x7 with a 2-grey-level threshold, 8-direction SGM with P1 32 / P2 384
+    and ``p2_edge`` 0.013, 5x5 medians; it scores worse on both pairs) is ``cost='census'``,
+    ``aggregation='sgm'``, ``subpixel_cost='local'``, ``subpixel_window=3``, ``weighted_median=0``.
 
     Args:
         cost: 'ad_gradient' (default, :func:`ad_gradient_volume`), 'census', 'sad' or 'zncc'.
@@ -127,7 +126,7 @@ class MatchOptions:
             pixels that no right-view pixel claims (occluded, Mei et al. 2011) may only be lowered by it: they
             lie behind their neighbours.
         weighted_median_step: spacing (px, >= 1) of its taps: 2 takes every other row and column of the
-            window (a quarter of the taps, the same result on Middlebury within 0.03 points).
+            window (a quarter of the taps, the same scores on the Middlebury pairs).
         sigma_space: spatial scale (px, > 0) of the weighted median's weights exp(-|dx|^2 / sigma_space^2).
         sigma_colour: colour scale (image units, > 0) of its weights exp(-max_c |dI_c|^2 / sigma_colour^2).
     """

@@ -187,7 +187,7 @@ class PrismCostVolume(nn.Module):
     volume takes the features' dtype).
     Gradients reach the features. With ``rig`` given as :class:`~prismstereo.geometry.rig.RigParameters`
     whose tensors require grad (e.g. ``rig.parameters(dtype=torch.float64, requires_grad=True)``) the grid is
-    recomputed from them in every forward (a sweep fit, ~0.1-0.7 s), so gradients also reach the rig
+    recomputed from them in every forward (a sweep fit, slow next to the sampling), so gradients also reach the rig
     parameters (self-calibration through a network); :attr:`valid` is then updated each forward (a mask,
     without gradients) and the sensor size and split must stay those of construction. The fit runs in the
     parameters' dtype (use float64) and is cast to the features' dtype.
