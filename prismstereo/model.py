@@ -52,7 +52,6 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo._graph import tracing
 from prismstereo.config import StereoConfig, as_config
 from prismstereo.defaults import resolve_config
 from prismstereo.depth.level import DepthLevel, upsample
@@ -61,6 +60,7 @@ from prismstereo.epipolar.sweep import sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.runtime import tracing
 from prismstereo.threads import per_image
 
 __all__ = ["ConfidenceInputs", "DepthResult", "PrismStereo"]

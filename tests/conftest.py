@@ -154,10 +154,10 @@ def export_once(onnx_cache):
     model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export. A file lock
     per graph makes a second xdist worker wait for the first one's export instead of exporting it again; the
     graph appears under its name only once complete (atomic rename, as in ``onnx_session``)."""
-    from prismstereo.export.onnx import DEFAULT_OPSET, _cache_key, export_cached
+    from prismstereo.export import cache_path, export_cached
 
     def export(model) -> Path:
-        path = onnx_cache / "onnx" / f"{_cache_key(model, 1, DEFAULT_OPSET)}.onnx"
+        path = cache_path(model, cache_dir=onnx_cache / "onnx")
         if not path.is_file():
             path.parent.mkdir(parents=True, exist_ok=True)
             with FileLock(path.with_suffix(".lock")):

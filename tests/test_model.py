@@ -225,14 +225,14 @@ def test_batch_on_worker_threads_equals_single_images_and_keeps_grad_mode(setup1
     for name in ("depth", "valid", "confidence", "match"):
         assert torch.equal(getattr(batch, name), torch.cat([getattr(r, name) for r in singles]))
     seen = []
-    forward = model._forward
+    depth = model.final.depth  # this model's one level computes each image's depth
 
     def spy(image):
         seen.append((threading.current_thread() is threading.main_thread(), torch.is_grad_enabled(),
                      torch.is_inference_mode_enabled(), torch.get_num_threads()))
-        return forward(image)
+        return depth(image)
 
-    monkeypatch.setattr(model, "_forward", spy)
+    monkeypatch.setattr(model.final, "depth", spy)
     threads = torch.get_num_threads()
     torch.set_num_threads(2)  # two workers
     try:

@@ -155,35 +155,39 @@ def test_stream_is_thread_safe_and_checks_its_input():
         DepthStream(torch.nn.Identity())
 
 
-def test_onnx_stream_does_its_tensor_work_on_one_torch_thread(export_once):
+def test_onnx_stream_does_its_tensor_work_on_one_torch_thread(export_once, monkeypatch):
     """An ONNX stream's push runs on one torch intra-op thread and restores the count, also with pushes of two
     streams from two threads at once; a torch stream keeps the caller's threads for its model."""
+    import prismstereo.stream as stream_module
     from prismstereo.model import PrismStereo
 
     model = PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0))
     streams = {"onnx": DepthStream(export_once(model)), "onnx 2": DepthStream(export_once(model)),
                "torch": DepthStream(model)}
     seen: dict[str, set[int]] = {name: set() for name in streams}
-    for name, stream in streams.items():
-        prepare = stream._prepare
+    convert = stream_module.frame_to_tensor
 
-        def spy(frame, name=name, prepare=prepare):
-            seen[name].add(torch.get_num_threads())
-            return prepare(frame)
+    def spy(frame):  # the stream's conversion of an OpenCV frame, on the pushing thread
+        seen[threading.current_thread().name].add(torch.get_num_threads())
+        return convert(frame)
 
-        stream._prepare = spy
+    monkeypatch.setattr(stream_module, "frame_to_tensor", spy)
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        gen = torch.Generator().manual_seed(0)
-        frames = [torch.rand(1, 48, 64, generator=gen) for _ in range(4)]
-        threads = [threading.Thread(target=lambda s=streams[n]: [s.push(f) for f in frames])
+        gen = np.random.default_rng(0)
+        frames = [gen.integers(0, 256, (48, 64), dtype=np.uint8) for _ in range(4)]  # as OpenCV decodes them
+        threads = [threading.Thread(target=lambda s=streams[n]: [s.push(f) for f in frames], name=n)
                    for n in ("onnx", "onnx 2")]
         for t in threads:
             t.start()
         for t in threads:
             t.join()
-        streams["torch"].push(frames[0])
+        threading.current_thread().name, main = "torch", threading.current_thread().name
+        try:
+            streams["torch"].push(frames[0])
+        finally:
+            threading.current_thread().name = main
         assert seen == {"onnx": {1}, "onnx 2": {1}, "torch": {2}}
         assert torch.get_num_threads() == 2  # restored after the last of the overlapping pushes
     finally:

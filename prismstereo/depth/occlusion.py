@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import torch
 
-from prismstereo._graph import flat_index, scatter_min
 from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.runtime import flat_index, scatter_min
 
 __all__ = ["zbuffer_visible"]
 

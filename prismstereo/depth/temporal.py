@@ -251,14 +251,24 @@ class TemporalDepth(nn.Module):
         estimate = level.search_band(ref, other, s0, reach, ~placed, None, fine=self.fine,
                                      calibration=self.calibration, free_offset=0.5)
         result = level.finish(estimate)
-        return result if k == 1 else self._full_resolution(result, z_range)
+        return result if k == 1 else self.full_resolution(result)
 
-    def _full_resolution(self, result: DepthResult, z_range: torch.Tensor) -> DepthResult:
+    def full_resolution(self, result: DepthResult) -> DepthResult:
         """A binned level's result (B, *, h, w) at the model's full resolution (B, *, H, W_ref): the sweep
         coordinate interpolated bilinearly, after each binned pixel without a depth (not valid; dense: not
         covered) took the mean of its neighbours with one (:func:`~prismstereo.matching.band.extend_estimate`,
-        radius 1: valid pixels interpolate valid neighbours only);
-        validity and confidence per block, none beyond the binned level's last row and column."""
+        radius 1: valid pixels interpolate valid neighbours only); validity and confidence per block, none beyond
+        the binned level's last row and column. What :meth:`forward` returns with ``downsample`` > 1.
+
+        Example:
+            >>> from prismstereo.model import PrismStereo
+            >>> model = PrismStereo(thesis_setup1().downscaled(4), (400.0, 800.0), {"downsample": 2, "full_band": 2})
+            >>> tracker = TemporalDepth(model)
+            >>> binned = tracker.level.depth(torch.rand(1, 1, 96, 128))
+            >>> tracker.full_resolution(binned).depth.shape
+            torch.Size([1, 1, 192, 128])
+        """
+        z_range = torch.tensor(self.model.final.z_range, dtype=result.depth.dtype, device=result.depth.device)
         final, k = self.model.final, self.downsample
         size = (self.rig.image_height, self.rig.reference_width)
         dense = final.config.validity.dense

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import torch
 
-from prismstereo._graph import exporting
 from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.runtime import exporting
 
 __all__ = ["series_at", "series_band", "sweep_series"]
 

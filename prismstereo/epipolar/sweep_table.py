@@ -19,9 +19,9 @@ from typing import NamedTuple
 
 import torch
 
-from prismstereo._graph import exporting, sample_bilinear
 from prismstereo.epipolar.sweep import positions_at
 from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.runtime import exporting, sample_bilinear
 
 __all__ = [
     "LocalCubic", "TABLE_SIZES", "column_to_sweep", "cubic_at", "local_cubic", "tabulate_sweep", "valid_interval",

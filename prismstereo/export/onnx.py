@@ -43,18 +43,19 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFAULT_OPSET",
-    "DepthGraph",
-    "ExportError",
     "PRIOR_NAMES",
-    "TemporalGraph",
-    "OnnxDepth",
-    "OnnxDepthResult",
     "cache_directory",
+    "cache_path",
+    "DepthGraph",
     "describe",
     "export_cached",
     "export_onnx",
+    "ExportError",
     "onnx_session",
+    "OnnxDepth",
+    "OnnxDepthResult",
     "source_digest",
+    "TemporalGraph",
 ]
 
 DEFAULT_OPSET = 18
@@ -364,9 +365,20 @@ def cache_directory() -> Path:
 _SESSIONS: dict[tuple[str, int], OnnxDepth] = {}
 
 
-def _cache_key(model: nn.Module, channels: int, opset: int, temporal: TemporalOptions | None = None) -> str:
+def cache_path(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OPSET,
+               temporal: TemporalOptions | None = None, cache_dir: str | Path | None = None) -> Path:
+    """The file of ``model``'s graph in the cache of :func:`onnx_session`: ``<hash>.onnx`` in ``cache_dir`` (default
+    :func:`cache_directory`), the hash of the graph's metadata (the model's description, rig, channels, opset,
+    temporal options, package version and source digest).
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> cache_path(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), cache_dir="c").suffix
+        '.onnx'
+    """
     meta = _metadata(model, channels, opset, temporal)
-    return hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]
+    directory = Path(cache_dir) if cache_dir is not None else cache_directory()
+    return directory / f"{hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]}.onnx"
 
 
 def export_cached(model: nn.Module, path: Path, *, channels: int = 1, opset: int = DEFAULT_OPSET,
@@ -415,8 +427,7 @@ def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OP
         >>> onnx_session(model, cache_dir=cache) is onnx_session(model, cache_dir=cache)
         True
     """
-    directory = Path(cache_dir) if cache_dir is not None else cache_directory()
-    path = directory / f"{_cache_key(model, channels, opset, temporal)}.onnx"
+    path = cache_path(model, channels=channels, opset=opset, temporal=temporal, cache_dir=cache_dir)
     key = (str(path), threads, spinning)
     if key in _SESSIONS:
         return _SESSIONS[key]

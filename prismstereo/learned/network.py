@@ -28,7 +28,6 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo._graph import exporting
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, evaluate_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_shape
@@ -36,6 +35,7 @@ from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.nn import PrismCostVolume, depth_regression
+from prismstereo.runtime import exporting
 
 __all__ = ["DEFAULT_WEIGHTS", "FORMAT", "Architecture", "LearnedStereo", "WeightsError", "load_weights"]
 

@@ -34,7 +34,7 @@ from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.data import TrainingSet, training_set
 from prismstereo.learned.network import Architecture, LearnedStereo
 
-__all__ = ["TrainResult", "train"]
+__all__ = ["TrainResult", "depth_loss", "train"]
 
 # The shipped weights/thesis_setup1.pt (80 captures at 512 x 384, 900 steps of 4 captures; one torch thread, as
 # two threads on 2 shared cores compete with any other process for them):
@@ -86,8 +86,28 @@ def _searches(model: LearnedStereo, rig: BiPrismRig, z_range: tuple[float, float
     return out or [_Search(model, 0)]
 
 
-def _loss(model: LearnedStereo, image: torch.Tensor, depth: torch.Tensor, covisible: torch.Tensor) -> torch.Tensor:
-    """The training loss of one batch (module docstring)."""
+def depth_loss(model: LearnedStereo, image: torch.Tensor, depth: torch.Tensor,
+               covisible: torch.Tensor) -> torch.Tensor:
+    """The training loss of one batch (module docstring): smooth-L1 of the refined and the coarse hypothesis index
+    against the truth's, and the confidence's cross-entropy against "within 1 %", over the co-visible pixels with a
+    true depth in the range.
+
+    Args:
+        model: the model being trained.
+        image: (B, C, H, W) captures in [0, 1].
+        depth: (B, 1, H, W_ref) true depth (mm; NaN where unknown).
+        covisible: (B, 1, H, W_ref) bool, pixels the other half sees.
+
+    Returns:
+        () the loss.
+
+    Example:
+        >>> from prismstereo.learned.network import LearnedStereo
+        >>> model = LearnedStereo(thesis_setup1().downscaled(8), (450.0, 900.0), num_hypotheses=8, weights=None)
+        >>> depth_loss(model, torch.rand(1, 1, 96, 128), torch.full((1, 1, 96, 64), 600.0),
+        ...            torch.ones(1, 1, 96, 64, dtype=torch.bool)).shape
+        torch.Size([])
+    """
     parts = model._parts(image)
     d = model.num_hypotheses
     truth = model.depth_to_index(depth)
@@ -192,7 +212,7 @@ def train(
         pick = torch.randint(data.image.shape[0], (batch_size,), generator=gen)
         rows = slice(search.row, search.row + search.model.rig.image_height)
         image = _jitter(data.image[pick][..., rows, :], w_ref, gen)
-        loss = _loss(search.model, image, data.depth[pick][..., rows, :], data.covisible[pick][..., rows, :])
+        loss = depth_loss(search.model, image, data.depth[pick][..., rows, :], data.covisible[pick][..., rows, :])
         optimiser.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)

@@ -14,8 +14,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from prismstereo._graph import box_mean, in_place, scan_eager, scan_traced
 from prismstereo.errors import OptionError, ShapeError, check_int, check_odd, check_shape
+from prismstereo.runtime import box_mean, in_place, scan_eager, scan_traced
 
 __all__ = ["box_filter", "box_std", "guided_filter", "sgm_aggregate", "sgm_aggregate_guided"]
 
@@ -39,7 +39,7 @@ def box_filter(volume: torch.Tensor, window: int) -> torch.Tensor:
     once (borders average the pixels inside the image only).
 
     Torch eager and an ONNX export compute it in different forms that agree to float rounding
-    (:func:`~prismstereo._graph.box_mean`: in-place shifted sums vs one AveragePool).
+    (:func:`~prismstereo.runtime.box_mean`: in-place shifted sums vs one AveragePool).
 
     Example:
         >>> box_filter(torch.ones(1, 3, 8, 8), 5).shape
@@ -93,7 +93,7 @@ def _paths(negated: torch.Tensor, p1: float, p2: float, directions: int,
     one scan computes both horizontal paths, one both vertical ones, and one the four diagonal ones (8
     directions; those with a shift of -1 flipped to +1). The paths along one axis are summed in their oriented
     layout (the W-axis ones in ``_DIRECTIONS`` order), the two sums transposed back and added. Without autograd
-    in torch eager the scans are :func:`~prismstereo._graph.scan_eager` and the sums are taken in place.
+    in torch eager the scans are :func:`~prismstereo.runtime.scan_eager` and the sums are taken in place.
 
     Stacking the directions of one axis halves the graph nodes of the exported scans (one scan step per slice
     for both directions) and the scan calls in eager. Stacking all four directions into one scan of max(H, W)

@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, NamedTuple
 import torch
 from torch import nn
 
-from prismstereo._graph import tracing
 from prismstereo.epipolar.series import series_at, series_band
 from prismstereo.errors import OptionError, ShapeError, check_number, check_shape
 from prismstereo.matching.aggregate import box_filter, box_std
@@ -23,6 +22,7 @@ from prismstereo.matching.cost import Warped, grey, sweep_cost
 from prismstereo.matching.search import LevelResult, similarity
 from prismstereo.matching.select import refine, winner_take_all
 from prismstereo.matching.sweep_cost import sample_points
+from prismstereo.runtime import tracing
 
 if TYPE_CHECKING:
     from prismstereo.config import StereoConfig

@@ -29,9 +29,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo._graph import box_max
 from prismstereo.errors import OptionError, ShapeError, check_odd, check_shape
 from prismstereo.matching.aggregate import box_std
+from prismstereo.runtime import box_max
 
 __all__ = [
     "DEFAULT_WEIGHTS",

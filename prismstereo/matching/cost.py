@@ -33,9 +33,9 @@ from typing import Literal, NamedTuple
 import torch
 import torch.nn.functional as F
 
-from prismstereo._graph import fill_invalid
 from prismstereo.errors import OptionError, ShapeError, check_odd, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter
+from prismstereo.runtime import fill_invalid
 
 __all__ = ["Cost", "COSTS", "CostVolume", "Warped", "ad_gradient_cost", "ad_gradient_volume", "census_transform",
            "cost_volume", "grey", "ncc_cost", "shifted", "sweep_cost", "window_moments", "worst_cost", "zncc_cost"]

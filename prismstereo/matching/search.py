@@ -25,7 +25,6 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo._graph import fill_invalid, sample_grid
 from prismstereo.epipolar.row_rectify import RectifiedLevel, fit_row_rectification, level_coverage, rectified_level
 from prismstereo.epipolar.sweep import SweepFit, sweep_coefficients, sweep_hypotheses
 from prismstereo.epipolar.sweep_table import column_to_sweep
@@ -43,6 +42,7 @@ from prismstereo.matching.cost import grey, sweep_cost, worst_cost
 from prismstereo.matching.select import left_right_check, refine, uniqueness, winner_take_all
 from prismstereo.matching.sweep_cost import sample_slices, shift_cost
 from prismstereo.matching.sweep_sampler import SweepSampler, block_centres, sweep_sampler
+from prismstereo.runtime import fill_invalid, sample_grid
 
 if TYPE_CHECKING:
     from prismstereo.config import StereoConfig

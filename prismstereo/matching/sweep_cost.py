@@ -15,7 +15,6 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from prismstereo._graph import fill_invalid, sample_bilinear, sample_grid
 from prismstereo.errors import OptionError, ShapeError, check_odd, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.cost import (
@@ -31,13 +30,14 @@ from prismstereo.matching.cost import (
     worst_cost,
     zncc_cost,
 )
+from prismstereo.runtime import fill_invalid, sample_bilinear, sample_grid
 
 __all__ = ["sample_points", "sample_slices", "shift_cost", "warp_slices"]
 
 
 def sample_slices(other: torch.Tensor, grid: torch.Tensor, shared: bool | None = None) -> torch.Tensor:
     """Sample ``other`` at a plane-sweep grid with one bilinear ``grid_sample`` call (border padding,
-    :func:`~prismstereo._graph.sample_grid`).
+    :func:`~prismstereo.runtime.sample_grid`).
 
     Args:
         other: (B, C, H_o, W_o) the other half-image.
@@ -83,7 +83,7 @@ def sample_points(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torc
     are clamped to the image, which is ``grid_sample``'s border padding).
 
     Torch eager calls ``grid_sample``; an ONNX export gathers each position's four taps and blends them
-    (:func:`~prismstereo._graph.sample_bilinear`: onnxruntime's GridSample kernel is single-threaded
+    (:func:`~prismstereo.runtime.sample_bilinear`: onnxruntime's GridSample kernel is single-threaded
     and slow). The two forms agree to float rounding; both are differentiable w.r.t. the image and the
     positions.
 

@@ -30,8 +30,8 @@ from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
 from prismstereo.synthetic.textures import SceneError
 
 __all__ = [
-    "apparent_depth", "blur_circle_px", "check_lens", "defocus_blur", "fill_nearest", "fresnel_transmittance",
-    "positive_number", "prism_transmittance",
+    "apparent_depth", "blur_circle_px", "blur_levels", "check_lens", "defocus_blur", "disk_kernel", "fill_nearest",
+    "fresnel_transmittance", "positive_number", "prism_transmittance",
 ]
 
 _FINE_STEP_PX = 0.5  # radius spacing of the blur levels up to 4 px; above, levels grow geometrically by 1/8
@@ -209,8 +209,14 @@ def prism_transmittance(rig: BiPrismRig | RigParameters, rays: RayBundle) -> tor
     return fresnel_transmittance(cos_entry, 1.0, p.n) * fresnel_transmittance(cos_back, p.n, 1.0)
 
 
-def _levels(max_radius: float) -> list[float]:
-    """Blur-level radii 0, 0.5, ..., 4 px, then each 1/8 larger than the last, up to >= ``max_radius``."""
+def blur_levels(max_radius: float) -> list[float]:
+    """The blur radii :func:`defocus_blur` renders exactly and blends between: 0, 0.5, ..., 4 px, then each 1/8
+    larger than the last, up to >= ``max_radius``.
+
+    Example:
+        >>> blur_levels(5.0)[:3], blur_levels(5.0)[-1] >= 5.0
+        ([0.0, 0.5, 1.0], True)
+    """
     levels = [0.0]
     while levels[-1] < max_radius:
         levels.append(levels[-1] + max(_FINE_STEP_PX, _LEVEL_RATIO * levels[-1]))
@@ -224,9 +230,15 @@ def _kernel_half_size(radius: float) -> int:
     return max(0, math.ceil(radius + 0.5) - 1)
 
 
-def _disk_kernel(radius: float, dtype: torch.dtype) -> torch.Tensor:
-    """(2R + 1, 2R + 1) pillbox of the given radius (px), summing to 1; its edge is anti-aliased: weight
-    clamp(radius + 1/2 - distance, 0, 1), so R = ceil(radius + 1/2) - 1. Radius <= 1/2 is the identity (1, 1)."""
+def disk_kernel(radius: float, dtype: torch.dtype) -> torch.Tensor:
+    """(2R + 1, 2R + 1) pillbox of the given radius (px), summing to 1, the thin lens' circle of confusion; its edge
+    is anti-aliased: weight clamp(radius + 1/2 - distance, 0, 1), so R = ceil(radius + 1/2) - 1. Radius <= 1/2 is
+    the identity (1, 1).
+
+    Example:
+        >>> disk_kernel(2.0, torch.float64).shape, float(disk_kernel(2.0, torch.float64).sum())
+        (torch.Size([5, 5]), 1.0)
+    """
     size = _kernel_half_size(radius)
     offsets = torch.arange(-size, size + 1, dtype=dtype)
     dist = torch.sqrt(offsets[:, None] ** 2 + offsets[None, :] ** 2)
@@ -268,7 +280,7 @@ def defocus_blur(image: torch.Tensor, radius_px: torch.Tensor) -> torch.Tensor:
     r_max = float(radius.max()) if radius.numel() else 0.0
     if r_max <= 0.5:
         return image
-    levels = torch.tensor(_levels(r_max), dtype=image.dtype, device=image.device)
+    levels = torch.tensor(blur_levels(r_max), dtype=image.dtype, device=image.device)
     index = (torch.searchsorted(levels, radius.contiguous(), right=True) - 1).clamp(0, levels.numel() - 2)
     frac = ((radius - levels[index]) / (levels[index + 1] - levels[index])).clamp(0.0, 1.0)
     pad = _kernel_half_size(float(levels[int(index.max()) + 1]))
@@ -281,7 +293,7 @@ def defocus_blur(image: torch.Tensor, radius_px: torch.Tensor) -> torch.Tensor:
             index + 1 == k, frac, torch.zeros_like(frac))
         if not (weight > 0).any():
             continue
-        kernel = _disk_kernel(float(levels[k]), image.dtype).to(image.device)
+        kernel = disk_kernel(float(levels[k]), image.dtype).to(image.device)
         if kernel.shape[-1] == 1:
             out = out + weight * image
             continue

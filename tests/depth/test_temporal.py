@@ -164,7 +164,7 @@ def test_binned_band_interpolates_valid_neighbours_only(model):
     confidence = torch.rand(1, 1, h, w, generator=gen) * valid
     binned = DepthResult(torch.where(valid, depth, torch.full_like(depth, 5000.0)), valid, confidence,
                          torch.zeros_like(depth), torch.zeros(1, 2, h, w))
-    full = tracker._full_resolution(binned, z_range)
+    full = tracker.full_resolution(binned)
     up = torch.nn.functional.interpolate(valid.float(), scale_factor=2, mode="nearest") > 0.5
     assert torch.equal(full.valid[..., :2 * h, :2 * w], up)
     assert torch.equal(full.confidence[..., :2 * h, :2 * w],
@@ -201,7 +201,7 @@ def test_binned_band_of_a_dense_model_keeps_its_covered_pixels():
     confidence = (0.01 + torch.rand(1, 1, h, w, generator=gen)) * covered
     binned = DepthResult(torch.where(covered, depth, torch.full_like(depth, 5000.0)), valid, confidence,
                          torch.zeros_like(depth), torch.zeros(1, 2, h, w))
-    full = tracker._full_resolution(binned, z_range)
+    full = tracker.full_resolution(binned)
 
     def up(t: torch.Tensor) -> torch.Tensor:
         return torch.nn.functional.interpolate(t.float(), scale_factor=2, mode="nearest")

@@ -7,7 +7,7 @@ from prismstereo import thesis_setup1
 from prismstereo.cli import main
 from prismstereo.errors import OptionError
 from prismstereo.learned import KINDS, LearnedStereo, load_weights, random_capture_spec, train, training_set
-from prismstereo.learned.train import _loss
+from prismstereo.learned.train import depth_loss
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -61,7 +61,7 @@ def test_training_lowers_the_loss_and_is_seeded(rig, data, tmp_path):
         torch.manual_seed(0)  # the seed train() initialises with
         model = LearnedStereo(rig, Z_RANGE, num_hypotheses=12, weights=weights, with_match=False)
         with torch.no_grad():
-            return float(_loss(model, data.image, data.depth, data.covisible))
+            return float(depth_loss(model, data.image, data.depth, data.covisible))
 
     before, after = loss(None), loss(result.path)
     assert after < 0.8 * before, (before, after)

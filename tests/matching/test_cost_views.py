@@ -1,15 +1,15 @@
 """One implementation per cost: the rectified matcher's column shifts and the depth model's warped slices and
 column gathers are views compared by the same census / ZNCC / SAD; and the eager and exported forms of
-:mod:`prismstereo._graph` agree."""
+:mod:`prismstereo.runtime` agree."""
 
 import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
-from prismstereo._graph import fill_invalid, scan_eager, scan_traced
 from prismstereo.matching import box_filter, census_transform, cost_volume, shifted
 from prismstereo.matching.cost import Warped, ad_gradient_cost, ad_gradient_volume, sweep_cost, worst_cost
 from prismstereo.matching.sweep_cost import shift_cost, warp_slices
+from prismstereo.runtime import fill_invalid, scan_eager, scan_traced
 from tests.matching.test_cost_select import shifted_pair
 
 F64 = torch.float64

@@ -3,9 +3,9 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
-from prismstereo._graph import flat_index, gather_bilinear
 from prismstereo.matching.cost import Warped, sweep_cost, worst_cost
 from prismstereo.matching.sweep_cost import sample_points, shift_cost, warp_slices
+from prismstereo.runtime import flat_index, gather_bilinear
 
 
 def _shift_grid(h: int, w: int, w_o: int, shifts: list[float]) -> torch.Tensor:

@@ -25,7 +25,7 @@ from prismstereo.synthetic import (
     render_radiance,
     step_scene,
 )
-from prismstereo.synthetic.lens import _disk_kernel, _levels, fill_nearest
+from prismstereo.synthetic.lens import blur_levels, disk_kernel, fill_nearest
 from tests.conftest import offset_rig, scaled_rig, tilted_rig
 
 F64 = torch.float64
@@ -223,13 +223,13 @@ def test_fresnel_halves_differ_only_on_an_asymmetric_prism():
 
 # ----------------------------------------------------------------------------------- defocus blur
 def test_disk_kernel_and_levels():
-    assert _disk_kernel(0.0, F64).shape == (1, 1) and _disk_kernel(0.5, F64).shape == (1, 1)
+    assert disk_kernel(0.0, F64).shape == (1, 1) and disk_kernel(0.5, F64).shape == (1, 1)
     for r in (1.0, 2.3, 7.0):
-        k = _disk_kernel(r, F64)
+        k = disk_kernel(r, F64)
         torch.testing.assert_close(k.sum(), torch.tensor(1.0, dtype=F64))
         assert torch.equal(k, k.flip(0)) and torch.equal(k, k.T)
         assert 1.0 / k[k.shape[0] // 2, k.shape[1] // 2].item() == pytest.approx(math.pi * r * r, rel=0.07)  # area
-    levels = _levels(20.0)
+    levels = blur_levels(20.0)
     assert levels[:9] == [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0] and levels[-1] >= 20.0
     assert all(b > a for a, b in zip(levels, levels[1:], strict=False))
 
@@ -240,7 +240,7 @@ def test_defocus_blur_constant_radius_is_a_disk_convolution(dtype):
     radius = torch.full((2, 1, 24, 31), 2.5, dtype=dtype)  # exactly a level: one disk
     out = defocus_blur(img, radius)
     assert out.dtype == dtype and out.shape == img.shape
-    k = _disk_kernel(2.5, dtype)
+    k = disk_kernel(2.5, dtype)
     padded = torch.nn.functional.pad(img, (2, 2, 2, 2), mode="replicate")
     expected = torch.nn.functional.conv2d(padded.reshape(6, 1, 28, 35), k[None, None]).reshape(2, 3, 24, 31)
     tol = 1e-5 if dtype == torch.float32 else 1e-10

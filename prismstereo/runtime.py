@@ -37,17 +37,32 @@ GATHER_ROWS = 2
 
 
 def exporting() -> bool:
-    """True while ``torch.onnx.export`` traces the graph: the exported forms are taken."""
+    """True while ``torch.onnx.export`` traces the graph: the exported forms are taken.
+
+    Example:
+        >>> exporting()
+        False
+    """
     return torch.onnx.is_in_onnx_export()
 
 
 def tracing() -> bool:
-    """True under ``torch.jit.trace`` or an ONNX export: shapes are symbolic, sizes must not be baked in."""
+    """True under ``torch.jit.trace`` or an ONNX export: shapes are symbolic, sizes must not be baked in.
+
+    Example:
+        >>> tracing()
+        False
+    """
     return torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()
 
 
 def in_place(t: torch.Tensor) -> bool:
-    """Torch eager without autograd through ``t``: buffers may be written in place."""
+    """Torch eager without autograd through ``t``: buffers may be written in place.
+
+    Example:
+        >>> in_place(torch.zeros(2)), in_place(torch.zeros(2, requires_grad=True))
+        (True, False)
+    """
     return not exporting() and not (torch.is_grad_enabled() and t.requires_grad)
 
 
@@ -59,6 +74,10 @@ def fill_invalid(volume: torch.Tensor, valid: torch.Tensor, value: float, bounde
     Where is the slower one there). ``bounded``: the caller guarantees 0 <= volume <= value, so the fill is
     max(volume, value * not valid), bitwise the same; exported that is Not, Cast, Mul and Max, which onnxruntime
     runs multi-threaded where its Where runs on one thread.
+
+    Example:
+        >>> fill_invalid(torch.tensor([0.2, 0.4]), torch.tensor([True, False]), 1.0).tolist()
+        [0.20000000298023224, 1.0]
     """
     if exporting():
         if bounded:
@@ -71,7 +90,12 @@ def box_mean(volume: torch.Tensor, window: int) -> torch.Tensor:
     """Mean over a ``window`` x ``window`` box (odd, > 1) of every slice of a (B, D, H, W) volume, pixels inside
     the image only. Torch eager adds, in place, each slice's neighbours 1..r rows away on both sides (no padding),
     then the same along W, and multiplies by the reciprocal pixel count, a separable (row count x column count)
-    map; exported it is one AveragePool (count_include_pad=0)."""
+    map; exported it is one AveragePool (count_include_pad=0).
+
+    Example:
+        >>> float(box_mean(torch.arange(9.0).view(1, 1, 3, 3), 3)[0, 0, 0, 0])  # mean of 0, 1, 3, 4
+        2.0
+    """
     r = window // 2
     if exporting():
         return F.avg_pool2d(volume, window, stride=1, padding=r, count_include_pad=False)
@@ -92,7 +116,12 @@ def box_max(volume: torch.Tensor, window: int) -> torch.Tensor:
     the image only; separable (rows, then columns). Torch eager takes the maximum with each slice's neighbours
     1..r rows away on both sides, then the same along W (2 window - 2 maxima over shifted views: torch's
     ``max_pool2d``, even as two 1-D pools, also computes indices and is much slower); exported, and where gradients
-    are recorded, it is two MaxPools."""
+    are recorded, it is two MaxPools.
+
+    Example:
+        >>> box_max(torch.arange(9.0).view(1, 1, 3, 3), 3)[0, 0, 0].tolist()
+        [4.0, 5.0, 5.0]
+    """
     r = window // 2
     if not in_place(volume):
         return F.max_pool2d(F.max_pool2d(volume, (window, 1), 1, (r, 0)), (1, window), 1, (0, r))
@@ -137,6 +166,10 @@ def scan_traced(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
     ONNX has a MaxPool, no MinPool). The slices are taken along axis 0 with one Split and the steps concatenated
     back along it (no Reshape, Squeeze or Unsqueeze per step). Differentiable torch eager keeps the Slice /
     Maximum / Concat form (its max_pool2d also computes indices, a slower step).
+
+    Example:
+        >>> scan_traced(-torch.rand(4, 1, 3, 5), 0.1, 0.5).shape
+        torch.Size([4, 1, 3, 5])
     """
     s, n, d, x = volume.shape
     # rank-changing Reshapes (to 5-D and back) before the Split: onnxruntime's transpose optimizer cannot push the
@@ -166,7 +199,13 @@ def scan_eager(volume: torch.Tensor, p1: float, p2: float, shift: int = 0,
     """:func:`scan_traced` (same arguments) without autograd, same values bitwise: (S, N, D, X), a view of one
     preallocated (S, N, D + 2, X) buffer whose rows 0 and D + 1 are -inf. Each step writes into its slice of the
     buffer, and the neighbours' maximum of the previous step is one ``maximum`` of its rows shifted by +-1 (no
-    Concat per step, no concatenation of the steps at the end)."""
+    Concat per step, no concatenation of the steps at the end).
+
+    Example:
+        >>> volume = -torch.rand(4, 1, 3, 5)
+        >>> torch.equal(scan_eager(volume, 0.1, 0.5), scan_traced(volume, 0.1, 0.5))
+        True
+    """
     s, n, d, x = volume.shape
     out = volume.new_empty(s, n, d + 2, x)
     out[:, :, 0].fill_(float("-inf"))
@@ -199,6 +238,11 @@ def sample_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> to
     Torch eager calls ``grid_sample``; exported the graph gathers each position's four taps
     (:func:`gather_bilinear`), because onnxruntime's GridSample kernel is single-threaded and slower there than
     the gathers (``benchmarks/onnx_speed.py --sampling`` times the sweep sampling in both runtimes).
+
+    Example:
+        >>> image = torch.arange(12.0).view(1, 1, 3, 4)
+        >>> sample_bilinear(image, torch.tensor([[[[0.5]]]]), torch.tensor([[[[1.0]]]])).flatten().tolist()
+        [4.5]
     """
     if exporting():
         return gather_bilinear(image, x, y)
@@ -211,7 +255,12 @@ def sample_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> to
 def sample_grid(image: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
     """Bilinear samples of (B, C, H, W) at (B, H', W', 2) positions normalised as ``grid_sample``'s
     (align_corners=False: -1 and +1 are the outer edges of the first and last pixel), border padding: (B, C, H', W').
-    One ``grid_sample`` (a GridSample node when exported) in both runtimes."""
+    One ``grid_sample`` (a GridSample node when exported) in both runtimes.
+
+    Example:
+        >>> sample_grid(torch.arange(4.0).view(1, 1, 2, 2), torch.zeros(1, 1, 1, 2)).item()  # the centre
+        1.5
+    """
     return F.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=False)
 
 
@@ -223,6 +272,11 @@ def gather_bilinear(image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> to
     top-left pixel and three difference images of the bilinear form, and a one-channel image from
     :data:`GATHER_ROWS` copies, so that onnxruntime spreads each gather over its threads (both timed on the narrow
     range's pyramid at 1024 x 768 by ``benchmarks/onnx_speed.py``).
+
+    Example:
+        >>> image, x, y = torch.rand(1, 1, 6, 8), 7 * torch.rand(1, 2, 3, 3), 5 * torch.rand(1, 2, 3, 3)
+        >>> torch.allclose(gather_bilinear(image, x, y), sample_bilinear(image, x, y), atol=1e-6)
+        True
     """
     b, c, h, w = image.shape
     d, hs, ws = x.shape[1:]
