@@ -270,15 +270,12 @@ class LearnedStereo(nn.Module):
             >>> other.features is model.features, other.volume.depths.shape
             (True, torch.Size([8]))
         """
-        if not isinstance(rig, BiPrismRig):
-            raise OptionError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
-        check_rig_images(rig)
-        twin = LearnedStereo.__new__(LearnedStereo)
-        nn.Module.__init__(twin)
-        twin.architecture, twin.metadata = self.architecture, self.metadata
+        with torch.random.fork_rng(devices=[]):  # its own CNNs are replaced: their initialisation draws nothing
+            twin = LearnedStereo(rig, z_range_mm, num_hypotheses=num_hypotheses or self.num_hypotheses,
+                                 scale=self.architecture.scale, weights=None, architecture=self.architecture,
+                                 with_match=self.with_match if with_match is None else with_match)
+        twin.metadata = self.metadata
         twin.features, twin.aggregation, twin.refinement = self.features, self.aggregation, self.refinement
-        twin._attach(rig, z_range_mm, num_hypotheses or self.num_hypotheses,
-                     self.with_match if with_match is None else with_match)
         return twin.to(next(self.parameters()))
 
     def describe(self) -> dict[str, Any]:
