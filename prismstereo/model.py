@@ -1,46 +1,15 @@
 """``PrismStereo``: one bi-prism capture in, metric depth of the reference (left) half out.
 
-The layers, in order:
+The model composes :class:`~prismstereo.depth.level.DepthLevel` s, each the whole chain at one resolution: the
+capture split at the apex column; a coarse search over the whole range on the exact sweep m(u, v, s) (s linear in
+1/Z; :mod:`prismstereo.matching.search`, rectified shift volume or exact per-pixel sweep), whose estimate places a
+band of 2 R + 1 hypotheses per pixel at full resolution (:mod:`prismstereo.matching.band`); the smoothing of the
+estimate, depth from s (exact), the calibrated confidence, validity and the z-buffer occlusion test. One level, or a
+pyramid: the level of the k x k-binned capture places the band of the full-resolution level (the default on sensors
+whose reference half is >= 384 px on its shorter side).
 
-1. :class:`~prismstereo.matching.split.SplitImage` at the apex column (moves with the prism offset).
-2. The exact sweep m(u, v, s) (:mod:`prismstereo.epipolar.sweep`): where reference pixel (u, v) appears in
-   the other half at sweep coordinate s (linear in 1/Z), fitted once per rig to within its checked tolerance.
-3. **Coarse level** (``coarse_factor`` f > 1): both halves box-downsampled by f and searched over the full
-   range (hypotheses <= 1 coarse px apart) with one of two samplings behind the same interface:
-
-   * ``'rectified'`` (default here): both halves are row-rectified by vertical warps fitted to the exact sweep
-     (:mod:`prismstereo.epipolar.row_rectify`; the residual off a common row is measured per rig,
-     :attr:`~prismstereo.depth.level.DepthLevel.rectification_residual_px`), so every hypothesis is an integer
-     column shift: a 1-D cost volume built by
-     one gather (:func:`~prismstereo.matching.sweep_cost.shift_cost`), the winning shift turned into the
-     sweep coordinate exactly (:func:`~prismstereo.epipolar.sweep_table.column_to_sweep`);
-   * ``'sweep'``: every hypothesis warps the other half onto the reference pixels with the exact per-pixel
-     sweep (:func:`~prismstereo.matching.sweep_cost.warp_slices`, one ``grid_sample`` of D x H x W samples).
-
-   Then matching cost (ZNCC by default), box + semi-global aggregation (4 directions), winner-take-all with
-   sub-pixel refinement, uniqueness confidence; the estimate is extended by ``coarse_reach`` coarse pixels
-   into invalid neighbours (:func:`~prismstereo.matching.band.extend_estimate`).
-4. **Fine level**: the coarse estimate upsampled to full resolution; a band of 2 R + 1 hypotheses (<= 1 px
-   apart) around it per pixel, evaluated on the exact per-pixel sweep (truncated power series,
-   :mod:`prismstereo.epipolar.series`, within a checked tolerance of the polynomials); cost, box, winner and
-   sub-pixel refinement (equiangular, parabola or a differentiable local soft-argmin).
-   With f = 1 the full range is searched at full resolution in one level (the reference mode).
-5. Depth from the sweep coordinate (exact: s is linear in 1/Z), a confidence (the calibrated probability of a
-   depth within 1 %, :mod:`prismstereo.matching.confidence`), validity (inside the common field of view, winner
-   inside the band, confidence) and a z-buffer occlusion test in the other half; with ``dense`` every pixel of
-   the common field of view keeps its depth and confidence.
-
-Steps 1-5 at one resolution are a :class:`~prismstereo.depth.level.DepthLevel`. With ``downsample`` k and
-``full_band`` R the model composes two: the level of the k x k-binned capture (:attr:`PrismStereo.binned`, its own
-coarse level and band) places a band of 2 R + 1 full-resolution hypotheses of the full-resolution level
-(:attr:`PrismStereo.final`): a pyramid with full lateral resolution at a fraction of the cost of the
-full-resolution coarse level. It is the default on sensors whose reference half is >= 384 px on its shorter
-side (k = 2, R = 2: the thesis setups at 1024 x 768); smaller sensors get steps 3-4 at full resolution
-(``downsample=1``), as any sensor does when asked.
-
-Every option left None in the config is picked by one function, :func:`~prismstereo.defaults.resolve_config` (the
-rules: :mod:`prismstereo.defaults`; why each, and the command that measures it: ``docs/design.md``, *How the model
-picks its defaults*).
+Every option left None in the config is picked by one function, :func:`~prismstereo.defaults.resolve_config`. The
+chain stage by stage, why each default, and the command that measures it: ``docs/design.md``.
 """
 
 from __future__ import annotations
