@@ -325,6 +325,8 @@ def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig, pose: torch.T
     total = sequence_length(source)  # fails early on a missing or unreadable source
     stop = total if args.stop is None else min(args.stop, total)
     count = max(0, -(-(stop - args.start) // args.every))
+    if count == 0:
+        raise PrismStereoError(f"--start {args.start} selects no frame: {source} has {total} frames")
     inputs = set()
     if not is_video_file(source):
         inputs = {p.resolve() for p in sequence_files(source)}

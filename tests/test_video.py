@@ -245,6 +245,7 @@ def test_depth_cli_on_a_directory_and_its_errors(clip, tmp_path, capsys):
         ([tmp_path / "none.mp4", "--out", tmp_path / "o"], "video not found"),
         ([clip / "frames", "--out", tmp_path / "o", "--every", 0], "every must be an int >= 1"),
         ([clip / "frames" / "f000.png", "--out", tmp_path / "o", "--every", 2], "need a video, a directory"),
+        ([clip / "clip.avi", "--out", tmp_path / "o", "--start", 50], "--start 50 selects no frame"),
         ([tmp_path / "copy", "--out", tmp_path / "copy", "--format", "png"], None),
     ]
     import shutil

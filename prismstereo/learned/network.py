@@ -162,8 +162,9 @@ def load_weights(path: str | Path) -> tuple[Architecture, dict[str, torch.Tensor
         raise WeightsError(f"weights file {path} does not exist")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a corrupt file
-        raise WeightsError(f"cannot read weights file {path}: {exc}") from exc
+    except Exception as exc:  # torch raises many types for a file it cannot read: say what the file is not
+        raise WeightsError(f"{path} is not a LearnedStereo weights file (torch.load cannot read it safely: "
+                           f"{type(exc).__name__})") from exc
     if not isinstance(blob, dict) or blob.get("format") != FORMAT or not isinstance(blob.get("state_dict"), dict):
         raise WeightsError(f"{path} is not a LearnedStereo weights file (format {FORMAT!r})")
     try:
