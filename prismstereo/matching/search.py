@@ -103,13 +103,16 @@ def decide(volume: torch.Tensor, config: StereoConfig, channels: int, final: boo
     winner-take-all, sub-pixel refinement (``refinement`` for a ``final`` search, the fit matching the cost otherwise),
     confidence and uniqueness (``min_uniqueness``).
 
+    The one decision of the depth model's searches and of the rectified-pair matcher
+    (:func:`~prismstereo.matching.rectified.match_rectified`).
+
     Args:
         volume: (B, D, H, W) cost of ``config.cost.cost``, lower is better.
         config: the level's resolved options.
         channels: the images' channels (the worst census cost counts bits per channel).
         final: the search's estimate is the level's (a single level), not a placement of a band.
         guide: (B or 1, C, H, W) the reference image in the volume's layout (the depth model's searches pass the
-            level's grey reference), which steers the 'guided' aggregation
+            level's grey reference, the matcher its colour left image), which steers the 'guided' aggregation
             (:func:`~prismstereo.matching.aggregate.guided_filter`) and, with ``p2_edge``, SGM's jump penalty
             (:func:`~prismstereo.matching.aggregate.sgm_aggregate_guided`); needed by those two only.
 
