@@ -1,25 +1,18 @@
-"""The matcher on real photographs: prismstereo's rectified-pair matcher vs OpenCV on the Middlebury pairs.
+"""The matcher on real photographs: ``prismstereo match``'s matcher vs OpenCV on the Middlebury pairs.
 
-Prints bad>1px (percentage of pixels with ground truth whose disparity is off by more than 1 px; missing
-output counts as bad: for prismstereo the pixels neither valid nor filled, for OpenCV its invalid value),
-the ratio to StereoSGBM (target <= 0.5) and the time per pair, for prismstereo (default MatchOptions:
-truncated colour + gradient cost, guided-filter aggregation, left-right check, fill, weighted median) and
-OpenCV StereoSGBM / StereoBM with the settings of shared/data/middlebury/README.md, side by side.
+Prints, for the Tsukuba and Venus pairs of shared/data/middlebury (their README gives the ground truth's scale),
+bad>1px (percentage of pixels with ground truth whose disparity is off by more than 1 px; missing output counts as
+bad: for prismstereo the pixels neither valid nor filled, for OpenCV its invalid value), the ratio to StereoSGBM
+and the time per pair (2 threads; other jobs on the machine make the times longer), side by side for:
 
-Measured (2 threads on an otherwise idle 2-core machine; other jobs on it can make the times several times
-longer):
+* prismstereo: :func:`~prismstereo.matching.rectified.match_rectified` with the default ``MatchOptions`` (the depth
+  model's shift volume and decision with the matcher's config: truncated colour + gradient cost, guided-filter
+  aggregation; then the matcher's own post-processing: sub-pixel fit on the colour difference, left-right check,
+  background fill, medians, colour-weighted median);
+* OpenCV StereoSGBM and StereoBM with the settings of shared/data/middlebury/README.md.
 
-    scene    method                       bad>1px %   x SGBM       ms
-    Tsukuba  prismstereo (guided filter)       2.90     0.41      300
-    Tsukuba  OpenCV StereoSGBM                 7.13     1.00        7
-    Tsukuba  OpenCV StereoBM                  14.71     2.06        2
-    Venus    prismstereo (guided filter)       0.63     0.06      605
-    Venus    OpenCV StereoSGBM                 9.75     1.00        9
-    Venus    OpenCV StereoBM                  21.14     2.17        4
-
-(the previous defaults, census 7x7 + 8-direction SGM + medians + background fill, MatchOptions(cost='census',
-aggregation='sgm', subpixel_cost='local', subpixel_window=3, weighted_median=0): 5.25 % / 2.05 % in 170 / 370
-ms on the same machine; before those, census 5x5, box 7, constant P2, no fill: 11.20 % / 8.26 %.)
+The current figures are in docs/benchmarks.md (``benchmarks/report.py --only middlebury`` reruns this script and
+rewrites that section).
 
 Run: .venv/bin/python benchmarks/middlebury.py
 """

@@ -311,7 +311,7 @@ def _cmd_match(args: argparse.Namespace) -> int:
     if left.shape != right.shape:
         raise PrismStereoError(f"left {tuple(left.shape)} and right {tuple(right.shape)} images differ in size")
     chosen = {k: v for k, v in (("cost", args.cost), ("aggregation", args.aggregation)) if v is not None}
-    options = MatchOptions(fill=not args.no_fill, **chosen)  # MatchOptions' defaults unless asked
+    options = MatchOptions().with_options(fill=not args.no_fill, **chosen)  # MatchOptions' defaults unless asked
     res = match_rectified(left[None], right[None], args.disparities, options)
     written = res.valid | res.filled  # the dense map benchmarks/middlebury.py scores
     disparity = torch.where(written, res.disparity, torch.full_like(res.disparity, float("nan")))[0, 0]
@@ -391,9 +391,9 @@ def build_parser() -> argparse.ArgumentParser:
     match.add_argument("--no-fill", action="store_true", help="NaN for every pixel that failed the left-right / "
                        "uniqueness checks instead of the background fill")
     match.add_argument("--cost", choices=("ad_gradient", "census", "sad", "zncc"), default=None,
-                       help="matching cost (default: MatchOptions', ad_gradient)")
+                       help="matching cost (default: MATCH_CONFIG's, ad_gradient)")
     match.add_argument("--aggregation", choices=("guided", "sgm", "box"), default=None,
-                       help="cost aggregation (default: MatchOptions', guided)")
+                       help="cost aggregation (default: MATCH_CONFIG's, guided)")
     match.set_defaults(func=_cmd_match)
 
     add_depth_parser(sub)

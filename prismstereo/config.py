@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from prismstereo.errors import OptionError, check_int, check_number, check_odd, check_option
+from prismstereo.matching.aggregate import GUIDED_EPS, GUIDED_RADIUS, GUIDED_SUBSAMPLE
 from prismstereo.matching.cost import COSTS
 
 __all__ = [
@@ -141,13 +142,21 @@ class AggregationConfig:
 
     Attributes:
         aggregation: 'sgm' (semi-global after the box), 'box', or 'guided': a guided filter of the coarse (or
-            single) level's volume, steered by its grey reference (radius 13 level px; carries the evidence
-            through regions of even grey, stops at edges; with ``cost='ad_gradient', box=1`` it is Rhemann et al.'s
-            cost-volume filtering). The fine bands keep their box either way.
+            single) level's volume, steered by its grey reference (carries the evidence through regions of even
+            grey, stops at edges; with ``cost='ad_gradient', box=1`` it is Rhemann et al.'s cost-volume filtering).
+            The fine bands keep their box either way.
         box: box window of the coarse (or single) level.
         fine_box: box window of the fine band.
         directions: SGM scan directions: 2, 4 (horizontal and vertical) or 8.
         p1, p2: SGM penalties in units of the box-averaged cost (ZNCC: 1 - NCC in [0, 2]).
+        p2_edge: None for a constant P2; else the guide's intensity step (image units, > 0) that halves P2 between
+            neighbours, P2 / (1 + |dI| / p2_edge) but at least P1 (depth jumps are cheaper across edges,
+            :func:`~prismstereo.matching.aggregate.sgm_aggregate_guided`).
+        guided_radius: the guided filter's box radius r (level px, >= 1; window 2 r + 1).
+        guided_eps: its regularisation (> 0, squared image units): larger smooths across weaker edges.
+        guided_subsample: s >= 1: its coefficients are computed on s x s block means (the fast guided filter; 1 is
+            the exact filter); the output keeps the full-resolution edges of the guide
+            (:func:`~prismstereo.matching.aggregate.guided_filter`).
         wide_box: where the reference has little texture, the final band's cost is blended with the cost over
             this wider box (0: off; not in a pyramid's binned level, which only places the band).
         weak_texture: the grey standard deviation over the cost window below which that blend starts.
@@ -159,6 +168,10 @@ class AggregationConfig:
     directions: int = 4
     p1: float = 1.0
     p2: float = 8.0
+    p2_edge: float | None = None
+    guided_radius: int = GUIDED_RADIUS
+    guided_eps: float = GUIDED_EPS
+    guided_subsample: int = GUIDED_SUBSAMPLE
     wide_box: int = 21
     weak_texture: float = 8.0 / 255
 
@@ -170,6 +183,12 @@ class AggregationConfig:
         check_number(self.weak_texture, "weak_texture", 0.0, math.inf, "a finite number > 0", open_low=True)
         if self.directions not in (2, 4, 8):
             raise OptionError(f"directions must be 2, 4 or 8, got {self.directions!r}")
+        check_number(self.p1, "p1", 0.0, math.inf, "a finite number >= 0")
+        check_number(self.p2, "p2", self.p1, math.inf, f"a finite number >= p1 ({self.p1})")
+        check_number(self.p2_edge, "p2_edge", 0.0, math.inf, "a finite number > 0", none=True, open_low=True)
+        check_int(self.guided_radius, "guided_radius", 1)
+        check_number(self.guided_eps, "guided_eps", 0.0, math.inf, "a finite number > 0", open_low=True)
+        check_int(self.guided_subsample, "guided_subsample", 1)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

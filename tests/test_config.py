@@ -19,7 +19,7 @@ def test_default_config_is_the_models_default():
     # every option of every level is set (None only where it means "off")
     for level in default.levels:
         unset = {k for k, v in level.to_options().items() if v is None}
-        assert unset <= {"lr_threshold", "occlusion_tolerance", "occluder_confidence"}, unset
+        assert unset <= {"lr_threshold", "occlusion_tolerance", "occluder_confidence", "p2_edge"}, unset
 
 
 @pytest.mark.parametrize("name", list(PRESETS))
@@ -117,6 +117,11 @@ def test_model_takes_a_config_a_preset_or_a_dict_only():
     ("cost", {"cost": "ssd"}, "cost"),
     ("aggregation", {"wide_box": 2}, "wide_box must be 0 .off. or a positive odd int"),
     ("aggregation", {"directions": 3}, "directions must be 2, 4 or 8"),
+    ("aggregation", {"p1": 9.0}, "p2 must be a finite number >= p1 .9.0."),
+    ("aggregation", {"p2_edge": 0.0}, "p2_edge must be a finite number > 0 or None"),
+    ("aggregation", {"guided_radius": 0}, "guided_radius must be an int >= 1"),
+    ("aggregation", {"guided_eps": -1.0}, "guided_eps must be a finite number > 0"),
+    ("aggregation", {"guided_subsample": 0}, "guided_subsample must be an int >= 1"),
     ("refinement", {"smoothing": 1}, "smoothing must be 0 .off. or an odd int >= 3"),
     ("refinement", {"smoothing_tolerance": float("inf")}, "smoothing_tolerance must be a finite number > 0"),
     ("validity", {"dense": 1}, "dense must be a bool"),

@@ -5,8 +5,8 @@ The depth model's path: :class:`SplitImage`, the coarse level (:mod:`~prismstere
 :class:`~prismstereo.nn.PrismCostVolume` shares, :func:`sweep_cost` / :func:`shift_cost`, and one :func:`decide`:
 :func:`box_filter`, :func:`sgm_aggregate`, winner, sub-pixel fit), the fine bands (:mod:`~prismstereo.matching.band`:
 :class:`FineBand`), the smoothing (:func:`robust_mean`) and the calibrated confidence
-(:class:`ConfidenceModel`). The rectified-pair matcher (``prismstereo match``) uses the same costs on column
-shifts (:func:`cost_volume`) with its own post-processing (:mod:`~prismstereo.matching.rectified`).
+(:class:`ConfidenceModel`). The rectified-pair matcher (``prismstereo match``, :mod:`~prismstereo.matching.rectified`)
+runs on the same :func:`shift_cost` and :func:`decide`, with its own post-processing.
 """
 
 from prismstereo.matching.aggregate import box_filter, box_std, guided_filter, sgm_aggregate, sgm_aggregate_guided
@@ -23,12 +23,8 @@ from prismstereo.matching.confidence import (
 from prismstereo.matching.cost import (
     COSTS,
     Cost,
-    CostVolume,
     Warped,
-    ad_gradient_volume,
     census_transform,
-    cost_volume,
-    shifted,
     sweep_cost,
     worst_cost,
 )
@@ -87,19 +83,15 @@ __all__ = [
     "fit_confidence",
     "COSTS",
     "Cost",
-    "CostVolume",
     "box_filter",
     "box_std",
     "guided_filter",
     "sgm_aggregate",
     "sgm_aggregate_guided",
     "census_transform",
-    "cost_volume",
-    "shifted",
     "fill_background",
     "median_filter",
     "weighted_median",
-    "ad_gradient_volume",
     "Subpixel",
     "left_right_check",
     "soft_argmin_local",

@@ -19,9 +19,8 @@ from prismstereo.runtime import box_mean, in_place, scan_eager, scan_traced
 
 __all__ = ["box_filter", "box_std", "guided_filter", "sgm_aggregate", "sgm_aggregate_guided"]
 
-# the guided filter's radius, regularisation and subsampling (chosen on Middlebury): the defaults of the rectified
-# matcher (prismstereo.matching.rectified.MatchOptions) and the depth model's 'guided' aggregation
-# (prismstereo.matching.search)
+# the guided filter's radius, regularisation and subsampling (chosen on Middlebury): the defaults of the 'guided'
+# aggregation's options (prismstereo.config.AggregationConfig), which the depth model and the rectified matcher share
 GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE = 13, 1e-4, 2
 
 # (scan dim, reverse, row shift of the predecessor): dim 3 scans columns, dim 2 rows; a shift of +-1 makes
@@ -155,7 +154,7 @@ def guided_filter(
         radius: box radius r (>= 1), in full-resolution pixels (default :data:`GUIDED_RADIUS`, 13).
         eps: regularisation (> 0, squared guide units): a window whose guide varies less than ~sqrt(eps) is
             averaged like a box (default :data:`GUIDED_EPS`, 1e-4).
-        subsample: s (>= 1), 1 for the exact filter (the model and the matcher take :data:`GUIDED_SUBSAMPLE`).
+        subsample: s (>= 1), 1 for the exact filter (``AggregationConfig`` defaults to :data:`GUIDED_SUBSAMPLE`).
 
     Returns:
         (B, D, H, W) filtered volume, dtype of ``volume``.

@@ -3,10 +3,8 @@
 A *view* is the other image resampled onto the reference pixels for one hypothesis; :class:`Warped` holds the
 views of all D hypotheses and their validity. The depth model builds them by a plane-sweep warp
 (:func:`~prismstereo.matching.sweep_cost.warp_slices`) or a gather of columns
-(:func:`~prismstereo.matching.sweep_cost.shift_cost`), the rectified-pair matcher (``prismstereo match``) by
-column shifts (:func:`shifted`, :func:`cost_volume`); every cost is computed here, once, by :func:`sweep_cost`.
-The rectified matcher's default cost, :func:`ad_gradient_volume` (truncated colour + gradient difference), is a
-per-pixel cost of its own on the same column shifts.
+(:func:`~prismstereo.matching.sweep_cost.shift_cost`, which the rectified-pair matcher ``prismstereo match`` uses
+too); every cost is computed here, once, by :func:`sweep_cost` (or from its parts).
 
 Costs (lower is better), all (B, D, H, W):
 
@@ -17,16 +15,17 @@ Costs (lower is better), all (B, D, H, W):
   threshold) of the reference and of each view, in [0, bits].
 * ``'zncc'``: 1 - zero-normalised cross-correlation of the grey windows, in [0, 2], each window's variance
   floored at ~ the variance of 8-bit read noise (:func:`ncc_cost`); differentiable.
-* ``'ad_gradient'``: Rhemann et al.'s truncated colour + gradient difference per pixel (:func:`ad_gradient_cost`,
-  the cost of :func:`ad_gradient_volume` on any views), in [0, 1]; no window: meant for an edge-aware
-  aggregation (:func:`~prismstereo.matching.aggregate.guided_filter`).
+* ``'ad_gradient'``: Rhemann et al.'s (2011) truncated colour + gradient difference per pixel
+  (:func:`ad_gradient_cost` of the mean absolute colour difference and of the difference of the horizontal
+  gradients of the channel means), in [0, 1]; the gradient term ignores brightness offsets between the views, the
+  truncations limit the weight of occluded and mismatched pixels. No window: meant for an edge-aware aggregation
+  (:func:`~prismstereo.matching.aggregate.guided_filter`).
 
 Views that are not valid get the cost's worst value (:func:`worst_cost`).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from typing import Literal, NamedTuple
 
@@ -37,12 +36,12 @@ from prismstereo.errors import OptionError, ShapeError, check_odd, check_option,
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.runtime import fill_invalid
 
-__all__ = ["Cost", "COSTS", "CostVolume", "Warped", "ad_gradient_cost", "ad_gradient_volume", "census_transform",
-           "cost_volume", "grey", "ncc_cost", "shifted", "sweep_cost", "window_moments", "worst_cost", "zncc_cost"]
+__all__ = ["Cost", "COSTS", "Warped", "ad_gradient_cost", "census_transform", "grey", "ncc_cost", "sweep_cost",
+           "window_moments", "worst_cost", "zncc_cost"]
 
 Cost = Literal["sad", "zncc", "census", "ad_gradient"]
 COSTS: tuple[str, ...] = ("sad", "zncc", "census", "ad_gradient")
-# 'ad_gradient' truncations and weight (chosen on Middlebury): the defaults of ad_gradient_volume and MatchOptions
+# 'ad_gradient' truncations and weight (chosen on Middlebury with the rectified matcher): ad_gradient_cost's defaults
 AD_THRESHOLD, GRADIENT_THRESHOLD, GRADIENT_WEIGHT = 7.0 / 255.0, 2.0 / 255.0, 0.95
 
 _VAR_FLOOR = 1e-5  # (0.8 / 255)^2: below the variance of 8-bit read noise of 1 level
@@ -58,18 +57,6 @@ class Warped(NamedTuple):
     """
 
     image: torch.Tensor
-    valid: torch.Tensor
-
-
-class CostVolume(NamedTuple):
-    """A cost volume.
-
-    Attributes:
-        cost: (B, D, H, W) matching cost, lower is better.
-        valid: (1, D, 1, W) bool: the hypothesis' sample lies inside the other image.
-    """
-
-    cost: torch.Tensor
     valid: torch.Tensor
 
 
@@ -249,77 +236,6 @@ def sweep_cost(
     return fill_invalid(volume, warped.valid, worst_cost(cost, reference.shape[1], window), bounded=cost != "sad")
 
 
-def shifted(other: torch.Tensor, offset: float, width: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Columns u + offset (u = 0..width-1) of ``other`` (B, C, H, W_o), linearly interpolated; columns outside
-    take the edge column's values (``grid_sample``'s border padding, as the depth model's views do).
-
-    Returns:
-        (view (B, C, H, width), valid (width,) bool: 0 <= u + offset <= W_o - 1).
-
-    Example:
-        >>> view, ok = shifted(torch.arange(5.0).view(1, 1, 1, 5), 1.5, 4)
-        >>> view.flatten(), ok
-        (tensor([1.5000, 2.5000, 3.5000, 4.0000]), tensor([ True,  True,  True, False]))
-    """
-    w_o = other.shape[-1]
-    base = math.floor(offset)
-    frac = offset - base
-    x = torch.arange(width, device=other.device) + base
-    valid = (x >= 0) & ((x + (1 if frac > 0 else 0)) <= w_o - 1)
-    out = other.index_select(-1, x.clamp(0, w_o - 1))
-    if frac > 0:
-        out = (1 - frac) * out + frac * other.index_select(-1, (x + 1).clamp(0, w_o - 1))
-    return out, valid
-
-
-def cost_volume(
-    reference: torch.Tensor,
-    other: torch.Tensor,
-    offsets: torch.Tensor,
-    cost: Cost = "census",
-    window: int = 5,
-    census_threshold: float = 0.0,
-) -> CostVolume:
-    """Compare reference pixels with the other image at columns u + offset_i: :func:`sweep_cost` of the
-    :func:`shifted` views.
-
-    Args:
-        reference: (B, C, H, W) reference image in [0, 1].
-        other: (B, C, H, W_o) the other image, row-aligned with the reference.
-        offsets: (D,) column offsets (px, fractional allowed), e.g. ``-torch.arange(D)`` for the disparities
-            of a rectified pair.
-        cost: 'sad', 'zncc', 'census' or 'ad_gradient'.
-        window: census / ZNCC window (odd; census >= 3).
-        census_threshold: see :func:`sweep_cost`.
-
-    Returns:
-        CostVolume with cost (B, D, H, W), dtype of ``reference``.
-
-    Raises:
-        OptionError: unknown cost, bad window or threshold. ShapeError: mismatching batch, channels or rows.
-
-    Example:
-        >>> ref = torch.rand(1, 1, 20, 30); other = torch.roll(ref, -3, dims=-1)
-        >>> vol = cost_volume(ref, other, -torch.arange(6.0), "sad")
-        >>> vol.cost.shape
-        torch.Size([1, 6, 20, 30])
-    """
-    check_option(cost, COSTS, "cost")
-    check_shape(reference, ["B", "C", "H", "W"], "reference")
-    check_shape(other, ["B", "C", "H", "W"], "other")
-    check_shape(offsets, ["D"], "offsets")
-    check_odd(window, "window")
-    if reference.shape[:3] != other.shape[:3]:
-        raise ShapeError(f"reference {tuple(reference.shape)} and other {tuple(other.shape)} must share B, C, H")
-    if cost == "zncc":  # ZNCC compares grey windows: shift the grey image (linear)
-        reference, other = grey(reference), grey(other)
-    width = reference.shape[-1]
-    views, valid = zip(*(shifted(other, off, width) for off in offsets.tolist()), strict=True)
-    mask = torch.stack(valid).view(1, len(valid), 1, width)
-    volume = sweep_cost(reference, Warped(torch.stack(views, 2), mask), cost, window, census_threshold)
-    return CostVolume(volume, mask)
-
-
 def _x_gradient(image: torch.Tensor) -> torch.Tensor:
     """(B, 1, ..., W) central difference along W of the channel mean (axis 1; edges replicated: one-sided
     halves)."""
@@ -355,67 +271,3 @@ def ad_gradient_cost(
     mix = ((1 - gradient_weight) * colour_difference.clamp_max(ad_threshold)
            + gradient_weight * gradient_difference.clamp_max(gradient_threshold))
     return (mix * scale).clamp_max(1.0)  # the scale's rounding left saturated costs at 1 + 1e-7
-
-
-def ad_gradient_volume(
-    reference: torch.Tensor,
-    other: torch.Tensor,
-    offsets: torch.Tensor,
-    ad_threshold: float = AD_THRESHOLD,
-    gradient_threshold: float = GRADIENT_THRESHOLD,
-    gradient_weight: float = GRADIENT_WEIGHT,
-) -> CostVolume:
-    """Truncated colour + gradient difference cost (Rhemann et al. 2011, "Fast cost-volume filtering").
-
-    C(u, i) = ((1 - a) min(mean_c |I_c(u) - I'_c(u + o_i)|, t_ad) + a min(|gx(u) - gx'(u + o_i)|, t_g))
-    / ((1 - a) t_ad + a t_g), in [0, 1], with gx the central difference along W of the channel mean and a the
-    gradient weight; the gradient term ignores brightness offsets between the views, the truncations limit
-    the weight of occluded and mismatched pixels. Cheap per pixel and sharp at object borders: meant to be
-    aggregated with an edge-aware filter (:func:`~prismstereo.matching.aggregate.guided_filter`).
-
-    Args:
-        reference: (B, C, H, W) reference image in [0, 1].
-        other: (B, C, H, W_o) the other image, row-aligned with the reference.
-        offsets: (D,) column offsets (px, fractional ones interpolate linearly), e.g. ``-torch.arange(D)``
-            for the disparities of a rectified pair.
-        ad_threshold: truncation of the colour difference (image units, > 0).
-        gradient_threshold: truncation of the gradient difference (image units per px, > 0).
-        gradient_weight: a, in [0, 1].
-
-    Returns:
-        CostVolume: cost (B, D, H, W) in [0, 1], dtype of ``reference`` (1 where the sample is outside the
-        other image), valid (1, D, 1, W).
-
-    Raises:
-        ShapeError: bad shapes. OptionError: non-positive thresholds or a weight outside [0, 1].
-
-    Example:
-        >>> left = torch.rand(1, 3, 12, 20, generator=torch.Generator().manual_seed(0))
-        >>> right = torch.roll(left, -3, dims=-1)
-        >>> vol = ad_gradient_volume(left, right, -torch.arange(6))
-        >>> vol.cost.shape, int(vol.cost[0, :, 6, 10].argmin()), float(vol.cost[0, 3, 6, 10])
-        (torch.Size([1, 6, 12, 20]), 3, 0.0)
-    """
-    check_shape(reference, ["B", "C", "H", "W"], "reference")
-    check_shape(other, ["B", "C", "H", "W"], "other")
-    check_shape(offsets, ["D"], "offsets")
-    if reference.shape[:3] != other.shape[:3]:
-        raise ShapeError(f"reference {tuple(reference.shape)} and other {tuple(other.shape)} must share B, C, H")
-    if not (ad_threshold > 0 and gradient_threshold > 0):
-        raise OptionError(f"ad_threshold and gradient_threshold must be > 0, got {ad_threshold}, "
-                          f"{gradient_threshold}")
-    if not 0 <= gradient_weight <= 1:
-        raise OptionError(f"gradient_weight must be in [0, 1], got {gradient_weight}")
-    width = reference.shape[-1]
-    stack = torch.cat([other, _x_gradient(other)], dim=1)  # one shifted view per offset serves both terms
-    grad_ref = _x_gradient(reference)
-    channels = reference.shape[1]
-    slices, valid = [], []
-    for off in offsets.tolist():
-        view, ok = shifted(stack, off, width)
-        colour = (reference - view[:, :channels]).abs().mean(1)
-        cost = ad_gradient_cost(colour, (grad_ref[:, 0] - view[:, channels]).abs(), ad_threshold, gradient_threshold,
-                                gradient_weight)
-        slices.append(torch.where(ok, cost, torch.ones_like(cost)))
-        valid.append(ok)
-    return CostVolume(torch.stack(slices, dim=1), torch.stack(valid).view(1, len(valid), 1, width))

@@ -28,16 +28,9 @@ from torch import nn
 from prismstereo.epipolar.row_rectify import RectifiedLevel, fit_row_rectification, level_coverage, rectified_level
 from prismstereo.epipolar.sweep import SweepFit, sweep_coefficients, sweep_hypotheses
 from prismstereo.epipolar.sweep_table import column_to_sweep
-from prismstereo.errors import check_option
+from prismstereo.errors import OptionError, check_option
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.matching.aggregate import (
-    GUIDED_EPS,
-    GUIDED_RADIUS,
-    GUIDED_SUBSAMPLE,
-    box_filter,
-    guided_filter,
-    sgm_aggregate,
-)
+from prismstereo.matching.aggregate import box_filter, guided_filter, sgm_aggregate, sgm_aggregate_guided
 from prismstereo.matching.cost import grey, sweep_cost, worst_cost
 from prismstereo.matching.select import left_right_check, refine, uniqueness, winner_take_all
 from prismstereo.matching.sweep_cost import sample_slices, shift_cost
@@ -105,21 +98,30 @@ class Decision(NamedTuple):
 
 def decide(volume: torch.Tensor, config: StereoConfig, channels: int, final: bool,
            guide: torch.Tensor | None = None) -> Decision:
-    """A cost volume's winners: box (``box``), then semi-global (``'sgm'``: ``directions``, ``p1``, ``p2``) or guided
-    (``'guided'``) aggregation or none, winner-take-all, sub-pixel refinement (``refinement`` for a ``final``
-    search, the fit matching the cost otherwise), confidence and uniqueness (``min_uniqueness``).
+    """A cost volume's winners: box (``box``), then semi-global (``'sgm'``: ``directions``, ``p1``, ``p2``, ``p2_edge``)
+    or guided (``'guided'``: ``guided_radius``, ``guided_eps``, ``guided_subsample``) aggregation or none,
+    winner-take-all, sub-pixel refinement (``refinement`` for a ``final`` search, the fit matching the cost otherwise),
+    confidence and uniqueness (``min_uniqueness``).
+
+    The one decision of the depth model's searches and of the rectified-pair matcher
+    (:func:`~prismstereo.matching.rectified.match_rectified`).
 
     Args:
         volume: (B, D, H, W) cost of ``config.cost.cost``, lower is better.
         config: the level's resolved options.
         channels: the images' channels (the worst census cost counts bits per channel).
         final: the search's estimate is the level's (a single level), not a placement of a band.
-        guide: (B, 1, H, W) the level's grey reference in the volume's layout, which steers the 'guided'
-            aggregation (:func:`~prismstereo.matching.aggregate.guided_filter`).
+        guide: (B or 1, C, H, W) the reference image in the volume's layout (the depth model's searches pass the
+            level's grey reference, the matcher its colour left image), which steers the 'guided' aggregation
+            (:func:`~prismstereo.matching.aggregate.guided_filter`) and, with ``p2_edge``, SGM's jump penalty
+            (:func:`~prismstereo.matching.aggregate.sgm_aggregate_guided`); needed by those two only.
 
     Returns:
         Decision. The 'guided' aggregation's confidence is the similarity of the filtered cost (a window's evidence
         spread over its region of similar grey), the others' that of the box-averaged cost.
+
+    Raises:
+        OptionError: the guided filter or an edge-aware P2 without a guide.
 
     Example:
         >>> from prismstereo.config import StereoConfig
@@ -130,10 +132,17 @@ def decide(volume: torch.Tensor, config: StereoConfig, channels: int, final: boo
     cost, aggregation = config.cost.cost, config.aggregation
     guided = aggregation.aggregation == "guided"
     local = box_filter(volume, aggregation.box)
-    if aggregation.aggregation == "sgm":
+    edges = aggregation.aggregation == "sgm" and aggregation.p2_edge is not None
+    if (guided or edges) and guide is None:
+        raise OptionError(f"the {'guided filter' if guided else 'edge-aware P2 (p2_edge)'} needs a guide image")
+    if edges:
+        total = sgm_aggregate_guided(local, guide, aggregation.p1, aggregation.p2, aggregation.p2_edge,
+                                     aggregation.directions)
+    elif aggregation.aggregation == "sgm":
         total = sgm_aggregate(local, aggregation.p1, aggregation.p2, aggregation.directions)
     elif guided:
-        total = guided_filter(local, guide, GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE)
+        total = guided_filter(local, guide, aggregation.guided_radius, aggregation.guided_eps,
+                              aggregation.guided_subsample)
     else:
         total = local
     index, _ = winner_take_all(total.detach())

@@ -3,7 +3,7 @@ import torch
 
 from prismstereo import OptionError, ShapeError
 from prismstereo.matching import box_filter, box_std, sgm_aggregate, sgm_aggregate_guided
-from prismstereo.matching.rectified import MatchOptions, match_rectified, right_view_volume
+from prismstereo.matching.rectified import MatchOptions, match_rectified
 from tests.matching.test_cost_select import shifted_pair
 
 F64 = torch.float64
@@ -154,17 +154,10 @@ def test_sgm_errors():
         sgm_aggregate_guided(cost, torch.rand(1, 1, 4, 5), 0.1, 0.2, 0.1)
 
 
-def test_right_view_volume():
-    vol = torch.arange(12.0).view(1, 3, 1, 4)
-    right = right_view_volume(vol)
-    assert right[0, 0, 0].tolist() == [0, 1, 2, 3]
-    assert right[0, 2, 0].tolist() == [10, 11, float("inf"), float("inf")]
-
-
 @pytest.mark.parametrize("cost", ["census", "sad", "zncc"])
 def test_match_rectified_constant_shift(cost):
     left, right = shifted_pair(6.4, h=48, w=140, seed=2)
-    res = match_rectified(left, right, 16, MatchOptions(cost=cost, window=9 if cost == "zncc" else 5))
+    res = match_rectified(left, right, 16, MatchOptions().with_options(cost=cost, window=9 if cost == "zncc" else 5))
     inner = res.valid[..., 8:-8, 24:-8]
     assert inner.float().mean() > 0.95
     err = (res.disparity[..., 8:-8, 24:-8] - 6.4)[inner].abs()
@@ -195,20 +188,25 @@ def test_match_errors():
         match_rectified(a, torch.rand(1, 1, 8, 21), 4)
     with pytest.raises(OptionError, match=r"num_disparities must be an int in \[2, W\)"):
         match_rectified(a, a, 40)
+    base = MatchOptions()
     with pytest.raises(OptionError, match="Unknown aggregation 'mgm'"):
-        MatchOptions(aggregation="mgm")
+        base.with_options(aggregation="mgm")
     with pytest.raises(OptionError, match="box must be a positive odd int"):
-        MatchOptions(box=4)
+        base.with_options(box=4)
     with pytest.raises(OptionError, match="median must be a positive odd int"):
         MatchOptions(median=0)
     with pytest.raises(OptionError, match="subpixel_window must be a positive odd int"):
         MatchOptions(subpixel_window=2)
-    with pytest.raises(OptionError, match="census_threshold must be >= 0"):
-        MatchOptions(census_threshold=-0.01)
-    with pytest.raises(OptionError, match="p2_edge must be > 0 or None"):
-        MatchOptions(p2_edge=0.0)
+    with pytest.raises(OptionError, match="census_threshold must be a number >= 0"):
+        base.with_options(census_threshold=-0.01)
+    with pytest.raises(OptionError, match="p2_edge must be a finite number > 0 or None"):
+        base.with_options(p2_edge=0.0)
+    with pytest.raises(OptionError, match=r"p2 must be a finite number >= p1 \(400.0\)"):
+        base.with_options(p1=400.0)
     with pytest.raises(OptionError, match="Unknown out_of_range 'clamp'"):
         MatchOptions(out_of_range="clamp")
+    with pytest.raises(OptionError, match="window must be an odd int >= 3"):
+        match_rectified(a, a, 4, base.with_options(cost="census", window=1))
 
 
 def step_pair():
@@ -238,20 +236,31 @@ def test_fill_gives_occluded_pixels_the_background():
 def test_left_border_takes_the_disparity_of_its_right():
     # columns u < 6.4 have no match in the right image: with out-of-range hypotheses replicating the last
     # in-range cost SGM carries the disparity into them, the range check rejects them and the fill
-    # completes them; with the worst cost they get small in-range disparities (6 px off)
+    # completes them; with the worst cost they get small in-range disparities (6 px off), which only the
+    # left-right check against the right view's own decision rejects
     left, right = shifted_pair(6.4, h=48, w=140, seed=2)
     res = match_rectified(left, right, 16)
     assert res.filled[..., :6].all() and not res.valid[..., :6].any()
     assert (res.disparity[..., 8:-8, :7] - 6.4).abs().max() < 0.5
     # (the census + SGM pipeline; the default guided-filter pipeline rejects and fills that border either way)
-    census_sgm = dict(cost="census", aggregation="sgm", subpixel_cost="local", subpixel_window=3, weighted_median=0)
-    worst = match_rectified(left, right, 16, MatchOptions(out_of_range="worst", **census_sgm))
-    assert (worst.disparity[..., 8:-8, :7] - 6.4).abs().max() > 3
+    census_sgm = MatchOptions().with_options(cost="census", aggregation="sgm", subpixel_cost="local",
+                                             subpixel_window=3, weighted_median=0)
+    for lr_threshold in (None, 1.0):
+        replicate = match_rectified(left, right, 16, census_sgm.with_options(lr_threshold=lr_threshold))
+        assert (replicate.disparity[..., 8:-8, :7] - 6.4).abs().max() < 0.5
+    worst = census_sgm.with_options(out_of_range="worst")
+    unchecked = match_rectified(left, right, 16, worst.with_options(lr_threshold=None))
+    assert unchecked.valid[..., :6].all() and (unchecked.disparity[..., 8:-8, :7] - 6.4).abs().max() > 3
+    checked = match_rectified(left, right, 16, worst)
+    assert checked.filled[..., 8:-8, :6].float().mean() > 0.8
+    assert (checked.disparity[..., 8:-8, :7] - 6.4).abs().max() < 1
 
 
 def test_match_rectified_dtype_and_colour():
     left, right = shifted_pair(4.0, h=32, w=80, seed=6, channels=3)
-    for opts in (MatchOptions(), MatchOptions(grey=False, p2_edge=None, median=1, census_threshold=0.0)):
+    colour_census = MatchOptions().with_options(cost="census", aggregation="sgm", grey=False, p2_edge=None, median=1,
+                                                census_threshold=0.0)
+    for opts in (MatchOptions(), colour_census):
         res = match_rectified(left.float(), right.float(), 8, opts)
         assert res.disparity.dtype == torch.float32
         assert (res.disparity[..., 6:-6, 10:-6] - 4.0).abs().median() < 0.1

@@ -5,9 +5,8 @@ from prismstereo import OptionError, ShapeError
 from prismstereo.matching import (
     box_filter,
     census_transform,
-    cost_volume,
     left_right_check,
-    shifted,
+    shift_cost,
     soft_argmin_local,
     subpixel_refine,
     uniqueness,
@@ -33,15 +32,13 @@ def shifted_pair(disparity: float, h=40, w=120, seed=0, channels=1):
     return left[None], right[None]
 
 
-def test_shifted_interpolates_and_masks():
-    x = torch.arange(6.0).view(1, 1, 1, 6)
-    view, ok = shifted(x, -2.25, 6)
-    assert ok.tolist() == [False, False, False, True, True, True]
-    torch.testing.assert_close(view[0, 0, 0, 3:], torch.tensor([0.75, 1.75, 2.75]))
-    assert (view[0, 0, 0, :3] == 0).all()  # the edge column's value (border padding)
-    view, ok = shifted(x, 1.5, 6)
-    assert ok.tolist() == [True] * 4 + [False] * 2
-    torch.testing.assert_close(view[0, 0, 0], torch.tensor([1.5, 2.5, 3.5, 4.5, 5.0, 5.0]))
+def disparity_volume(left, right, num, cost, window=5, census_threshold=0.0):
+    """The shift volume of a rectified pair (:func:`shift_cost`): hypothesis d compares left column u with right
+    column u - d (real where u - d >= 0, worst cost elsewhere), (B, num, H, W)."""
+    h, w = left.shape[-2:]
+    column = torch.arange(w) - torch.arange(num).view(-1, 1)
+    valid = (column >= 0).view(1, num, 1, w).expand(1, num, h, w)
+    return shift_cost(left, right, column.clamp_min(0), valid, cost, window, census_threshold)
 
 
 def test_box_filter_is_a_mean():
@@ -78,10 +75,9 @@ def test_census_bits():
 @pytest.mark.parametrize("disparity", [7.0, 12.3, 20.75])
 def test_constant_shift_recovered_to_0_05_px(cost, method, disparity):
     left, right = shifted_pair(disparity)
-    offsets = -torch.arange(0.0, 32.0, dtype=F64)  # hypothesis k: right column u - k
     window = 9 if cost == "zncc" else 5  # ZNCC's normalisation is noisy on small windows (0.1 px at 5x5)
-    vol = cost_volume(left, right, offsets, cost, window=window)
-    agg = box_filter(vol.cost, 5) if cost != "zncc" else vol.cost
+    vol = disparity_volume(left, right, 32, cost, window)  # hypothesis k: right column u - k
+    agg = box_filter(vol, 5) if cost != "zncc" else vol
     index, _ = winner_take_all(agg)
     refined = subpixel_refine(agg, index, method)
     inner = refined[..., 8:-8, 40:-8]  # away from borders and the invalid left columns
@@ -92,8 +88,7 @@ def test_constant_shift_recovered_to_0_05_px(cost, method, disparity):
 def test_parabola_on_sad_pixel_locks():
     # the issue's measured fact: a parabola fitted to an L1 cost is biased toward integers, the V fit is not
     left, right = shifted_pair(12.3)
-    vol = cost_volume(left, right, -torch.arange(0.0, 32.0, dtype=F64), "sad")
-    agg = box_filter(vol.cost, 7)
+    agg = box_filter(disparity_volume(left, right, 32, "sad"), 7)
     index, _ = winner_take_all(agg)
     bias_parabola = (subpixel_refine(agg, index, "parabola")[..., 8:-8, 40:-8] - 12.3).median()
     bias_v = (subpixel_refine(agg, index, "equiangular")[..., 8:-8, 40:-8] - 12.3).median()
@@ -102,20 +97,20 @@ def test_parabola_on_sad_pixel_locks():
 
 def test_rgb_costs_and_shapes():
     left, right = shifted_pair(5.0, channels=3)
-    vol = cost_volume(left, right, -torch.arange(0.0, 10.0, dtype=F64), "census", 3)
-    assert vol.cost.shape == (1, 10, 40, 120) and vol.valid.shape == (1, 10, 1, 120)
-    assert vol.cost.max() <= 3 * 8 and not vol.valid[0, 9, 0, 0]
-    assert torch.equal(vol.valid[0, :, 0, 20], torch.ones(10, dtype=torch.bool))
+    vol = disparity_volume(left, right, 10, "census", 3)
+    assert vol.shape == (1, 10, 40, 120) and vol.dtype == F64
+    assert vol.max() <= 3 * 8 and (vol[0, 9, :, :9] == 3 * 8).all()  # a colour census: 8 bits per channel
+    assert (box_filter(vol, 5)[..., 12:-4].argmin(1) == 5).float().mean() > 0.95
 
 
 def test_cost_errors():
     a = torch.rand(1, 1, 8, 8)
     with pytest.raises(OptionError, match="Unknown cost 'ssd'. Choose from: 'sad', 'zncc', 'census'"):
-        cost_volume(a, a, torch.zeros(2), "ssd")
-    with pytest.raises(ShapeError, match="must share B, C, H"):
-        cost_volume(a, torch.rand(1, 1, 9, 8), torch.zeros(2))
+        disparity_volume(a, a, 2, "ssd")
+    with pytest.raises(ShapeError, match="disagree"):
+        disparity_volume(a, torch.rand(1, 1, 9, 8), 2, "sad")
     with pytest.raises(OptionError, match="window must be a positive odd int"):
-        cost_volume(a, a, torch.zeros(2), "zncc", window=2)
+        disparity_volume(a, a, 2, "zncc", window=2)
 
 
 def test_subpixel_fits_exact_models():

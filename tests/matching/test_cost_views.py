@@ -1,28 +1,44 @@
-"""One implementation per cost: the rectified matcher's column shifts and the depth model's warped slices and
-column gathers are views compared by the same census / ZNCC / SAD; and the eager and exported forms of
-:mod:`prismstereo.runtime` agree."""
+"""One implementation per cost: the depth model's warped slices and column gathers (the rectified levels' and the
+rectified-pair matcher's shift volume) are views compared by the same census / ZNCC / SAD; and the eager and
+exported forms of :mod:`prismstereo.runtime` agree."""
 
 import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
-from prismstereo.matching import box_filter, census_transform, cost_volume, shifted
-from prismstereo.matching.cost import Warped, ad_gradient_cost, ad_gradient_volume, sweep_cost, worst_cost
+from prismstereo.matching import box_filter, census_transform
+from prismstereo.matching.cost import Warped, ad_gradient_cost, sweep_cost, worst_cost
 from prismstereo.matching.sweep_cost import shift_cost, warp_slices
 from prismstereo.runtime import fill_invalid, scan_eager, scan_traced
-from tests.matching.test_cost_select import shifted_pair
+from tests.matching.test_cost_select import disparity_volume, shifted_pair
 
 F64 = torch.float64
+
+
+def shifted_views(other, offsets, width):
+    """Views of ``other`` (B, C, H, W_o) at columns u + offset (u < width), linearly interpolated, the edge columns
+    replicated outside: (B, C, D, H, width), and their validity (1, D, 1, width): every tap inside."""
+    w_o = other.shape[-1]
+    views, valid = [], []
+    for off in offsets.tolist():
+        x = torch.arange(width) + off
+        x0 = torch.floor(x)
+        frac = (x - x0).to(other.dtype)
+        left = other[..., x0.long().clamp(0, w_o - 1)]
+        right = other[..., (x0.long() + 1).clamp(0, w_o - 1)]
+        views.append((1 - frac) * left + frac * right)
+        valid.append((x0 >= 0) & (x0 + (frac > 0).long() <= w_o - 1))
+    return torch.stack(views, 2), torch.stack(valid).view(1, len(valid), 1, width)
 
 
 def float_bit_census(reference, other, offsets, window, threshold=0.0):
     """Hamming distances of census_transform's bits of the reference and of each shifted view."""
     ref_bits = census_transform(reference, window, threshold)
+    views, valid = shifted_views(other, offsets, reference.shape[-1])
     slices = []
-    for off in offsets.tolist():
-        view, ok = shifted(other, off, reference.shape[-1])
-        hamming = (ref_bits - census_transform(view, window, threshold)).abs().sum(1)
-        slices.append(torch.where(ok, hamming, torch.full_like(hamming, ref_bits.shape[1])))
+    for k in range(views.shape[2]):
+        hamming = (ref_bits - census_transform(views[:, :, k], window, threshold)).abs().sum(1)
+        slices.append(torch.where(valid[0, k], hamming, torch.full_like(hamming, ref_bits.shape[1])))
     return torch.stack(slices, 1)
 
 
@@ -41,37 +57,40 @@ def test_census_volume_is_the_hamming_distance_of_the_views_bits(channels, windo
     ref = torch.rand(2, channels, 13, 30, generator=gen, dtype=F64)
     other = torch.rand(2, channels, 13, 26, generator=gen, dtype=F64)  # another width
     offsets = torch.arange(-6.0, 3.0, step, dtype=F64)
-    vol = cost_volume(ref, other, offsets, "census", window, threshold)
+    views, valid = shifted_views(other, offsets, 30)
+    vol = sweep_cost(ref, Warped(views, valid), "census", window, threshold)
     d = len(offsets)
-    assert vol.cost.dtype == F64 and vol.cost.shape == (2, d, 13, 30) and vol.valid.shape == (1, d, 1, 30)
-    torch.testing.assert_close(vol.cost, float_bit_census(ref, other, offsets, window, threshold), rtol=0, atol=0)
+    assert vol.dtype == F64 and vol.shape == (2, d, 13, 30)
+    torch.testing.assert_close(vol, float_bit_census(ref, other, offsets, window, threshold), rtol=0, atol=0)
 
 
 def test_census_volume_finds_the_shift():
     left, right = shifted_pair(5.0, h=24, w=60, seed=5)
-    vol = cost_volume(left, right, -torch.arange(10.0, dtype=F64), "census", 5, census_threshold=0.002)
-    assert vol.cost.dtype == F64
-    assert (box_filter(vol.cost, 5)[..., 10:-4].argmin(1) == 5).all()
-    assert not vol.valid[0, 9, 0, :9].any() and vol.valid[0, 9, 0, 9:].all()
+    vol = disparity_volume(left, right, 10, "census", 5, census_threshold=0.002)
+    assert vol.dtype == F64
+    assert (box_filter(vol, 5)[..., 10:-4].argmin(1) == 5).all()
+    assert (vol[0, 9, :, :9] == worst_cost("census", 1, 5)).all()  # right column u - 9 outside for u < 9
 
 
 @pytest.mark.parametrize("cost", ["sad", "zncc", "census"])
 def test_column_shifts_warped_slices_and_gathers_give_one_cost(cost):
-    """The same views built three ways (the rectified matcher's shifts, the model's plane-sweep warp and its
-    column gather) get the same cost: one SAD / ZNCC (one variance floor) / census for both."""
+    """The same views built three ways (shifted columns, the model's plane-sweep warp and its column gather, which
+    the rectified levels and the rectified-pair matcher use) get the same cost: one SAD / ZNCC (one variance floor) /
+    census for all."""
     gen = torch.Generator().manual_seed(2)
     ref = torch.rand(1, 1, 16, 24, generator=gen, dtype=F64)
     other = torch.rand(1, 1, 16, 24, generator=gen, dtype=F64)
     shifts = [0, 1, 2, 3, 5]
-    by_shift = cost_volume(ref, other, torch.tensor(shifts, dtype=F64), cost, 5, 0.01)
+    views, valid = shifted_views(other, torch.tensor(shifts, dtype=F64), 24)
+    by_shift = sweep_cost(ref, Warped(views, valid), cost, 5, 0.01)
     v, u = torch.meshgrid(torch.arange(16, dtype=F64), torch.arange(24, dtype=F64), indexing="ij")
     grid = torch.stack([torch.stack([(2 * (u + s) + 1) / 24 - 1, (2 * v + 1) / 16 - 1], -1) for s in shifts])[None]
     warped = warp_slices(other, grid)
-    by_warp = sweep_cost(ref, Warped(warped.image, by_shift.valid), cost, 5, 0.01)
-    torch.testing.assert_close(by_warp, by_shift.cost, rtol=1e-12, atol=1e-12)
+    by_warp = sweep_cost(ref, Warped(warped.image, valid), cost, 5, 0.01)
+    torch.testing.assert_close(by_warp, by_shift, rtol=1e-12, atol=1e-12)
     index = (torch.arange(24) + torch.tensor(shifts).view(-1, 1)).clamp(max=23)
-    by_gather = shift_cost(ref, other, index, by_shift.valid.expand(1, -1, 16, -1), cost, 5, 0.01)
-    torch.testing.assert_close(by_gather, by_shift.cost, rtol=1e-12, atol=1e-12)
+    by_gather = shift_cost(ref, other, index, valid.expand(1, -1, 16, -1), cost, 5, 0.01)
+    torch.testing.assert_close(by_gather, by_shift, rtol=1e-12, atol=1e-12)
 
 
 def test_zncc_has_the_variance_floor():
@@ -87,13 +106,13 @@ def test_cost_volume_errors():
     with pytest.raises(OptionError, match="census threshold must be >= 0"):
         census_transform(a, 5, threshold=-0.1)
     with pytest.raises(OptionError, match="census_threshold must be >= 0"):
-        cost_volume(a, a, torch.zeros(2), "census", 5, -0.1)
+        disparity_volume(a, a, 2, "census", 5, -0.1)
     with pytest.raises(OptionError, match="census window must be >= 3"):
         census_transform(a, 1)
-    with pytest.raises(OptionError, match="window must be a positive odd int"):
-        cost_volume(a, a, torch.zeros(2), "census", 4)
-    with pytest.raises(ShapeError, match="must share B, C, H"):
-        cost_volume(a, torch.rand(1, 2, 8, 8), torch.zeros(2))
+    with pytest.raises(OptionError, match="window must be an odd int >= 3"):
+        disparity_volume(a, a, 2, "census", 4)
+    with pytest.raises(ShapeError, match="disagree"):
+        disparity_volume(a, torch.rand(1, 2, 8, 8), 2, "sad")
     with pytest.raises(ShapeError, match="image must have shape"):
         census_transform(torch.rand(8, 8))
 
@@ -124,24 +143,22 @@ def test_eager_and_exported_sgm_scans_agree_bitwise(shift, penalties, monkeypatc
 
 
 def test_ad_gradient_is_one_cost_by_shifts_warps_and_gathers():
-    """'ad_gradient' (Rhemann et al.'s truncated grey + gradient difference) of the same views built three ways:
-    the rectified matcher's volume (gradients shifted with the image), sweep_cost on shifted and on warped views
-    (gradients of each view) and the model's column gather (gradients before the gather) agree wherever the
-    view's gradient does not reach an edge of the image or of the view; the true shift costs 0."""
+    """'ad_gradient' (Rhemann et al.'s truncated grey + gradient difference) of the same views built two ways:
+    sweep_cost on shifted views (gradients of each view) and the model's column gather (gradients before the
+    gather, the rectified levels' and the rectified-pair matcher's volume) agree wherever the view's gradient does
+    not reach an edge of the image or of the view; the true shift costs 0."""
     gen = torch.Generator().manual_seed(6)
     other = torch.rand(1, 1, 16, 30, generator=gen, dtype=F64)
     ref = other[..., 3:27]  # reference column u shows other column u + 3
     shifts = [0, 1, 3, 4]
-    matcher = ad_gradient_volume(ref, other[..., :24], torch.tensor(shifts, dtype=F64))
-    by_shift = cost_volume(ref, other[..., :24], torch.tensor(shifts, dtype=F64), "ad_gradient")
+    views, valid = shifted_views(other[..., :24], torch.tensor(shifts, dtype=F64), 24)
+    by_shift = sweep_cost(ref, Warped(views, valid), "ad_gradient")
     index = (torch.arange(24) + torch.tensor(shifts).view(-1, 1)).clamp(max=23)  # other column u + s
-    gathered = shift_cost(ref, other[..., :24], index, by_shift.valid.expand(1, -1, 16, -1), "ad_gradient")
+    gathered = shift_cost(ref, other[..., :24], index, valid.expand(1, -1, 16, -1), "ad_gradient")
     u = torch.arange(24).view(1, 1, 1, -1)
     s = torch.tensor(shifts).view(1, -1, 1, 1)
-    interior = by_shift.valid & (u >= 1) & (u <= 22) & (u + s <= 22)
-    interior = interior.expand_as(by_shift.cost)
-    for vol in (matcher.cost, gathered):
-        torch.testing.assert_close(vol[interior], by_shift.cost[interior], rtol=0, atol=1e-12)
+    interior = (valid & (u >= 1) & (u <= 22) & (u + s <= 22)).expand_as(by_shift)
+    torch.testing.assert_close(gathered[interior], by_shift[interior], rtol=0, atol=1e-12)
     full = shift_cost(ref, other, (torch.arange(24) + torch.tensor(shifts).view(-1, 1)).clamp(max=29),
                       torch.ones(1, 4, 16, 24, dtype=torch.bool), "ad_gradient")
     # a batch is its images side by side (the gradients broadcast per image)

@@ -1,49 +1,64 @@
-"""The rectified-pair matcher's cost-volume filtering path: the 'ad_gradient' cost, the guided filter and the
-defaults of :func:`match_rectified` built on them (the census / SGM path: test_aggregate_rectified.py)."""
+"""The rectified-pair matcher: the depth model's shift volume and decision (shift_cost, decide) under the matcher's
+options, its defaults (cost-volume filtering: the 'ad_gradient' cost and the guided filter) and their options (the
+census / SGM path: test_aggregate_rectified.py)."""
 
 import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
+from prismstereo.config import StereoConfig
+from prismstereo.matching import decide, shift_cost
 from prismstereo.matching.aggregate import guided_filter
-from prismstereo.matching.cost import ad_gradient_volume
-from prismstereo.matching.rectified import MatchOptions, match_rectified
+from prismstereo.matching.rectified import MATCH_CONFIG, SHARED_OPTIONS, MatchOptions, match_rectified
 from tests.matching.test_cost_select import shifted_pair
 
 F64 = torch.float64
+# the matcher without its own steps: what is left is the shared volume and decision
+SHARED_ONLY = dict(out_of_range="worst", subpixel_cost=None, lr_threshold=None, median=1, fill=False, weighted_median=0)
 
 
-def test_ad_gradient_volume_reference_values():
-    ref = torch.tensor([0.0, 0.5, 1.0], dtype=F64).view(1, 1, 1, 3)
-    # gradients (edges replicated): 0.25, 0.5, 0.25; offset -1 compares u with u - 1
-    vol = ad_gradient_volume(ref, ref.clone(), torch.tensor([0, -1]), 1.0, 1.0, 0.5)
-    assert vol.cost.dtype == F64 and vol.cost.shape == (1, 2, 1, 3)
-    torch.testing.assert_close(vol.cost[0, :, 0], torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.375, 0.375]], dtype=F64))
-    assert vol.valid.flatten().tolist() == [True, True, True, False, True, True]
-    # truncated: every term saturates -> the normalised maximum 1
-    sat = ad_gradient_volume(ref, ref.clone(), torch.tensor([-1]), 0.1, 0.1, 0.3)
-    torch.testing.assert_close(sat.cost[0, 0, 0, 1:], torch.ones(2, dtype=F64))
+@pytest.mark.parametrize("shared", [{}, {"cost": "census", "aggregation": "sgm"},
+                                    {"cost": "zncc", "window": 9, "aggregation": "box", "box": 3,
+                                     "refinement": "parabola", "min_uniqueness": 0.05}],
+                         ids=["guided", "census-sgm-edges", "zncc-box"])
+def test_match_rectified_is_the_shared_shift_cost_and_decide(shared):
+    """Without its own steps the matcher's disparity, validity and confidence are bitwise those of shift_cost (left
+    column u against right column u - d, real where u - d >= 0) and decide under its config (a final search guided by
+    the colour left image): the depth model's volume and decision, not a copy of them."""
+    h, w, d = 24, 64, 10
+    left, right = shifted_pair(4.3, h=h, w=w, seed=7, channels=3)
+    options = MatchOptions().with_options(**SHARED_ONLY, **shared)
+    res = match_rectified(left, right, d, options)
+    config = options.config
+    grey = config.cost.cost in ("census", "sad")  # MatchOptions.grey: the census and SAD compare channel means
+    ref, other = (left.mean(1, keepdim=True), right.mean(1, keepdim=True)) if grey else (left, right)
+    column = torch.arange(w) - torch.arange(d).view(-1, 1)
+    inside = (column >= 0).view(1, d, 1, w).expand(1, d, h, w)
+    volume = shift_cost(ref, other, column.clamp_min(0), inside, config.cost.cost, config.cost.window,
+                        config.cost.census_threshold)
+    decision = decide(volume, config, ref.shape[1], final=True, guide=left)
+    valid = decision.unique & inside.gather(1, decision.index)
+    assert torch.equal(res.disparity, decision.refined)
+    assert torch.equal(res.valid, valid)
+    assert torch.equal(res.confidence, torch.where(valid, decision.confidence, torch.zeros_like(decision.confidence)))
+    assert not res.filled.any()
+    assert (res.disparity[..., 4:-4, 14:-4] - 4.3).abs().median() < 0.3  # (no SAD fit: some pixel locking)
 
 
-def test_ad_gradient_volume_finds_a_shift_and_interpolates():
-    left, right = shifted_pair(3.0, h=20, w=60, seed=1, channels=3)
-    vol = ad_gradient_volume(left, right, -torch.arange(8.0))
-    assert vol.cost.shape == (1, 8, 20, 60) and float(vol.cost.min()) >= 0 and float(vol.cost.max()) <= 1
-    assert (vol.cost[..., 10:].argmin(1) == 3).float().mean() > 0.9
-    half = ad_gradient_volume(left, right, torch.tensor([-2.5, -3.0]))  # fractional offsets interpolate
-    assert half.valid.shape == (1, 2, 1, 60) and not half.valid[0, 0, 0, 2] and half.valid[0, 0, 0, 3]
-
-
-def test_ad_gradient_volume_errors():
-    a = torch.rand(1, 1, 4, 6)
-    with pytest.raises(ShapeError, match="must share B, C, H"):
-        ad_gradient_volume(a, torch.rand(1, 1, 5, 6), torch.tensor([0]))
-    with pytest.raises(ShapeError, match="offsets must have shape"):
-        ad_gradient_volume(a, a, torch.zeros(2, 2))
-    with pytest.raises(OptionError, match="ad_threshold and gradient_threshold must be > 0"):
-        ad_gradient_volume(a, a, torch.tensor([0]), 0.0)
-    with pytest.raises(OptionError, match=r"gradient_weight must be in \[0, 1\]"):
-        ad_gradient_volume(a, a, torch.tensor([0]), gradient_weight=1.5)
+def test_match_options_hold_the_shared_config_and_the_matchers_own_steps():
+    options = MatchOptions()
+    assert options.config == MATCH_CONFIG and isinstance(options.config, StereoConfig)
+    changed = options.with_options(cost="census", box=5, guided_radius=9, min_uniqueness=0.2, median=3, fill=False)
+    assert changed.config == MATCH_CONFIG.with_options(cost="census", box=5, guided_radius=9, min_uniqueness=0.2)
+    assert (changed.median, changed.fill, changed.lr_threshold) == (3, False, 1.0)
+    assert options.with_options(lr_threshold=None).lr_threshold is None  # the matcher's check, not the search's
+    assert options.with_options(lr_threshold=None).config == MATCH_CONFIG
+    # every shared option is an option of the config groups the depth model reads
+    assert set(SHARED_OPTIONS) <= set(StereoConfig().to_options())
+    with pytest.raises(OptionError, match="unknown matcher option.*'sampling'"):
+        options.with_options(sampling="sweep")  # the depth model's search: not the matcher's
+    with pytest.raises(OptionError, match="unknown matcher option.*'uniqueness_ratio'"):
+        options.with_options(uniqueness_ratio=0.9)
 
 
 def naive_guided_filter(p, guide, r, eps):
@@ -134,31 +149,40 @@ def test_defaults_fill_the_left_border_from_its_right():
 
 def test_every_aggregation_and_cost_runs():
     left, right = shifted_pair(4.0, h=32, w=80, seed=6, channels=3)
-    for opts in (MatchOptions(aggregation="box", box=5), MatchOptions(cost="census"),
-                 MatchOptions(cost="zncc", window=9), MatchOptions(weighted_median=0, lr_threshold=None),
-                 MatchOptions(fill=False), MatchOptions(guided_subsample=1, weighted_median_step=1)):
+    base = MatchOptions()
+    for opts in (base.with_options(aggregation="box", box=5), base.with_options(cost="census"),
+                 base.with_options(cost="zncc", window=9), base.with_options(weighted_median=0, lr_threshold=None),
+                 base.with_options(fill=False), base.with_options(guided_subsample=1, weighted_median_step=1),
+                 base.with_options(subpixel_cost=None, refinement="soft_argmin")):
         res = match_rectified(left.float(), right.float(), 8, opts)
         assert res.disparity.dtype == torch.float32 and res.disparity.shape == (1, 1, 32, 80)
         assert (res.disparity[..., 6:-6, 10:-6] - 4.0).abs().median() < 0.1
 
 
 def test_match_options_errors():
+    base = MatchOptions()
     with pytest.raises(OptionError, match="Unknown cost 'ssd'. Choose from: 'sad', 'zncc', 'census', 'ad_gradient'"):
-        MatchOptions(cost="ssd")
-    with pytest.raises(OptionError, match="Unknown aggregation 'mgm'. Choose from: 'box', 'sgm', 'guided'"):
-        MatchOptions(aggregation="mgm")
+        base.with_options(cost="ssd")
+    with pytest.raises(OptionError, match="Unknown aggregation 'mgm'. Choose from: 'sgm', 'box', 'guided'"):
+        base.with_options(aggregation="mgm")
     with pytest.raises(OptionError, match="Unknown subpixel_cost 'ssd'. Choose from: 'local', 'sad'"):
         MatchOptions(subpixel_cost="ssd")
     with pytest.raises(OptionError, match="guided_radius must be an int >= 1"):
-        MatchOptions(guided_radius=0)
+        base.with_options(guided_radius=0)
     with pytest.raises(OptionError, match="guided_subsample must be an int >= 1"):
-        MatchOptions(guided_subsample=1.5)
+        base.with_options(guided_subsample=1.5)
     with pytest.raises(OptionError, match="weighted_median must be an int >= 0"):
         MatchOptions(weighted_median=-1)
     with pytest.raises(OptionError, match="weighted_median_step must be an int >= 1"):
         MatchOptions(weighted_median_step=0)
-    for name in ("ad_threshold", "gradient_threshold", "guided_eps", "sigma_space", "sigma_colour"):
-        with pytest.raises(OptionError, match=f"{name} must be > 0"):
+    with pytest.raises(OptionError, match="guided_eps must be a finite number > 0"):
+        base.with_options(guided_eps=0.0)
+    for name in ("sigma_space", "sigma_colour"):
+        with pytest.raises(OptionError, match=f"{name} must be a finite number > 0"):
             MatchOptions(**{name: 0.0})
-    with pytest.raises(OptionError, match=r"gradient_weight must be in \[0, 1\]"):
-        MatchOptions(gradient_weight=-0.1)
+    with pytest.raises(OptionError, match="lr_threshold must be a finite number > 0 or None"):
+        MatchOptions(lr_threshold=0.0)
+    with pytest.raises(OptionError, match="config must be a StereoConfig"):
+        MatchOptions(config="dense")
+    with pytest.raises(OptionError, match="fill must be a bool"):
+        MatchOptions(fill=1)

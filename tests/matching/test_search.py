@@ -254,6 +254,38 @@ def test_guided_aggregation_carries_a_shift_through_a_flat_band_and_stops_at_edg
             assert not bool(unique_final.all())
 
 
+def test_decide_reads_the_guided_filter_and_edge_aware_p2_options():
+    """decide's aggregation is the aggregate module's under the config's options: the guided filter's radius, eps
+    and subsampling, SGM's edge-aware P2 (``p2_edge``), a colour guide; the defaults are the depth model's constant
+    P2 and the GUIDED_* constants."""
+    from prismstereo.config import AggregationConfig
+    from prismstereo.matching import box_filter, guided_filter, sgm_aggregate, sgm_aggregate_guided
+    from prismstereo.matching.aggregate import GUIDED_EPS, GUIDED_RADIUS, GUIDED_SUBSAMPLE
+
+    default = AggregationConfig()
+    assert default.p2_edge is None
+    assert (default.guided_radius, default.guided_eps, default.guided_subsample) == (GUIDED_RADIUS, GUIDED_EPS,
+                                                                                     GUIDED_SUBSAMPLE)
+    gen = torch.Generator().manual_seed(5)
+    volume = torch.rand(1, 6, 20, 24, generator=gen)
+    guide = torch.rand(1, 3, 20, 24, generator=gen)
+    guided = StereoConfig().with_options(aggregation="guided", box=3, guided_radius=4, guided_eps=1e-3,
+                                         guided_subsample=1)
+    total = decide(volume, guided, 1, final=True, guide=guide).total
+    assert torch.equal(total, guided_filter(box_filter(volume, 3), guide, 4, 1e-3, 1))
+    for p2_edge in (None, 0.05):
+        config = StereoConfig().with_options(directions=8, p1=0.1, p2=0.9, p2_edge=p2_edge)
+        total = decide(volume, config, 1, final=True, guide=guide).total
+        local = box_filter(volume, config.aggregation.box)
+        expected = (sgm_aggregate(local, 0.1, 0.9, 8) if p2_edge is None
+                    else sgm_aggregate_guided(local, guide, 0.1, 0.9, 0.05, 8))
+        assert torch.equal(total, expected)
+    with pytest.raises(OptionError, match="edge-aware P2 .p2_edge. needs a guide image"):
+        decide(volume, StereoConfig().with_options(p2_edge=0.05), 1, final=True)
+    with pytest.raises(OptionError, match="the guided filter needs a guide image"):
+        decide(volume, guided, 1, final=True)
+
+
 def guided_options(aggregation: str) -> StereoConfig:
     """The options of a per-pixel cost aggregated by ``aggregation``."""
     return StereoConfig().with_options(cost="ad_gradient", aggregation=aggregation, box=1)
