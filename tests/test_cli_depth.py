@@ -67,7 +67,8 @@ def test_png_round_trip_preview_and_ply(scene, tmp_path, capsys):
     ok = np.isfinite(depth)
     assert ok.mean() > 0.2 and np.abs(back[ok] - depth[ok]).max() <= 0.5 / scale + 1e-4
     preview = read_image(tmp_path / "near_preview.png")
-    assert preview.shape == (3, 96, 64) and (preview[:, torch.from_numpy(np.isnan(depth))] == 0).all()
+    hatched = preview[:, :, :64][:, torch.from_numpy(np.isnan(depth))]  # no depth: grey stripes
+    assert preview.shape[:2] == (3, 96) and preview.shape[2] > 64 and (hatched[0] == hatched[2]).all()  # + the bar
     from prismstereo.depth import read_ply
 
     cloud = read_ply(tmp_path / "near.ply")  # next to near.npy
