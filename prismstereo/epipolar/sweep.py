@@ -35,6 +35,7 @@ from typing import NamedTuple
 
 import torch
 
+from prismstereo._graph import tracing
 from prismstereo.errors import OptionError, RigError, check_shape
 from prismstereo.geometry.optics import pixel_directions, points_at_depth, trace_rays
 from prismstereo.geometry.projection import solve_projection
@@ -274,8 +275,22 @@ def sweep_coefficients(fit: SweepFit, uv_ref: torch.Tensor) -> torch.Tensor:
     a = fit.coefficients.to(uv_ref)
     tu = chebyshev_basis(_x(uv_ref[..., 0], fit.reference_width), a.shape[2])  # (*, N_u)
     tv = chebyshev_basis(_x(uv_ref[..., 1], fit.height), a.shape[1])  # (*, N_v)
+    pixels = tu[..., 0].numel()
+    if pixels > _BLOCK_PIXELS and not tracing() and not (torch.is_grad_enabled() and (a.requires_grad or
+                                                                                       uv_ref.requires_grad)):
+        # The intermediate (*, N_s, N_v, 2) of a full sensor is ~650 MB in float64; per block of pixels it stays in
+        # the cache (1024 x 768: 2.6 -> 0.8 s). Every pixel's sums are the same, bit for bit; with autograd or in
+        # an export the single einsum stays (gradients w.r.t. the coefficients would be summed block by block).
+        tu, tv = tu.reshape(pixels, -1), tv.reshape(pixels, -1)
+        blocks = [torch.einsum("...b,...abk->...ak", tv[i:i + _BLOCK_PIXELS],
+                               torch.einsum("...c,abck->...abk", tu[i:i + _BLOCK_PIXELS], a))
+                  for i in range(0, pixels, _BLOCK_PIXELS)]
+        return torch.cat(blocks).view(*uv_ref.shape[:-1], a.shape[0], 2)
     inner = torch.einsum("...c,abck->...abk", tu, a)
     return torch.einsum("...b,...abk->...ak", tv, inner)
+
+
+_BLOCK_PIXELS = 4096
 
 
 def evaluate_sweep(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
