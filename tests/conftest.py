@@ -80,7 +80,7 @@ XDIST_GROUPS = {
     "tests/baselines/test_zhang.py": "board_views",
     **{f"tests/calibration/test_fit.py::{name}": "calibrated" for name in (
         "test_result_report_and_plot", "test_outlier_view_is_flagged", "test_initial_poses_triangulate_the_boards",
-        "test_diverged_fit_is_an_error")},
+        "test_diverged_fit_is_an_error", "test_board_jacobian_matches_finite_differences")},
     "tests/depth/test_temporal.py": "temporal model and sequences",
     "tests/export/test_onnx.py": "exported graph and captures",
     "tests/test_cli_calibrate.py": "calibration bench",

@@ -7,7 +7,7 @@ import torch.nn.functional as F
 from prismstereo import OptionError, thesis_setup1
 from prismstereo.epipolar.series import series_at
 from prismstereo.model import PrismStereo
-from prismstereo.synthetic import ImageFormation, height_field_scene, render
+from prismstereo.synthetic import ImageFormation, ImageTexture, Plane, Scene, render
 from tests.conftest import scaled_rig
 
 FORM = ImageFormation(supersample=2, noise_sigma=2 / 255, seed=3)
@@ -26,8 +26,12 @@ def _weak_patch_scene(depth_mm: float = 560.0):
     contrast[:, 110:210] = 0.012
     shading = torch.linspace(-0.1, 0.1, w).expand(h, w)
     picture = (0.5 + shading + contrast * fine).clamp(0, 1)
-    width = depth_mm * 0.2
-    return height_field_scene(torch.full((h, w), depth_mm), picture, width, name="weak_patch"), (110, 210, w, width)
+    width, height = depth_mm * 0.2, depth_mm * 0.2 * h / w
+    # a bounded plane with the picture (surface coordinates from its corner, as a height field's): the same capture
+    # bit for bit as a flat height field (ground truth within 1e-12 mm), rendered without ray marching (4x faster)
+    plane = Plane((-width / 2, -height / 2, depth_mm), (0.0, 0.0, 1.0), ImageTexture(picture, width, height),
+                  u_axis=(1.0, 0.0, 0.0), bounds_mm=(0.0, width, 0.0, height))
+    return Scene([plane], name="weak_patch"), (110, 210, w, width)
 
 
 @pytest.fixture(scope="module")

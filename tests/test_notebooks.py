@@ -6,6 +6,8 @@ import nbformat
 import pytest
 from nbclient import NotebookClient
 
+import prismstereo
+
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
 
 
@@ -19,8 +21,15 @@ def test_notebooks_exist():
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_executes(path, monkeypatch):
-    monkeypatch.setenv("PRISMSTEREO_NOTEBOOK_QUICK", "1")  # notebooks that train run a reduced version
+    # the notebooks' reduced runs: smaller sensors, fewer views, frames, timing runs and training steps (the same
+    # calls on less data; a reader's run keeps the sizes its stored outputs show)
+    monkeypatch.setenv("PRISMSTEREO_NOTEBOOK_QUICK", "1")
     nb = nbformat.read(path, as_version=4)
+    # the kernel (it inherits this process' environment, PYTHONPATH included) imports the package under test, not
+    # another installed copy
+    package = str(Path(prismstereo.__file__).resolve().parent)
+    nb.cells.insert(0, nbformat.v4.new_code_cell(
+        f"import pathlib, prismstereo\nassert str(pathlib.Path(prismstereo.__file__).resolve().parent) == {package!r}"))
     # run from notebooks/ so relative paths (e.g. ../../shared/data) resolve as they do for a reader
     client = NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}})
     client.execute()

@@ -13,7 +13,9 @@ uniform-disparity hypothesis spacing), x(u) = 2 (u + 0.5) / W_ref - 1 and y(v) =
 reproduces it to machine precision from a few thousand exact projections. Measured over 228-1374 mm
 (37 x 29 pixels x 41 depths, none at the nodes): ``thesis_setup1`` 8 x 8 x 13 nodes 3.7e-11 px max;
 ``thesis_setup2`` 3.3e-6 px (12 x 12 x 13: 6.2e-7 px). The full exact grid of a 1024 x 768 sensor at 368 depths
-(:func:`~prismstereo.epipolar.grids.exact_sampling_grid`) needs ~145 million projections instead.
+(:func:`~prismstereo.epipolar.grids.exact_sampling_grid`) needs ~145 million projections instead. A fit of a
+:class:`~prismstereo.geometry.rig.BiPrismRig` is kept, so models built again for the same rig and range (every
+level, option set and export of it) copy it instead of fitting again.
 
 The interpolant continues analytically through depths where the real ray does not exist (the point left
 the right half's field of view): the projection uses the prism face's infinite plane. Whether a sample is
@@ -27,6 +29,8 @@ Everything is differentiable w.r.t. the rig parameters (pass
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from typing import NamedTuple
 
 import torch
@@ -35,6 +39,7 @@ from prismstereo.errors import OptionError, RigError, check_int, check_shape
 from prismstereo.geometry.optics import pixel_directions, points_at_depth, trace_rays
 from prismstereo.geometry.projection import solve_projection
 from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
+from prismstereo.runtime import tracing
 
 __all__ = [
     "SweepFit",
@@ -175,6 +180,48 @@ def fit_sweep(
         >>> fit.coefficients.shape, fit.max_error_px < 1e-3
         (torch.Size([13, 8, 8, 2]), True)
     """
+    key = _fit_key(rig, z_range_mm, nodes_uv, nodes_depth, tolerance_px, max_nodes)
+    if key is not None:
+        with _FITS_LOCK:
+            kept = _FITS.get(key)
+            if kept is not None:
+                _FITS.move_to_end(key)
+        if kept is not None:
+            return _copy_fit(kept)
+    fit = _fit_sweep(rig, z_range_mm, nodes_uv, nodes_depth, tolerance_px, max_nodes)
+    if key is not None:
+        with _FITS_LOCK:
+            _FITS[key] = _copy_fit(fit)
+            while len(_FITS) > _FITS_KEPT:
+                _FITS.popitem(last=False)
+    return fit
+
+
+# Fits of BiPrismRigs (float64, no autograd), the most recently used first out: each model level fits its rig's
+# sweep, and tests, notebooks and applications build several models of one rig and range (levels of a pyramid,
+# option sets, exports). A hit returns a copy, bitwise what fitting again gives (the fit is deterministic).
+_FITS: OrderedDict[tuple, SweepFit] = OrderedDict()
+_FITS_KEPT = 64
+_FITS_LOCK = threading.Lock()
+
+
+def _fit_key(rig, z_range_mm, nodes_uv, nodes_depth, tolerance_px, max_nodes) -> tuple | None:
+    """The cache key of a fit of a :class:`BiPrismRig` over a range of plain numbers, else None (not kept).
+    Floats enter by their exact hex form (0.0 and -0.0 differ)."""
+    numbers = (int, float)
+    if not isinstance(rig, BiPrismRig) or not isinstance(z_range_mm, (tuple, list)) or not all(
+            isinstance(v, numbers) and not isinstance(v, bool)
+            for v in (*z_range_mm, nodes_uv, nodes_depth, tolerance_px, max_nodes)):
+        return None
+    return (repr(rig), tuple(float(z).hex() for z in z_range_mm), nodes_uv, nodes_depth, float(tolerance_px).hex(),
+            max_nodes)
+
+
+def _copy_fit(fit: SweepFit) -> SweepFit:
+    return fit._replace(coefficients=fit.coefficients.clone(), z_range=fit.z_range.clone())
+
+
+def _fit_sweep(rig, z_range_mm, nodes_uv, nodes_depth, tolerance_px, max_nodes) -> SweepFit:
     p = as_parameters(rig, torch.zeros((), dtype=torch.float64)) if isinstance(rig, BiPrismRig) else rig
     like = p.f
     z = torch.as_tensor(z_range_mm, dtype=like.dtype, device=like.device)
@@ -232,8 +279,22 @@ def sweep_coefficients(fit: SweepFit, uv_ref: torch.Tensor) -> torch.Tensor:
     a = fit.coefficients.to(uv_ref)
     tu = chebyshev_basis(_x(uv_ref[..., 0], fit.reference_width), a.shape[2])  # (*, N_u)
     tv = chebyshev_basis(_x(uv_ref[..., 1], fit.height), a.shape[1])  # (*, N_v)
+    pixels = tu[..., 0].numel()
+    if pixels > _BLOCK_PIXELS and not tracing() and not (torch.is_grad_enabled() and (a.requires_grad or
+                                                                                       uv_ref.requires_grad)):
+        # The intermediate (*, N_s, N_v, 2) of a full sensor is hundreds of MB in float64; per block of pixels it
+        # stays in the cache. Every pixel's sums are the same, bit for bit; with autograd or in an export the single
+        # einsum stays (gradients w.r.t. the coefficients would be summed block by block).
+        tu, tv = tu.reshape(pixels, -1), tv.reshape(pixels, -1)
+        blocks = [torch.einsum("...b,...abk->...ak", tv[i:i + _BLOCK_PIXELS],
+                               torch.einsum("...c,abck->...abk", tu[i:i + _BLOCK_PIXELS], a))
+                  for i in range(0, pixels, _BLOCK_PIXELS)]
+        return torch.cat(blocks).view(*uv_ref.shape[:-1], a.shape[0], 2)
     inner = torch.einsum("...c,abck->...abk", tu, a)
     return torch.einsum("...b,...abk->...ak", tv, inner)
+
+
+_BLOCK_PIXELS = 4096
 
 
 def evaluate_sweep(coefficients: torch.Tensor, s: torch.Tensor) -> torch.Tensor:

@@ -68,10 +68,9 @@ def test_parameter_vector_round_trip():
         tolerance_vector(rig, {"focal": 1.0})
 
 
-def test_board_jacobian_matches_finite_differences():
-    rig = NOMINAL.replace(distortion=(-0.05, 0.0, 0.0, 0.0, 0.0))
-    cap = board_captures(rig, 3, seed=5)
-    obs = gather_observations([detect_board(im, rig, BOARD) for im in cap.image], BOARD)
+def test_board_jacobian_matches_finite_differences(calibrated):
+    rig, detections, _ = calibrated  # 3 of its views, seen through the distorting, misaligned rig that took them
+    obs = gather_observations(detections[:3], BOARD)
     problem = BoardProblem(rig, obs, ["focal_length_mm", "k1", "alpha_deg", "roll_deg"], sigma_px=1.0)
     x = problem.x0.clone()
     j = problem.jacobian(x)
@@ -117,14 +116,23 @@ def test_single_perturbed_parameter_is_recovered(name):
 
 @pytest.fixture(scope="module")
 def calibrated():
+    """The true rig, the clean detections of its 9 views, and one calibration (p1 and p2 fixed, k2's tolerance
+    given) of those views with view 3's left corners moved by a ramp of up to 1.5 px: an outlier view. The report,
+    the plot and the outlier flag are checked on this one fit (instead of a clean fit and a second one with the
+    outlier); the clean detections serve the tests of the initial poses, the Jacobian and a diverged fit."""
     true = NOMINAL.replace(prism_tilt_deg=(0.2, -0.3, 0.2), prism_offset_x_mm=0.3, alpha_deg=6.45,
                            distortion=(-0.06, 0.0, 0.0, 0.0, 0.0))
     cap = board_captures(true, 9, seed=4)
-    return true, cap, calibrate_board(NOMINAL, list(cap.image), BOARD, fix=["p1", "p2"], tolerances={"k2": 0.05})
+    dets = [detect_board(im, NOMINAL, BOARD) for im in cap.image]
+    bad = list(dets)
+    left = bad[3].left
+    bad[3] = bad[3]._replace(left=left._replace(uv=left.uv + torch.tensor([1.5, -1.0], dtype=F64) *
+                                                 torch.linspace(-1, 1, left.uv.shape[0], dtype=F64)[:, None]))
+    return true, dets, calibrate_board(NOMINAL, bad, BOARD, fix=["p1", "p2"], tolerances={"k2": 0.05})
 
 
 def test_result_report_and_plot(calibrated, tmp_path):
-    true, cap, result = calibrated
+    true, dets, result = calibrated
     assert "p1" not in result.free and "k2" in result.free
     assert result.view_rms_px.shape == (9, 2) and result.poses.shape == (9, 6)
     assert result.residuals.shape == result.observations.uv.shape
@@ -137,20 +145,15 @@ def test_result_report_and_plot(calibrated, tmp_path):
 
 
 def test_outlier_view_is_flagged(calibrated):
-    true, cap, result = calibrated
-    dets = [detect_board(im, NOMINAL, BOARD) for im in cap.image]
-    left = dets[3].left
-    dets[3] = dets[3]._replace(left=left._replace(uv=left.uv + torch.tensor([1.5, -1.0], dtype=F64) *
-                                                   torch.linspace(-1, 1, left.uv.shape[0], dtype=F64)[:, None]))
-    bad = calibrate_board(NOMINAL, dets, BOARD, fix=["p1", "p2"])
-    assert bad.outlier_views == (3,)
-    assert "warning: view 3 has an outlier" in format_report(bad)
+    true, dets, result = calibrated  # view 3's left corners are moved by up to 1.5 px
+    assert result.outlier_views == (3,)
+    assert "warning: view 3 has an outlier" in format_report(result)
 
 
 def test_initial_poses_triangulate_the_boards(calibrated):
     """Poses from corners triangulated with the true rig put the board's centre where the scene has it."""
-    true, cap, result = calibrated
-    obs = result.observations
+    true, dets, result = calibrated
+    obs = gather_observations(dets, BOARD)
     poses = initial_poses(true, obs)
     rot = kornia.geometry.conversions.axis_angle_to_rotation_matrix(poses[:, :3])
     centre = BOARD.points().mean(0)  # the inner corners' centroid is the board's centre
@@ -175,8 +178,7 @@ def test_calibration_errors():
 
 def test_diverged_fit_is_an_error(calibrated):
     """A wrong nominal rig (setup 1's prism called 4.4 deg) cannot explain the corners: a clear error."""
-    true, cap, result = calibrated
-    dets = [detect_board(im, NOMINAL, BOARD) for im in cap.image]
+    true, dets, result = calibrated
     wrong = NOMINAL.replace(alpha_deg=4.4)
     with pytest.raises(CalibrationError, match="diverged|do not triangulate"):
         calibrate_board(wrong, dets, BOARD, max_iterations=3, max_rms_px=0.5)

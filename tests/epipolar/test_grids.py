@@ -91,7 +91,9 @@ def test_shift_bands_structure(make, bands):
 def test_fast_form_within_0_05_px_over_the_working_range(make):
     rig = scaled_rig(make(), scale=4)
     depths = depth_hypotheses(228.0, 1374.0, 48)  # ~1 px apart at this resolution
-    rows = torch.arange(0.0, rig.image_height, 6.0)  # every 6th row keeps the test fast
+    # every 12th row (16 rows, top to bottom) keeps the test fast: the residual varies smoothly over the rows,
+    # its maximum over them is that of every 6th row within 2e-5 px for both setups
+    rows = torch.arange(0.0, rig.image_height, 12.0)
     sb, res = bands_for_tolerance(rig, depths, tolerance_px=0.05, rows=rows)
     assert res.max_px < 0.05
     # and the residual shrinks as bands are added (more bands, less residual)

@@ -71,6 +71,34 @@ def test_coefficients_and_evaluation_shapes_float32():
     assert evaluate_sweep(c, s).shape == (4, 5, 2)
 
 
+def test_a_rigs_fit_is_kept_and_copied_bitwise():
+    """A BiPrismRig's fit is computed once per rig and range: again it is a copy, bit for bit the fit of the rig's
+    tensors (never kept), and changing one copy changes no later fit."""
+    rig = scaled_rig(thesis_setup1(), 8).replace(prism_tilt_deg=(0.1, 0.0, 0.2))
+    first = fit_sweep(rig, (310.0, 1190.0))
+    again = fit_sweep(rig, [310, 1190.0])
+    fresh = fit_sweep(rig.parameters(torch.zeros((), dtype=torch.float64)), (310.0, 1190.0))
+    for fit in (again, fresh):
+        assert torch.equal(fit.coefficients.view(torch.int64), first.coefficients.view(torch.int64))
+        assert fit.max_error_px == first.max_error_px and torch.equal(fit.z_range, first.z_range)
+    assert again.coefficients.data_ptr() != first.coefficients.data_ptr()
+    first.coefficients.zero_()
+    assert torch.equal(fit_sweep(rig, (310.0, 1190.0)).coefficients, again.coefficients)
+
+
+def test_coefficients_of_many_pixels_are_blocked_bit_for_bit():
+    """Without autograd, many pixels are evaluated in blocks (memory-bound otherwise): the same floats as the one
+    einsum that autograd keeps."""
+    rig = scaled_rig(thesis_setup1(), 8)
+    fit = fit_sweep(rig, (300.0, 1200.0))
+    uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1).double()
+    uv = torch.cat([uv, uv + 0.37])  # 12288 pixels: 3 blocks
+    blocked = sweep_coefficients(fit, uv)
+    whole = sweep_coefficients(fit, uv.clone().requires_grad_(True))
+    assert blocked.shape == whole.shape == (192, 64, fit.coefficients.shape[0], 2) and whole.requires_grad
+    assert torch.equal(blocked.view(torch.int64), whole.detach().view(torch.int64))
+
+
 def test_fit_is_differentiable_wrt_rig_parameters():
     rig = scaled_rig(thesis_setup1(), 16)
     p = rig.parameters(torch.zeros((), dtype=torch.float64))
