@@ -2,7 +2,12 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-PIP := $(PY) -m pip install --quiet --constraint constraints.txt
+# --no-compile: byte-compiling every module of every wheel (torch's thousands) at install time costs more than the
+# few a run imports; those are compiled when first imported instead (see PYC below)
+PIP := $(PY) -m pip install --quiet --no-compile --constraint constraints.txt
+# the test run may cache that bytecode even where the environment sets PYTHONDONTWRITEBYTECODE: the workers, the
+# notebook kernels and the CLI subprocesses then compile torch's imported modules once, not once each
+PYC := env -u PYTHONDONTWRITEBYTECODE
 STAMP := $(VENV)/.installed
 
 .PHONY: demo test lint bench clean
@@ -20,7 +25,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check prismstereo tests benchmarks export
-	$(PY) -m pytest -q
+	$(PYC) $(PY) -m pytest -q
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check prismstereo tests benchmarks export
