@@ -1,9 +1,10 @@
 """The ``prismstereo depth`` and ``prismstereo export`` subcommands: depth maps (and point clouds) of bi-prism
 captures, and the ONNX export of the same depth model.
 
-Parses nothing itself beyond its own arguments and only calls the library: reading and size-checking the
-images, building :class:`~prismstereo.model.PrismStereo` once, running it in batches on the chosen backend
-and writing .npy / 16-bit .png (+ preview) / .ply outputs without ever overwriting an input.
+Parses nothing itself beyond its own arguments and only calls the library: the model from the flags
+(:class:`~prismstereo.model.PrismStereo` or the learned one, built once), the job's outputs and their checks
+(:func:`prismstereo.jobs.plan`) and the pipelined run over captures, sequences and videos
+(:func:`prismstereo.jobs.run`).
 """
 
 from __future__ import annotations
@@ -14,86 +15,16 @@ import re
 import sys
 import time
 from pathlib import Path
-from typing import NamedTuple
 
-import numpy as np
 import torch
 
 from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.presets import load_rig
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.io import DEPTH_SUFFIXES
+from prismstereo.io import DEPTH_FILE_FORMATS
+from prismstereo.jobs import BACKENDS
 
 __all__ = ["add_depth_parser", "add_export_parser"]
-
-DEPTH_FORMATS = ("npy", "png", "tiff")
-BACKENDS = ("torch", "onnx")
-
-
-class _DepthTarget(NamedTuple):
-    """Where one image's results go: the depth file, its preview and scale sidecar (png format), its point cloud
-    (--ply) and its confidence (--dense)."""
-
-    depth: Path
-    preview: Path | None
-    ply: Path | None
-    confidence: Path | None = None
-    sidecar: Path | None = None
-
-
-def _target(folder: Path, stem: str, path: Path, ply: bool, dense: bool) -> _DepthTarget:
-    """The outputs of one image or frame: ``path`` and its companions ``folder/<stem>_...``."""
-    png = path.suffix.lower() == ".png"
-    return _DepthTarget(path, folder / f"{stem}_preview.png" if png else None,
-                        folder / f"{stem}.ply" if ply else None, folder / f"{stem}_confidence.npy" if dense else None,
-                        path.with_suffix(".json") if png else None)
-
-
-def _depth_targets(images: list[Path], out: Path, fmt: str | None, ply: bool,
-                   dense: bool = False) -> list[_DepthTarget]:
-    """Output paths of ``prismstereo depth`` (OUT a .npy/.png/.tiff file for one image, else a directory),
-    checked so that no two outputs collide and no output overwrites an input image."""
-    suffix = out.suffix.lower()
-    if suffix in DEPTH_SUFFIXES and not out.is_dir():
-        if len(images) > 1:
-            raise PrismStereoError(f"{len(images)} images: --out must be a directory, got {out}")
-        if fmt is not None and fmt != DEPTH_SUFFIXES[suffix]:
-            raise PrismStereoError(f"--format {fmt} contradicts --out {out}")
-        fmt, stems = DEPTH_SUFFIXES[suffix], [(out.parent, out.stem, out)]
-    else:
-        if out.exists() and not out.is_dir():
-            raise PrismStereoError(f"--out {out} exists and is not a directory")
-        if suffix and not out.is_dir():
-            raise PrismStereoError(f"--out must end in .npy, .png or .tiff (one image) or be a directory, got {out}")
-        fmt = fmt or "npy"
-        stems = [(out, image.stem, out / f"{image.stem}.{fmt}") for image in images]
-    targets = [_target(folder, stem, path, ply, dense) for folder, stem, path in stems]
-    inputs = {image.resolve(): image for image in images}
-    written: dict[Path, Path] = {}
-    for image, target in zip(images, targets, strict=True):
-        for path in target:
-            if path is None:
-                continue
-            if path.resolve() in inputs:
-                raise PrismStereoError(f"--out would overwrite the input image {inputs[path.resolve()]}")
-            if path.resolve() in written:
-                raise PrismStereoError(f"{written[path.resolve()]} and {image} would both write {path}")
-            written[path.resolve()] = image
-    return targets
-
-
-def _run_backend(name: str, model, batch: torch.Tensor):
-    """Depth of a (B, C, H, W) batch by backend ``name``: ``torch`` runs the model, ``onnx`` its exported graph
-    in onnxruntime (exported once per rig and options into the cache, :func:`prismstereo.export.onnx_session`).
-    Returns an object with ``depth`` and ``valid`` (B, 1, H, W_ref)."""
-    if name == "torch":
-        with torch.inference_mode():
-            return model(batch)
-    if name == "onnx":
-        from prismstereo.export import onnx_session
-
-        return onnx_session(model, channels=batch.shape[1])(batch)
-    raise PrismStereoError(f"unknown backend {name!r}. Choose from: {', '.join(BACKENDS)}")
 
 
 # the config options that have a flag of their own: errors about them name the flag
@@ -177,50 +108,6 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig):
     return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
 
 
-def _read_capture(path: Path, rig: BiPrismRig) -> torch.Tensor:
-    """A full sensor image (C, H, W) in [0, 1], checked against the rig's sensor size."""
-    from prismstereo.io import read_image
-
-    image = read_image(path)
-    h, w = image.shape[-2:]
-    if (w, h) != (rig.image_width, rig.image_height):
-        raise PrismStereoError(f"image {path} is {w}x{h} px but the rig's sensor is "
-                               f"{rig.image_width}x{rig.image_height} px")
-    return image
-
-
-def _write_depth(target: _DepthTarget, depth: torch.Tensor, valid: torch.Tensor, png_scale: float | None) -> str:
-    """Write one depth map (H, W_ref) to its target; returns a note for the summary line."""
-    from prismstereo.io import write_depth, write_depth_preview
-
-    written = write_depth(target.depth, depth, valid, png_scale=png_scale)
-    if written.format != "png":
-        return ""
-    write_depth_preview(target.preview, depth, valid)
-    note = f", preview {target.preview.name}, {written.scale:g} levels/mm (stored in the PNG and {target.sidecar.name})"
-    if written.clipped:
-        note += (f"; warning: {written.clipped} pixels deeper than {65535 / written.scale:.3f} mm clipped to 65535"
-                 " (see --png-scale)")
-    return note
-
-
-def _write_outputs(target: _DepthTarget, depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor,
-                   png_scale: float | None, points: torch.Tensor | None, colors: torch.Tensor,
-                   pose: torch.Tensor | None) -> str:
-    """Write one result's depth (:func:`_write_depth`), confidence (--dense) and point cloud (--ply: ``points``
-    (3, H, W_ref)); returns the note for the summary line."""
-    from prismstereo.depth import write_ply
-
-    note = _write_depth(target, depth, valid, png_scale)
-    if target.confidence is not None:
-        np.save(target.confidence, confidence.numpy().astype(np.float32))
-        note += f", confidence {target.confidence.name}"
-    if target.ply is not None and points is not None:
-        count = write_ply(target.ply, points, colors=colors, confidence=confidence, camera_to_world=pose)
-        note += f", {target.ply.name} ({count} points)"
-    return note
-
-
 def _camera_to_world(path: str) -> torch.Tensor:
     """A (4, 4) rigid camera-to-world transform from a JSON file: a 4 x 4 list, or {"camera_to_world": ...}."""
     import json
@@ -247,150 +134,50 @@ def _camera_to_world(path: str) -> torch.Tensor:
 
 
 def _cmd_depth(args: argparse.Namespace) -> int:
-    import kornia
-    from tqdm import tqdm
-
-    from prismstereo.depth import depth_to_points
+    from prismstereo.jobs import Runner, Selection, WriteOptions, plan, run
 
     rig = load_rig(args.rig)
     _requested_config(args)  # --preset / --config: fails early, and sets args.dense for the outputs
     if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
         raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
+    for flag, value in (("--batch-size", args.batch_size), ("--workers", args.workers)):
+        if value < 1:
+            raise PrismStereoError(f"{flag} must be >= 1, got {value}")
     pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
     if pose is not None and not args.ply:
         raise PrismStereoError("--camera-to-world transforms the --ply point clouds: add --ply")
-    from prismstereo.video import is_sequence_source
-
-    if len(args.images) == 1 and is_sequence_source(args.images[0]):
-        return _cmd_depth_sequence(args, rig, pose)
-    if args.preview_video or args.every != 1 or args.start != 0 or args.stop is not None:
-        raise PrismStereoError("--every, --start, --stop and --preview-video need a video, a directory or a glob "
-                               "of images")
-    images = [Path(p) for p in args.images]
-    targets = _depth_targets(images, Path(args.out), args.format, args.ply, args.dense)
-    if args.batch_size < 1:
-        raise PrismStereoError(f"--batch-size must be >= 1, got {args.batch_size}")
-    for image in images:  # fail early, before any work or output, on an unreadable or wrong-sized image
-        _read_capture(image, rig)
+    options = WriteOptions(args.format, args.ply, args.dense, args.png_scale, pose,
+                           Path(args.preview_video) if args.preview_video else None, args.preview_fps)
+    tasks = plan(args.images, Path(args.out), options, Selection(args.every, args.start, args.stop),
+                 skip_existing=args.skip_existing)
+    runnable = [t for t in tasks if t.error is None and t.first < len(t.outputs)]
+    if len(tasks) == 1 and tasks[0].error is not None:
+        raise PrismStereoError(tasks[0].error)  # one input: its error is the command's
     model, summary = _build_model(args, rig)
-    print(f"{summary}, backend {args.backend}")
-    w_ref = rig.reference_width
-    with tqdm(total=len(images), unit="image", file=sys.stderr, desc="depth") as bar:
-        for start in range(0, len(images), args.batch_size):
-            chunk = list(range(start, min(start + args.batch_size, len(images))))
-            captures = [_read_capture(images[i], rig) for i in chunk]
-            grey = torch.stack([c if c.shape[0] == 1 else kornia.color.rgb_to_grayscale(c) for c in captures])
-            res = _run_backend(args.backend, model, grey)
-            written = (res.confidence > 0) if args.dense else res.valid  # dense: every pixel with a depth
-            if args.ply:
-                with torch.inference_mode():
-                    points = depth_to_points(rig, res.depth.to(torch.float64), written)
-            for k, i in enumerate(chunk):
-                depth, valid = res.depth[k, 0], written[k, 0]
-                note = _write_outputs(targets[i], depth, valid, res.confidence[k, 0], args.png_scale,
-                                      points[k] if args.ply else None, captures[k][:, :, :w_ref], pose)
-                ok = valid & torch.isfinite(depth)
-                median = f"median {float(depth[ok].median()):.1f} mm" if bool(ok.any()) else "no valid depth"
-                kind = "with a depth (dense)" if args.dense else "valid"
-                tqdm.write(f"wrote {targets[i].depth}: {ok.float().mean():.1%} of reference pixels {kind}, "
-                           f"{median}{note}", file=sys.stdout)
-                bar.update(1)
-    return 0
-
-
-def _cmd_depth_sequence(args: argparse.Namespace, rig: BiPrismRig, pose: torch.Tensor | None) -> int:
-    """``prismstereo depth`` on a video, a directory or a glob: one depth file per selected frame,
-    ``OUT/<stem>_000000.<format>`` numbered from 0 in frame order, through a :class:`~prismstereo.stream.DepthStream`
-    of the chosen backend, and optionally a colour-mapped depth video."""
-    import cv2
-    from tqdm import tqdm
-
-    from prismstereo.depth import depth_to_points
-    from prismstereo.io import depth_preview
-    from prismstereo.stream import DepthStream
-    from prismstereo.video import (
-        check_selection,
-        is_video_file,
-        read_frames,
-        sequence_files,
-        sequence_length,
-        sequence_name,
-    )
-
-    source, out = args.images[0], Path(args.out)
-    if out.suffix.lower() in DEPTH_SUFFIXES or (out.exists() and not out.is_dir()):
-        raise PrismStereoError(f"a video or sequence writes one file per frame: --out must be a directory, got {out}")
-    fmt = args.format or "npy"
-    check_selection(args.every, args.start, args.stop)
-    total = sequence_length(source)  # fails early on a missing or unreadable source
-    stop = total if args.stop is None else min(args.stop, total)
-    count = max(0, -(-(stop - args.start) // args.every))
-    if count == 0:
-        raise PrismStereoError(f"--start {args.start} selects no frame: {source} has {total} frames")
-    inputs = set()
-    if not is_video_file(source):
-        inputs = {p.resolve() for p in sequence_files(source)}
-    stem = sequence_name(source)
-    model, summary = _build_model(args, rig)
-    from prismstereo.depth.temporal import TemporalOptions, supports_temporal, temporal_downsample
-
     temporal = None
-    if args.temporal and supports_temporal(model):
-        temporal = TemporalOptions()
-        k = temporal_downsample(model, temporal)
-        binned = f" on the {k}x{k}-binned frame" if k > 1 else ""
-        summary += (f", temporal prior (a band +-{temporal.band}{binned} around the previous depth between key "
-                    "frames)")
-    elif args.temporal:
-        summary += ", every frame on its own (this model has no full-resolution band for the temporal prior)"
-    if args.backend == "onnx":
-        from prismstereo.export import onnx_session
+    if any(t.sequence for t in runnable):
+        from prismstereo.depth.temporal import TemporalOptions, supports_temporal, temporal_downsample
 
-        tracker = None if temporal is None else onnx_session(model, channels=1, temporal=temporal)
-        stream = DepthStream(onnx_session(model, channels=1), temporal_graph=tracker)
-    else:
-        stream = DepthStream(model, temporal=temporal or False)
-    print(f"{summary}, backend {args.backend}, {count} of {total} frames of {source}")
-    writer = None
-    try:
-        with tqdm(total=count, unit="frame", file=sys.stderr, desc="depth") as bar:
-            for k, frame in enumerate(read_frames(source, every=args.every, start=args.start, stop=args.stop)):
-                name = f"{stem}_{k:06d}"
-                path = out / f"{name}.{fmt}"
-                target = _target(out, name, path, args.ply, args.dense)
-                if any(p is not None and p.resolve() in inputs for p in target):
-                    raise PrismStereoError(f"{path} would overwrite an input frame")
-                res = stream.push(frame.image)
-                written = (res.confidence > 0) if args.dense else res.valid
-                depth, valid = res.depth[0, 0], written[0, 0]
-                out.mkdir(parents=True, exist_ok=True)
-                points = None
-                if args.ply:
-                    with torch.inference_mode():
-                        points = depth_to_points(rig, res.depth.to(torch.float64), written)[0]
-                _write_outputs(target, depth, valid, res.confidence[0, 0], args.png_scale, points,
-                               frame.image[:, :, : rig.reference_width], pose)
-                if args.preview_video:
-                    picture = depth_preview(depth, valid, limits_mm=tuple(model.z_range))
-                    if writer is None:
-                        Path(args.preview_video).parent.mkdir(parents=True, exist_ok=True)
-                        writer = cv2.VideoWriter(str(args.preview_video), cv2.VideoWriter_fourcc(*"mp4v"),
-                                                 args.preview_fps, (picture.shape[1], picture.shape[0]))
-                        if not writer.isOpened():
-                            raise PrismStereoError(f"OpenCV cannot write the video {args.preview_video}")
-                    writer.write(picture)
-                bar.set_postfix(ms=f"{res.milliseconds:.0f}")
-                bar.update(1)
-    finally:
-        if writer is not None:
-            writer.release()
-    times = sorted(stream.times_ms)
-    median = times[len(times) // 2] if times else float("nan")
-    keys = f", {stream.keyframes} key frames" if stream.temporal is not None else ""
-    print(f"wrote {stream.frames} depth files {stem}_000000.{fmt} ... to {out}: {median:.1f} ms per frame "
-          f"(median of the depth computation), {stream.frames_per_second():.1f} frames/s{keys}"
-          + (f"; preview video {args.preview_video}" if args.preview_video else ""))
-    return 0
+        if args.temporal and supports_temporal(model):
+            temporal = TemporalOptions()
+            k = temporal_downsample(model, temporal)
+            binned = f" on the {k}x{k}-binned frame" if k > 1 else ""
+            summary += (f", temporal prior on sequences (a band +-{temporal.band}{binned} around the previous depth "
+                        "between key frames)")
+        elif args.temporal:
+            summary += ", every frame on its own (this model has no full-resolution band for the temporal prior)"
+    outputs = sum(len(t.outputs) - t.first for t in runnable)
+    workers = f", {args.workers} worker processes" if args.workers > 1 else ""
+    print(f"{summary}, backend {args.backend}{workers}; {outputs} depth maps to write from {len(runnable)} of "
+          f"{len(tasks)} inputs")
+    runner = Runner(model, backend=args.backend, options=options, temporal=temporal)
+    result = run(tasks, runner, workers=args.workers, batch_size=args.batch_size)
+    print(result.describe())
+    if len(tasks) == 1 and result.failed:
+        raise PrismStereoError(result.failed[0].error)
+    for failure in result.failed:
+        print(f"prismstereo: failed: {failure.source}: {failure.error}", file=sys.stderr)
+    return 1 if result.failed else 0
 
 
 def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
@@ -447,7 +234,14 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
     _add_resolution_arguments(depth)
     depth.add_argument("--backend", choices=BACKENDS, default="torch", help="inference backend")
     depth.add_argument("--batch-size", type=int, default=1, metavar="B", help="images processed together")
-    depth.add_argument("--format", choices=DEPTH_FORMATS, default=None,
+    depth.add_argument("--workers", type=int, default=1, metavar="N",
+                       help="spread the inputs (batches of images, whole videos or sequences) over N processes, each "
+                            "with its share of the cores (default 1: this process, reading and writing on threads "
+                            "beside the model)")
+    depth.add_argument("--skip-existing", action="store_true",
+                       help="resume a job: skip the images whose outputs exist, and continue each video or sequence "
+                            "at its first missing frame (a key frame)")
+    depth.add_argument("--format", choices=DEPTH_FILE_FORMATS, default=None,
                        help="output format when --out is a directory (default npy)")
     depth.add_argument("--png-scale", type=float, default=None, metavar="S",
                        help="16-bit PNG levels per mm (default: 256, the endoscopy convention, where every depth "

@@ -12,7 +12,10 @@ offered: this OpenCV build has no EXR writer. A colour-mapped preview shows a de
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+from collections.abc import Iterator
 from pathlib import Path
 from typing import NamedTuple
 
@@ -39,6 +42,7 @@ __all__ = [
     "depth_png_scale",
     "write_depth",
     "read_depth",
+    "replacing",
 ]
 
 DEPTH_FILE_FORMATS: tuple[str, ...] = ("npy", "png", "tiff")
@@ -143,10 +147,36 @@ def _depth_array(depth: torch.Tensor, valid: torch.Tensor | None) -> np.ndarray:
     return d
 
 
-def _imwrite(path: Path, data: np.ndarray) -> None:
+@contextlib.contextmanager
+def replacing(path: str | Path) -> Iterator[Path]:
+    """A temporary name beside ``path`` (same suffix, so that writers choosing a format by suffix still do) that is
+    renamed to ``path`` when the block ends without an exception, and removed when it raises: a reader, or a job
+    stopped half-way, sees the old file or the whole new one, never part of one (``os.replace`` is atomic within a
+    file system). Creates the parent directory.
+
+    Example:
+        >>> with replacing("out/depth.npy") as partial:  # doctest: +SKIP
+        ...     np.save(partial, np.zeros((2, 2)))
+    """
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), data):
-        raise ImageIOError(f"cannot write image: {path}")
+    partial = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+    try:
+        yield partial
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
+
+
+def _imwrite(path: Path, data: np.ndarray) -> None:
+    try:
+        with replacing(path) as partial:
+            if not cv2.imwrite(str(partial), data):
+                raise ImageIOError(f"cannot write image: {path}")
+    except OSError as exc:
+        if isinstance(exc, ImageIOError):
+            raise
+        raise ImageIOError(f"cannot write image {path}: {exc}") from exc
 
 
 def write_depth_npy(path: str | Path, depth: torch.Tensor, valid: torch.Tensor | None = None) -> None:
@@ -161,8 +191,8 @@ def write_depth_npy(path: str | Path, depth: torch.Tensor, valid: torch.Tensor |
     data = _depth_array(depth, valid).astype(np.float32)
     path = Path(path)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        np.save(path, data)
+        with replacing(path) as partial:
+            np.save(partial, data)
     except OSError as exc:
         raise ImageIOError(f"cannot write depth map {path}: {exc}") from exc
 
@@ -430,10 +460,11 @@ def write_depth(
     info = PngImagePlugin.PngInfo()
     info.add_text(SCALE_KEY, repr(scale))
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(levels).save(path, pnginfo=info)
         sidecar = path.with_suffix(".json")
-        sidecar.write_text(json.dumps({"depth_scale": scale, "units": "mm", "invalid": 0}) + "\n")
+        with replacing(sidecar) as partial:
+            partial.write_text(json.dumps({"depth_scale": scale, "units": "mm", "invalid": 0}) + "\n")
+        with replacing(path) as partial:
+            Image.fromarray(levels).save(partial, format="PNG", pnginfo=info)
     except OSError as exc:
         raise ImageIOError(f"cannot write depth map {path}: {exc}") from exc
     return DepthFile(path, fmt, scale, sidecar, clipped)

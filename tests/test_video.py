@@ -201,7 +201,7 @@ def test_depth_cli_on_a_video_writes_numbered_frames(clip, tmp_path, capsys, bac
                   "--every", 2, "--backend", backend, "--preview-video", tmp_path / "preview.mp4",
                   "--format", "tiff") == 0
     text = capsys.readouterr().out
-    assert "3 of 5 frames" in text and "frames/s" in text
+    assert "3 depth maps to write from 1 of 1 inputs" in text and "frames/s" in text
     names = sorted(p.name for p in out.iterdir())
     assert names == ["clip_000000.tiff", "clip_000001.tiff", "clip_000002.tiff"]
     for k, z in enumerate(DEPTHS[::2]):
@@ -261,4 +261,4 @@ def test_depth_cli_on_a_directory_and_its_errors(clip, tmp_path, capsys):
     (tmp_path / "clash").mkdir()
     write_image(tmp_path / "clash" / "clash_000000.png", torch.rand(1, 96, 128))
     code = _depth(tmp_path / "clash", "--rig", clip / "small.json", "--out", tmp_path / "clash", "--format", "png")
-    assert code == 2 and "would overwrite an input frame" in capsys.readouterr().err
+    assert code == 2 and "would overwrite the input frame" in capsys.readouterr().err

@@ -23,6 +23,7 @@ import torch
 from prismstereo.errors import PrismStereoError, ShapeError, check_floating, check_shape
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.io import replacing
 
 __all__ = ["PointCloud", "PointCloudError", "depth_to_points", "write_ply", "read_ply"]
 
@@ -206,8 +207,7 @@ def write_ply(
               f"element vertex {rows.shape[0]}\n{props}end_header\n")
     path = Path(path)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "wb") as fh:
+        with replacing(path) as partial, open(partial, "wb") as fh:
             fh.write(header.encode("ascii"))
             fh.write(rows.tobytes())
     except OSError as exc:

@@ -36,6 +36,7 @@ import torch
 from torch import nn
 
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_option
+from prismstereo.io import replacing
 
 if TYPE_CHECKING:
     from prismstereo.depth.result import DepthResult
@@ -393,10 +394,8 @@ def export_cached(model: nn.Module, path: Path, *, channels: int = 1, opset: int
         True
     """
     if not path.is_file():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_suffix(f".{os.getpid()}.tmp")
-        export_onnx(model, partial, channels=channels, opset=opset, temporal=temporal)
-        partial.replace(path)
+        with replacing(path) as partial:
+            export_onnx(model, partial, channels=channels, opset=opset, temporal=temporal)
     return path
 
 

@@ -1,0 +1,351 @@
+"""One process's depth model and writers (:class:`Runner`): captures in batches and sequences frame after frame,
+reading, the model and writing overlapping on three threads, every file renamed into place whole."""
+
+from __future__ import annotations
+
+import functools
+import os
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any, Literal, NamedTuple
+
+import numpy as np
+import torch
+from torch import nn
+
+from prismstereo.errors import PrismStereoError, check_option
+from prismstereo.io import replacing
+from prismstereo.jobs.plan import Outputs, Task, WriteOptions
+
+__all__ = ["BACKENDS", "Runner", "TaskReport"]
+
+BACKENDS = ("torch", "onnx")
+Backend = Literal["torch", "onnx"]
+
+
+class TaskReport(NamedTuple):
+    """What became of a task: outputs ``written`` and ``skipped``, the ``lines`` to print, the model's seconds,
+    and the ``error`` that stopped it (None if it completed)."""
+
+    source: str
+    written: int
+    skipped: int
+    lines: tuple[str, ...]
+    model_seconds: float
+    error: str | None = None
+
+def _prefetch(items: Iterable[Any], depth: int = 2) -> Iterator[Any]:
+    """The items of ``items``, produced on a background thread up to ``depth`` ahead (decoding overlaps the
+    consumer's work); an exception of the producer is raised at its position."""
+    box: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def produce() -> None:
+        try:
+            for item in items:
+                while not stop.is_set():
+                    try:
+                        box.put((True, item), timeout=0.05)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            box.put((False, None))
+        except BaseException as exc:  # handed to the consumer
+            box.put((False, exc))
+
+    thread = threading.Thread(target=produce, name="prismstereo-reader", daemon=True)
+    thread.start()
+    try:
+        while True:
+            more, item = box.get()
+            if not more:
+                if item is not None:
+                    raise item
+                return
+            yield item
+    finally:
+        stop.set()
+        thread.join()
+
+
+class _Writer:
+    """Runs write jobs on one background thread in submission order, at most ``depth`` pending; each job's
+    ``done(future)`` is called on the submitting thread, in order."""
+
+    def __init__(self, depth: int = 2) -> None:
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="prismstereo-writer")
+        self._pending: deque = deque()
+        self._depth = depth
+
+    def submit(self, job: Callable[[], Any], done: Callable[[Future], None]) -> None:
+        self._pending.append((self._pool.submit(job), done))
+        while len(self._pending) > self._depth:
+            self._finish_one()
+
+    def _finish_one(self) -> None:
+        future, done = self._pending.popleft()
+        future.exception()  # waits
+        done(future)
+
+    def close(self) -> None:
+        while self._pending:
+            self._finish_one()
+        self._pool.shutdown()
+
+
+_FAILURES = (PrismStereoError, OSError)  # what fails one input (unreadable, wrong size, disk full), not the job
+
+
+class Runner:
+    """One process's model and writers: depth of captures in batches, and of sequences frame after frame.
+
+    Args:
+        model: a :class:`~prismstereo.model.PrismStereo` or :class:`~prismstereo.learned.LearnedStereo`.
+        backend: 'torch' (the module) or 'onnx' (its exported graph in onnxruntime, exported once into the cache,
+            :func:`~prismstereo.export.onnx_session`).
+        options: how results are written (default :class:`WriteOptions`).
+        temporal: sequences: the temporal prior's options, or None (every frame on its own).
+        threads: torch / onnxruntime threads (default: every core).
+
+    Attributes:
+        progress: called with 1 per output written (on the thread that calls the runner), or None.
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> runner = Runner(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), options=WriteOptions())
+        >>> runner.backend
+        'torch'
+    """
+
+    def __init__(self, model: nn.Module, *, backend: Backend = "torch", options: WriteOptions | None = None,
+                 temporal: Any = None, threads: int | None = None) -> None:
+        check_option(backend, BACKENDS, "backend")
+        self.model, self.backend, self.temporal = model.eval(), backend, temporal
+        self.options = options or WriteOptions()
+        self.threads = threads or os.cpu_count() or 1
+        self.progress: Callable[[int], None] | None = None
+
+    # ----------------------------------------------------------------------------- models
+    def prepare(self) -> None:
+        """Export the ONNX graphs into the cache without opening a session (before worker processes fork)."""
+        if self.backend == "onnx":
+            from prismstereo.export import cache_path, export_cached
+
+            for temporal in ([None] if self.temporal is None else [None, self.temporal]):
+                export_cached(self.model, cache_path(self.model, temporal=temporal), temporal=temporal)
+
+    def _session(self, temporal: Any = None):
+        from prismstereo.export import onnx_session
+
+        return onnx_session(self.model, channels=1, threads=self.threads, temporal=temporal)
+
+    def _depth(self, batch: torch.Tensor):
+        if self.backend == "onnx":
+            return self._session()(batch)
+        with torch.inference_mode():
+            return self.model(batch)
+
+    def _stream(self):
+        from prismstereo.stream import DepthStream
+
+        if self.backend == "onnx":
+            tracker = None if self.temporal is None else self._session(self.temporal)
+            return DepthStream(self._session(), temporal_graph=tracker, threads=self.threads)
+        return DepthStream(self.model, temporal=self.temporal or False)
+
+    # ----------------------------------------------------------------------------- writing
+    def _write(self, files: Outputs, depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor,
+               points: torch.Tensor | None, colors: torch.Tensor) -> str:
+        """Write one result (depth (H, W_ref), its companions); returns the note for its line."""
+        from prismstereo.depth import write_ply
+        from prismstereo.io import write_depth, write_depth_preview
+
+        opts = self.options
+        written = write_depth(files.depth, depth, valid, png_scale=opts.png_scale)
+        note = ""
+        if written.format == "png":
+            write_depth_preview(files.preview, depth, valid)
+            note = (f", preview {files.preview.name}, {written.scale:g} levels/mm (stored in the PNG and "
+                    f"{files.sidecar.name})")
+            if written.clipped:
+                note += (f"; warning: {written.clipped} pixels deeper than {65535 / written.scale:.3f} mm clipped to "
+                         "65535 (see --png-scale)")
+        if files.confidence is not None:
+            with replacing(files.confidence) as partial:
+                np.save(partial, confidence.numpy().astype(np.float32))
+            note += f", confidence {files.confidence.name}"
+        if files.ply is not None and points is not None:
+            count = write_ply(files.ply, points, colors=colors, confidence=confidence,
+                              camera_to_world=opts.camera_to_world)
+            note += f", {files.ply.name} ({count} points)"
+        return note
+
+    def _points(self, depth: torch.Tensor, written: torch.Tensor) -> torch.Tensor | None:
+        if not self.options.ply:
+            return None
+        from prismstereo.depth import depth_to_points
+
+        with torch.inference_mode():
+            return depth_to_points(self.model.rig, depth.to(torch.float64), written)
+
+    def _tick(self) -> None:
+        if self.progress is not None:
+            self.progress(1)
+
+    # ----------------------------------------------------------------------------- captures
+    def _read(self, path: str) -> tuple[torch.Tensor, torch.Tensor] | str:
+        """A capture of the rig's size, grey (1, H, W) and as read (C, H, W), or why not."""
+        import kornia
+
+        from prismstereo.io import read_image
+
+        try:
+            image = read_image(path)
+        except _FAILURES as exc:
+            return str(exc)
+        rig = self.model.rig
+        h, w = image.shape[-2:]
+        if (w, h) != (rig.image_width, rig.image_height):
+            return f"image {path} is {w}x{h} px but the rig's sensor is {rig.image_width}x{rig.image_height} px"
+        return (image if image.shape[0] == 1 else kornia.color.rgb_to_grayscale(image)), image
+
+    def run_captures(self, tasks: Sequence[Task], batch_size: int = 1) -> Iterator[TaskReport]:
+        """Depth of single captures, ``batch_size`` at a time: the next batch is read while this one runs and the
+        previous one is written. Yields one report per task, in order, as its files are complete.
+
+        Example:
+            >>> reports = list(runner.run_captures(plan(["a.png"], Path("out"), WriteOptions())))  # doctest: +SKIP
+        """
+        chunks = [list(tasks[i:i + batch_size]) for i in range(0, len(tasks), batch_size)]
+        ready: deque = deque()
+        writer = _Writer()
+        w_ref = self.model.rig.reference_width
+        dense = self.options.dense
+        for chunk, images in zip(chunks, _prefetch([self._read(t.source) for t in c] for c in chunks), strict=True):
+            good = [(t, im) for t, im in zip(chunk, images, strict=True) if not isinstance(im, str)]
+            ready.extend(TaskReport(t.source, 0, 0, (), 0.0, im) for t, im in zip(chunk, images, strict=True)
+                         if isinstance(im, str))
+            if good:
+                start = time.perf_counter()
+                res = self._depth(torch.stack([grey for _, (grey, _) in good]))
+                seconds = (time.perf_counter() - start) / len(good)
+                mask = (res.confidence > 0) if dense else res.valid  # dense: every pixel with a depth
+                points = self._points(res.depth, mask)
+                for k, (task, (_, image)) in enumerate(good):
+                    depth, valid = res.depth[k, 0], mask[k, 0]
+                    job = functools.partial(self._write, task.outputs[0], depth, valid, res.confidence[k, 0],
+                                            None if points is None else points[k], image[:, :, :w_ref])
+                    writer.submit(job, functools.partial(self._captured, ready, task, depth, valid, seconds))
+            while ready:
+                yield ready.popleft()
+        writer.close()
+        yield from ready
+
+    def _captured(self, ready: deque, task: Task, depth: torch.Tensor, valid: torch.Tensor, seconds: float,
+                  future: Future) -> None:
+        """Queue the report of a capture whose files were written by ``future``."""
+        error = future.exception()
+        if error is not None:
+            if not isinstance(error, _FAILURES):
+                raise error
+            ready.append(TaskReport(task.source, 0, 0, (), seconds, str(error)))
+            return
+        self._tick()
+        ok = valid & torch.isfinite(depth)
+        median = f"median {float(depth[ok].median()):.1f} mm" if bool(ok.any()) else "no valid depth"
+        kind = "with a depth (dense)" if self.options.dense else "valid"
+        line = (f"wrote {task.outputs[0].depth}: {ok.float().mean():.1%} of reference pixels {kind}, {median}"
+                f"{future.result()}")
+        ready.append(TaskReport(task.source, 1, 0, (line,), seconds))
+
+    # ----------------------------------------------------------------------------- sequences
+    def run_sequence(self, task: Task) -> TaskReport:
+        """Depth of a sequence's selected frames from ``task.first`` on, in order through one
+        :class:`~prismstereo.stream.DepthStream` (the temporal prior if the runner has one): frames decoded ahead
+        on a reader thread, files (and the preview video's frames) written on a writer thread. A frame that cannot
+        be read or written stops the sequence; the frames before it are complete.
+
+        Example:
+            >>> report = runner.run_sequence(plan(["clip.mp4"], Path("out"), WriteOptions())[0])  # doctest: +SKIP
+        """
+        from prismstereo.video import read_frames
+
+        sel, rig, opts = task.selection, self.model.rig, self.options
+        stream = self._stream()
+        writer, preview, state = _Writer(depth=4), [None], {"written": 0, "error": None}
+
+        def add_preview(picture: np.ndarray) -> None:
+            import cv2
+
+            if preview[0] is None:
+                opts.preview_video.parent.mkdir(parents=True, exist_ok=True)
+                preview[0] = cv2.VideoWriter(str(opts.preview_video), cv2.VideoWriter_fourcc(*"mp4v"),
+                                             opts.preview_fps, (picture.shape[1], picture.shape[0]))
+                if not preview[0].isOpened():
+                    raise PrismStereoError(f"OpenCV cannot write the video {opts.preview_video}")
+            preview[0].write(picture)
+
+        failed = threading.Event()  # set by the writer: the frames queued after a failed one are not written
+
+        def done(future: Future) -> None:
+            error = future.exception()
+            if error is None:
+                if future.result():
+                    state["written"] += 1
+                    self._tick()
+            elif not isinstance(error, _FAILURES):
+                raise error
+            elif state["error"] is None:
+                state["error"] = str(error)
+
+        def job(files, depth, valid, conf, points, colors) -> bool:
+            if failed.is_set():
+                return False
+            try:
+                self._write(files, depth, valid, conf, points, colors)
+                if opts.preview_video is not None:
+                    from prismstereo.io import depth_preview
+
+                    add_preview(depth_preview(depth, valid, limits_mm=tuple(self.model.z_range)))
+            except BaseException:
+                failed.set()
+                raise
+            return True
+
+        frames = read_frames(task.source, every=sel.every, start=sel.start + task.first * sel.every, stop=sel.stop)
+        try:
+            for files, frame in zip(task.outputs[task.first:], _prefetch(frames, depth=4), strict=False):
+                res = stream.push(frame.image)
+                mask = (res.confidence > 0) if opts.dense else res.valid
+                points = self._points(res.depth, mask)
+                writer.submit(functools.partial(job, files, res.depth[0, 0], mask[0, 0], res.confidence[0, 0],
+                                                None if points is None else points[0],
+                                                frame.image[:, :, : rig.reference_width]), done)
+                if state["error"] is not None:
+                    break
+        except _FAILURES as exc:
+            state["error"] = str(exc)
+        finally:
+            writer.close()
+            if preview[0] is not None:
+                preview[0].release()
+        return self._sequence_report(task, stream, state["written"], state["error"])
+
+    def _sequence_report(self, task: Task, stream: Any, written: int, error: str | None) -> TaskReport:
+        lines = []
+        if written:
+            times = sorted(stream.times_ms)
+            first = task.outputs[task.first].depth
+            keys = f", {stream.keyframes} key frames" if stream.temporal is not None else ""
+            resumed = f" (resumed at output {task.first})" if task.first else ""
+            lines.append(f"wrote {written} depth files {first.name} ... to {first.parent}{resumed}: "
+                         f"{times[len(times) // 2]:.1f} ms per frame (median of the depth computation), "
+                         f"{stream.frames_per_second():.1f} frames/s{keys}"
+                         + (f"; preview video {self.options.preview_video}" if self.options.preview_video else ""))
+        return TaskReport(task.source, written, task.first, tuple(lines), sum(stream.times_ms) / 1000, error)
