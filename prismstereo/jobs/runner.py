@@ -44,20 +44,24 @@ def _prefetch(items: Iterable[Any], depth: int = 2) -> Iterator[Any]:
     box: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
 
+    def offer(entry: tuple[bool, Any]) -> bool:
+        """Queue ``entry`` unless the consumer has stopped; whether it was queued."""
+        while not stop.is_set():
+            try:
+                box.put(entry, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
     def produce() -> None:
         try:
             for item in items:
-                while not stop.is_set():
-                    try:
-                        box.put((True, item), timeout=0.05)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
+                if not offer((True, item)):
                     return
-            box.put((False, None))
+            offer((False, None))
         except BaseException as exc:  # handed to the consumer
-            box.put((False, exc))
+            offer((False, exc))
 
     thread = threading.Thread(target=produce, name="prismstereo-reader", daemon=True)
     thread.start()
