@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 import time
@@ -58,6 +59,17 @@ def _requested_config(args: argparse.Namespace):
         raise _flag_error(exc, search) from exc
     args.dense = config.validity.dense
     return config
+
+
+def _request(args: argparse.Namespace) -> dict[str, object]:
+    """What the flags ask of the model, before the rig resolves it: the key of its graph in the ONNX cache (with the
+    rig; :func:`prismstereo.export.request_key`)."""
+    import hashlib
+
+    if args.learned or args.weights is not None:
+        weights = "default" if args.weights is None else hashlib.sha256(Path(args.weights).read_bytes()).hexdigest()
+        return {"learned": weights, "z_range_mm": args.z_range, "hypotheses": args.hypotheses}
+    return {"config": _requested_config(args).to_dict(), "z_range_mm": args.z_range}
 
 
 def _search_flags(args: argparse.Namespace) -> dict[str, object]:
@@ -153,7 +165,16 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     runnable = [t for t in tasks if t.error is None and t.first < len(t.outputs)]
     if len(tasks) == 1 and tasks[0].error is not None:
         raise PrismStereoError(tasks[0].error)  # one input: its error is the command's
-    model, summary = _build_model(args, rig)
+    key, cached = None, None
+    if args.backend == "onnx" and not any(t.sequence for t in runnable):  # captures: the graph alone will do
+        from prismstereo.export import OnnxDepth, recall, request_key
+
+        key = request_key(rig, _request(args))
+        cached = recall(key)
+    if cached is not None:  # exported before for the same request: no torch model to build
+        model, summary = OnnxDepth(cached.path, threads=os.cpu_count() or 1), cached.summary + " (cached graph)"
+    else:
+        model, summary = _build_model(args, rig)
     temporal = None
     if any(t.sequence for t in runnable):
         from prismstereo.depth.temporal import TemporalOptions, supports_temporal, temporal_downsample
@@ -173,6 +194,12 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     runner = Runner(model, backend=args.backend, options=options, temporal=temporal)
     result = run(tasks, runner, workers=args.workers, batch_size=args.batch_size)
     print(result.describe())
+    if key is not None and cached is None:
+        from prismstereo.export import cache_path, remember
+
+        graph = cache_path(model)
+        if graph.is_file():
+            remember(key, graph, summary)
     if len(tasks) == 1 and result.failed:
         raise PrismStereoError(result.failed[0].error)
     for failure in result.failed:

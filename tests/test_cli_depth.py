@@ -241,6 +241,14 @@ def test_onnx_backend_matches_torch(scene, tmp_path, monkeypatch, capsys):
     assert _run(scene, scene / "far.png", "--out", b, "--z-range", 400, 700, "--backend", "onnx") == 0
     assert "backend onnx" in capsys.readouterr().out
     assert len(list((tmp_path / "cache" / "onnx").glob("*.onnx"))) == 1  # exported once, cached
+    # the same request again: the cached graph runs without a torch model being built
+    from prismstereo.model import PrismStereo
+
+    monkeypatch.setattr(PrismStereo, "__init__", lambda *a, **k: pytest.fail("a model was built"))
+    c = tmp_path / "cached.npy"
+    assert _run(scene, scene / "far.png", "--out", c, "--z-range", 400, 700, "--backend", "onnx") == 0
+    assert "(cached graph)" in capsys.readouterr().out
+    np.testing.assert_array_equal(np.load(b), np.load(c))
     da, db = np.load(a), np.load(b)
     both = np.isfinite(da) & np.isfinite(db)
     assert both.mean() > 0.5 and (np.isfinite(da) == np.isfinite(db)).mean() >= 0.999

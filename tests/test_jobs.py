@@ -151,3 +151,16 @@ def test_replacing_keeps_the_old_file_when_writing_fails(tmp_path):
         partial.write_bytes(b"half")
         raise OSError("disk full")
     assert np.load(path).tolist() == [1.0, 1.0, 1.0] and os.listdir(path.parent) == ["depth.npy"]
+
+
+def test_a_cached_graph_runs_alone_in_workers(inputs, tmp_path, monkeypatch, capsys):
+    """The ONNX backend's second run of a request loads the cached graph without a torch model, in the worker
+    processes too, and writes what the first run wrote."""
+    monkeypatch.setenv("PRISMSTEREO_CACHE", str(tmp_path / "cache"))
+    captures = [inputs / "cap0.png", inputs / "cap1.png", inputs / "cap2.png"]
+    assert _depth(inputs, *captures, "--out", tmp_path / "a", "--backend", "onnx") == 0
+    assert "(cached graph)" not in capsys.readouterr().out
+    assert _depth(inputs, *captures, "--out", tmp_path / "b", "--backend", "onnx", "--workers", 2) == 0
+    assert "(cached graph), backend onnx, 2 worker processes" in capsys.readouterr().out
+    for name in ("cap0.npy", "cap1.npy", "cap2.npy"):
+        np.testing.assert_array_equal(np.load(tmp_path / "a" / name), np.load(tmp_path / "b" / name))

@@ -16,8 +16,8 @@ with the TorchScript-based exporter (``dynamo=False``) at opset 18: it traces th
 semi-global aggregation's scan loops are unrolled (one step per coarse row / column and direction).
 
 :class:`OnnxDepth` runs such a file in an ``onnxruntime.InferenceSession`` (2 intra-op threads, 1 inter-op
-thread, all graph optimisations by default) and checks its input; :func:`onnx_session` exports a model
-once per rig and options into a cache directory and returns the cached runner.
+thread, all graph optimisations by default) and checks its input; :mod:`prismstereo.export.cache` keeps exported
+graphs per rig and options.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
-import os
 import time
 import warnings
 from pathlib import Path
@@ -36,7 +35,6 @@ import torch
 from torch import nn
 
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_option
-from prismstereo.io import replacing
 
 if TYPE_CHECKING:
     from prismstereo.depth.result import DepthResult
@@ -45,14 +43,11 @@ if TYPE_CHECKING:
 __all__ = [
     "DEFAULT_OPSET",
     "PRIOR_NAMES",
-    "cache_directory",
-    "cache_path",
     "DepthGraph",
     "describe",
-    "export_cached",
     "export_onnx",
     "ExportError",
-    "onnx_session",
+    "graph_metadata",
     "OnnxDepth",
     "OnnxDepthResult",
     "source_digest",
@@ -147,7 +142,16 @@ def source_digest() -> str:
     return digest.hexdigest()[:16]
 
 
-def _metadata(model: nn.Module, channels: int, opset: int, temporal: TemporalOptions | None = None) -> dict[str, str]:
+def graph_metadata(model: nn.Module, channels: int, opset: int,
+                   temporal: TemporalOptions | None = None) -> dict[str, str]:
+    """The ``prismstereo.*`` metadata of ``model``'s graph (the module docstring): what :func:`export_onnx` stores and
+    what names the graph in the cache.
+
+    Example:
+        >>> from prismstereo.model import PrismStereo
+        >>> graph_metadata(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), 1, 18)["prismstereo.opset"]
+        '18'
+    """
     from prismstereo import __version__
 
     rig = model.rig
@@ -240,7 +244,7 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
                 dim.dim_param = size
             else:
                 dim.dim_value = size
-    for key, value in _metadata(model, channels, opset, temporal).items():
+    for key, value in graph_metadata(model, channels, opset, temporal).items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
     try:
@@ -323,6 +327,19 @@ class OnnxDepth:
 
             self.temporal = TemporalOptions(**json.loads(self.metadata.get("prismstereo.temporal", "{}")))
 
+    @property
+    def rig(self):
+        """The :class:`~prismstereo.geometry.rig.BiPrismRig` the graph was exported for (from its metadata)."""
+        from prismstereo.geometry.rig import BiPrismRig
+
+        return BiPrismRig.from_dict(json.loads(self.metadata["prismstereo.rig"]))
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        """The depth range (mm) the graph searches (from its metadata)."""
+        low, high = json.loads(self.metadata["prismstereo.z_range_mm"])
+        return float(low), float(high)
+
     def __call__(self, image: torch.Tensor | np.ndarray,
                  prior: OnnxDepthResult | DepthResult | None = None) -> OnnxDepthResult:
         """Depth of a batch ``image`` (B, C, H, W) in [0, 1] (any float dtype; run in float32); a temporal graph
@@ -349,91 +366,6 @@ class OnnxDepth:
                 feed[name] = np.ascontiguousarray(value, dtype=dtype)
         depth, valid, confidence = self.session.run(list(OUTPUT_NAMES), feed)
         return OnnxDepthResult(torch.from_numpy(depth), torch.from_numpy(valid).bool(), torch.from_numpy(confidence))
-
-
-def cache_directory() -> Path:
-    """Where :func:`onnx_session` keeps exported graphs: ``$PRISMSTEREO_CACHE`` or
-    ``~/.cache/prismstereo/onnx``.
-
-    Example:
-        >>> cache_directory().name
-        'onnx'
-    """
-    root = os.environ.get("PRISMSTEREO_CACHE")
-    return Path(root) / "onnx" if root else Path.home() / ".cache" / "prismstereo" / "onnx"
-
-
-_SESSIONS: dict[tuple[str, int], OnnxDepth] = {}
-
-
-def cache_path(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OPSET,
-               temporal: TemporalOptions | None = None, cache_dir: str | Path | None = None) -> Path:
-    """The file of ``model``'s graph in the cache of :func:`onnx_session`: ``<hash>.onnx`` in ``cache_dir`` (default
-    :func:`cache_directory`), the hash of the graph's metadata (the model's description, rig, channels, opset,
-    temporal options, package version and source digest).
-
-    Example:
-        >>> from prismstereo.model import PrismStereo
-        >>> cache_path(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), cache_dir="c").suffix
-        '.onnx'
-    """
-    meta = _metadata(model, channels, opset, temporal)
-    directory = Path(cache_dir) if cache_dir is not None else cache_directory()
-    return directory / f"{hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]}.onnx"
-
-
-def export_cached(model: nn.Module, path: Path, *, channels: int = 1, opset: int = DEFAULT_OPSET,
-                  temporal: TemporalOptions | None = None) -> Path:
-    """``model``'s graph at ``path`` (a cache file of :func:`onnx_session`), exported unless the file exists: written
-    under a temporary name and renamed, so a concurrent reader never sees half a file.
-
-    Example:
-        >>> from prismstereo.model import PrismStereo
-        >>> import tempfile; path = Path(tempfile.mkdtemp()) / "onnx" / "graph.onnx"
-        >>> export_cached(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), path).is_file()
-        True
-    """
-    if not path.is_file():
-        with replacing(path) as partial:
-            export_onnx(model, partial, channels=channels, opset=opset, temporal=temporal)
-    return path
-
-
-def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OPSET, threads: int = 2,
-                 cache_dir: str | Path | None = None, spinning: bool = True,
-                 temporal: TemporalOptions | None = None) -> OnnxDepth:
-    """The exported graph of ``model`` in onnxruntime, exported once per rig, options, channels, opset and
-    package version (a file ``<hash>.onnx`` in ``cache_dir``, default :func:`cache_directory`) and kept per
-    process.
-
-    Args:
-        model: a :class:`~prismstereo.model.PrismStereo`.
-        channels: input channels (1 or 3).
-        opset: ONNX opset of a new export.
-        threads: onnxruntime intra-op threads.
-        cache_dir: directory of cached exports.
-        spinning: see :class:`OnnxDepth`.
-        temporal: None, or :class:`~prismstereo.depth.temporal.TemporalOptions`: the temporal graph
-            (:func:`export_onnx`).
-
-    Returns:
-        OnnxDepth.
-
-    Example:
-        >>> from prismstereo.model import PrismStereo
-        >>> import tempfile; cache = tempfile.mkdtemp()
-        >>> model = PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0))
-        >>> onnx_session(model, cache_dir=cache) is onnx_session(model, cache_dir=cache)
-        True
-    """
-    path = cache_path(model, channels=channels, opset=opset, temporal=temporal, cache_dir=cache_dir)
-    key = (str(path), threads, spinning)
-    if key in _SESSIONS:
-        return _SESSIONS[key]
-    export_cached(model, path, channels=channels, opset=opset, temporal=temporal)
-    runner = OnnxDepth(path, threads=threads, spinning=spinning)
-    _SESSIONS[key] = runner
-    return runner
 
 
 def describe(metadata: dict[str, Any]) -> str:

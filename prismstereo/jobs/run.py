@@ -49,7 +49,7 @@ _WORKER: dict[str, Runner] = {}
 
 
 def _start_worker(runner: Runner, threads: int) -> None:
-    runner.threads, runner.progress = threads, None
+    runner.for_worker(threads)
     _WORKER["runner"] = runner
 
 

@@ -11,7 +11,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -20,6 +20,9 @@ from torch import nn
 from prismstereo.errors import PrismStereoError, check_option
 from prismstereo.io import replacing
 from prismstereo.jobs.plan import Outputs, Task, WriteOptions
+
+if TYPE_CHECKING:
+    from prismstereo.export import OnnxDepth
 
 __all__ = ["BACKENDS", "Runner", "TaskReport"]
 
@@ -110,7 +113,8 @@ class Runner:
     """One process's model and writers: depth of captures in batches, and of sequences frame after frame.
 
     Args:
-        model: a :class:`~prismstereo.model.PrismStereo` or :class:`~prismstereo.learned.LearnedStereo`.
+        model: a :class:`~prismstereo.model.PrismStereo` or :class:`~prismstereo.learned.LearnedStereo`, or an
+            exported graph (:class:`~prismstereo.export.OnnxDepth`, backend 'onnx': no torch model is built).
         backend: 'torch' (the module) or 'onnx' (its exported graph in onnxruntime, exported once into the cache,
             :func:`~prismstereo.export.onnx_session`).
         options: how results are written (default :class:`WriteOptions`).
@@ -127,10 +131,20 @@ class Runner:
         'torch'
     """
 
-    def __init__(self, model: nn.Module, *, backend: Backend = "torch", options: WriteOptions | None = None,
-                 temporal: Any = None, threads: int | None = None) -> None:
+    def __init__(self, model: nn.Module | OnnxDepth, *, backend: Backend = "torch",
+                 options: WriteOptions | None = None, temporal: Any = None, threads: int | None = None) -> None:
+        from prismstereo.export import OnnxDepth
+
         check_option(backend, BACKENDS, "backend")
-        self.model, self.backend, self.temporal = model.eval(), backend, temporal
+        self.graph = model if isinstance(model, OnnxDepth) else None
+        if self.graph is not None and (backend != "onnx" or temporal is not None):
+            raise PrismStereoError("an exported graph runs with backend 'onnx' and without the temporal prior (a "
+                                   "sequence's temporal graph is exported from the model)")
+        self.model = None if self.graph is not None else model.eval()
+        self.rig = (self.graph or self.model).rig
+        described = self.graph.z_range if self.graph is not None else self.model.describe()["z_range_mm"]
+        self.z_range = tuple(float(z) for z in described)
+        self.backend, self.temporal = backend, temporal
         self.options = options or WriteOptions()
         self.threads = threads or os.cpu_count() or 1
         self.progress: Callable[[int], None] | None = None
@@ -138,13 +152,24 @@ class Runner:
     # ----------------------------------------------------------------------------- models
     def prepare(self) -> None:
         """Export the ONNX graphs into the cache without opening a session (before worker processes fork)."""
-        if self.backend == "onnx":
+        if self.backend == "onnx" and self.model is not None:
             from prismstereo.export import cache_path, export_cached
 
             for temporal in ([None] if self.temporal is None else [None, self.temporal]):
                 export_cached(self.model, cache_path(self.model, temporal=temporal), temporal=temporal)
 
+    def for_worker(self, threads: int) -> None:
+        """Make this (forked or unpickled) runner a worker process's: its threads, no progress callback, and its
+        own onnxruntime session (a session is not shared across processes)."""
+        from prismstereo.export import OnnxDepth
+
+        self.threads, self.progress = threads, None
+        if self.graph is not None:
+            self.graph = OnnxDepth(self.graph.path, threads=threads)
+
     def _session(self, temporal: Any = None):
+        if self.graph is not None:
+            return self.graph
         from prismstereo.export import onnx_session
 
         return onnx_session(self.model, channels=1, threads=self.threads, temporal=temporal)
@@ -196,7 +221,7 @@ class Runner:
         from prismstereo.depth import depth_to_points
 
         with torch.inference_mode():
-            return depth_to_points(self.model.rig, depth.to(torch.float64), written)
+            return depth_to_points(self.rig, depth.to(torch.float64), written)
 
     def _tick(self) -> None:
         if self.progress is not None:
@@ -213,7 +238,7 @@ class Runner:
             image = read_image(path)
         except _FAILURES as exc:
             return str(exc)
-        rig = self.model.rig
+        rig = self.rig
         h, w = image.shape[-2:]
         if (w, h) != (rig.image_width, rig.image_height):
             return f"image {path} is {w}x{h} px but the rig's sensor is {rig.image_width}x{rig.image_height} px"
@@ -229,7 +254,7 @@ class Runner:
         chunks = [list(tasks[i:i + batch_size]) for i in range(0, len(tasks), batch_size)]
         ready: deque = deque()
         writer = _Writer()
-        w_ref = self.model.rig.reference_width
+        w_ref = self.rig.reference_width
         dense = self.options.dense
         for chunk, images in zip(chunks, _prefetch([self._read(t.source) for t in c] for c in chunks), strict=True):
             good = [(t, im) for t, im in zip(chunk, images, strict=True) if not isinstance(im, str)]
@@ -280,7 +305,7 @@ class Runner:
         """
         from prismstereo.video import read_frames
 
-        sel, rig, opts = task.selection, self.model.rig, self.options
+        sel, rig, opts = task.selection, self.rig, self.options
         stream = self._stream()
         writer, preview, state = _Writer(depth=4), [None], {"written": 0, "error": None}
 
@@ -316,7 +341,7 @@ class Runner:
                 if opts.preview_video is not None:
                     from prismstereo.io import depth_preview
 
-                    add_preview(depth_preview(depth, valid, limits_mm=tuple(self.model.z_range)))
+                    add_preview(depth_preview(depth, valid, limits_mm=self.z_range))
             except BaseException:
                 failed.set()
                 raise
