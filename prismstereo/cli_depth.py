@@ -189,10 +189,12 @@ def _cmd_depth(args: argparse.Namespace) -> int:
             summary += ", every frame on its own (this model has no full-resolution band for the temporal prior)"
     outputs = sum(len(t.outputs) - t.first for t in runnable)
     workers = f", {args.workers} worker processes" if args.workers > 1 else ""
+    if args.ray is not None:
+        workers = f", on Ray ({args.ray})"
     print(f"{summary}, backend {args.backend}{workers}; {outputs} depth maps to write from {len(runnable)} of "
           f"{len(tasks)} inputs")
     runner = Runner(model, backend=args.backend, options=options, temporal=temporal)
-    result = run(tasks, runner, workers=args.workers, batch_size=args.batch_size)
+    result = run(tasks, runner, workers=args.workers, batch_size=args.batch_size, ray=args.ray)
     print(result.describe())
     if key is not None and cached is None:
         from prismstereo.export import cache_path, remember
@@ -265,6 +267,10 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
                        help="spread the inputs (batches of images, whole videos or sequences) over N processes, each "
                             "with its share of the cores (default 1: this process, reading and writing on threads "
                             "beside the model)")
+    depth.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                       help="run the inputs on Ray actors (pip install 'prismstereo[ray]'): a local instance, or the "
+                            "cluster at ADDRESS ('auto', 'ray://head:10001'); a dead worker is restarted and its "
+                            "inputs retried")
     depth.add_argument("--skip-existing", action="store_true",
                        help="resume a job: skip the images whose outputs exist, and continue each video or sequence "
                             "at its first missing frame (a key frame)")

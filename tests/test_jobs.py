@@ -6,6 +6,7 @@ import os
 import cv2
 import numpy as np
 import pytest
+import torch
 
 from prismstereo import PrismStereo, PrismStereoError, thesis_setup1
 from prismstereo.cli import main
@@ -164,3 +165,83 @@ def test_a_cached_graph_runs_alone_in_workers(inputs, tmp_path, monkeypatch, cap
     assert "(cached graph), backend onnx, 2 worker processes" in capsys.readouterr().out
     for name in ("cap0.npy", "cap1.npy", "cap2.npy"):
         np.testing.assert_array_equal(np.load(tmp_path / "a" / name), np.load(tmp_path / "b" / name))
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """A local Ray instance of 2 CPUs for the module's Ray tests (each starts its own actors)."""
+    ray = pytest.importorskip("ray")  # in the dev install: never skipped there
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    yield ray
+    ray.shutdown()
+
+
+def _ray_workers() -> list[int]:
+    pids = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/cmdline", "rb") as fh:
+                    if fh.read().startswith(b"ray::_Worker"):
+                        pids.append(int(entry))
+            except OSError:
+                continue
+    return pids
+
+
+def test_ray_writes_the_same_files_and_survives_a_dead_worker(inputs, tmp_path, local_ray, capsys):
+    """``--ray`` on a local instance: the files of the single-process run (float rounding: one thread per actor),
+    the failing input reported; one actor killed after the first report is restarted by Ray and its work retried,
+    and no temporary file is left."""
+    import signal
+
+    from prismstereo.jobs import distributed
+
+    sources = _sources(inputs)
+    assert _depth(inputs, *sources, "--out", tmp_path / "one") == 1
+    killed = []
+    real = distributed.run_on_ray
+
+    def kill_after_first(units, runner, address, batch_size, deliver):
+        def deliver_and_kill(i, rep):
+            deliver(i, rep)
+            if not killed and (pids := _ray_workers()):
+                os.kill(pids[0], signal.SIGKILL)
+                killed.append(pids[0])
+        return real(units, runner, address, batch_size, deliver_and_kill)
+
+    distributed_run = pytest.MonkeyPatch.context()
+    with distributed_run as mp:
+        mp.setattr(distributed, "run_on_ray", kill_after_first)
+        assert _depth(inputs, *sources, "--out", tmp_path / "ray", "--ray", "--ply") == 1
+    out, err = capsys.readouterr()
+    assert killed and "on Ray (local)" in out and f"failed: {inputs / 'junk.png'}: cannot decode image" in err
+    names = _files(tmp_path / "ray")
+    assert len(names) == 14 and not [n for n in names if "partial" in n]
+    for name in _files(tmp_path / "one"):
+        a, b = np.load(tmp_path / "one" / name), np.load(tmp_path / "ray" / name)
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+        np.testing.assert_allclose(a, b, rtol=1e-5, equal_nan=True)
+
+
+def test_depth_predictor_maps_the_model_over_a_ray_dataset(inputs, local_ray):
+    """``DepthPredictor`` in ``Dataset.map_batches``: the depth of each row's image, as the runner computes it."""
+    from prismstereo.io import read_image
+    from prismstereo.jobs.distributed import DepthPredictor
+
+    rig = thesis_setup1().downscaled(8)
+    runner = Runner(PrismStereo(rig, (400.0, 700.0)))
+    images = [(read_image(inputs / f"cap{k}.png")[:1, :, :].numpy()[0] * 255).round().astype(np.uint8)
+              for k in range(3)]
+    rows = local_ray.data.from_items([{"name": f"cap{k}", "image": im} for k, im in enumerate(images)])
+    out = rows.map_batches(DepthPredictor, fn_constructor_kwargs={"runner": runner}, batch_size=2,
+                           concurrency=1).take_all()
+    assert sorted(r["name"] for r in out) == ["cap0", "cap1", "cap2"]
+    for row in out:
+        k = int(row["name"][-1])
+        res = runner.depth(torch.from_numpy(images[k]).float()[None, None] / 255)
+        expected = torch.where(res.valid, res.depth, torch.full_like(res.depth, float("nan")))[0, 0].numpy()
+        assert row["depth"].shape == (rig.image_height, rig.reference_width)
+        np.testing.assert_allclose(row["depth"], expected, rtol=1e-5, equal_nan=True)
+    with pytest.raises(PrismStereoError, match="rig's sensor is 128x96 px"):
+        DepthPredictor(runner)({"image": np.zeros((1, 10, 10), np.uint8)})

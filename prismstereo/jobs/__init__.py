@@ -11,7 +11,8 @@ What a long job needs, for ``prismstereo depth`` and for Python callers:
   write or a stopped job leaves whole files only.
 * :func:`run` goes through the tasks with one progress bar, in this process or spread over worker processes (each
   with its own torch threads and onnxruntime session; forked on Linux, so the model is built once), reports each
-  failing input and goes on with the others.
+  failing input and goes on with the others; or on a Ray cluster (:mod:`prismstereo.jobs.distributed`, where
+  :class:`~prismstereo.jobs.distributed.DepthPredictor` also maps the model over a Ray Dataset).
 
 Example:
     >>> tasks = plan(["capture.png"], Path("out"), WriteOptions())

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import re
 import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 from typing import Any, NamedTuple
 
 from prismstereo.errors import PrismStereoError
@@ -54,9 +56,18 @@ def _start_worker(runner: Runner, threads: int) -> None:
 
 
 def _work(unit: list[tuple[int, Task]], batch_size: int) -> list[tuple[int, TaskReport]]:
+    return work(_WORKER["runner"], unit, batch_size)
+
+
+def work(runner: Runner, unit: list[tuple[int, Task]], batch_size: int) -> list[tuple[int, TaskReport]]:
+    """A worker's unit (a batch of captures or one sequence, with their task indices) on ``runner`` and its threads:
+    the (index, report) pairs.
+
+    Example:
+        >>> work(runner, [(0, plan(["a.png"], Path("out"), WriteOptions())[0])], 1)  # doctest: +SKIP
+    """
     from prismstereo.threads import torch_threads
 
-    runner = _WORKER["runner"]
     with torch_threads(runner.threads):
         if unit[0][1].sequence:
             return [(unit[0][0], runner.run_sequence(unit[0][1]))]
@@ -76,7 +87,7 @@ def _units(tasks: Sequence[tuple[int, Task]], batch_size: int) -> list[list[tupl
 
 
 def run(tasks: Sequence[Task], runner: Runner, *, workers: int = 1, batch_size: int = 1, progress: bool = True,
-        report: Callable[[TaskReport], None] | None = None) -> JobSummary:
+        report: Callable[[TaskReport], None] | None = None, ray: str | None = None) -> JobSummary:
     """Run a job's tasks (:func:`plan`) with one progress bar over all outputs to write.
 
     Tasks with a planning error and tasks with nothing left are reported without running; a failing input is
@@ -92,6 +103,8 @@ def run(tasks: Sequence[Task], runner: Runner, *, workers: int = 1, batch_size: 
         batch_size: captures per model call.
         progress: show the bar (stderr).
         report: called with each task's report as it completes (default: print its lines).
+        ray: run on Ray actors instead (:mod:`prismstereo.jobs.distributed`): 'local' (a local instance) or a
+            cluster's address ('auto', 'ray://host:10001'); ``workers`` must then be 1.
 
     Returns:
         JobSummary: the reports in input order, the wall time, the worker count.
@@ -129,7 +142,18 @@ def run(tasks: Sequence[Task], runner: Runner, *, workers: int = 1, batch_size: 
             else:
                 todo.append((i, task))
         units = _units(todo, batch_size)
-        if workers == 1 or len(units) <= 1:
+        if ray is not None:
+            from prismstereo.jobs.distributed import run_on_ray
+
+            if workers != 1:
+                raise PrismStereoError("--ray and --workers exclude each other (Ray places the workers)")
+
+            def tally(i: int, rep: TaskReport) -> None:
+                deliver(i, rep)
+                bar.update(rep.written)
+
+            workers = run_on_ray(units, runner, ray, batch_size, tally) if units else 1
+        elif workers == 1 or len(units) <= 1:
             workers = 1
             runner.progress = bar.update
             try:
@@ -143,8 +167,25 @@ def run(tasks: Sequence[Task], runner: Runner, *, workers: int = 1, batch_size: 
                 runner.progress = None
         else:
             _run_workers(units, runner, workers, batch_size, deliver, bar)
+    _remove_partials(tasks)
     ordered = tuple(reports[i] for i in range(len(tasks)))
     return JobSummary(ordered, time.perf_counter() - start, workers)
+
+
+def _remove_partials(tasks: Sequence[Task]) -> None:
+    """Remove the temporary files a killed worker left beside the outputs (``io.replacing``'s names)."""
+    folders: dict[Path, set[str]] = {}
+    for task in tasks:
+        for files in task.outputs:
+            for path in files:
+                if path is not None:
+                    folders.setdefault(path.parent, set()).add(path.stem)
+    for folder, stems in folders.items():
+        if folder.is_dir():
+            for stray in folder.glob(".*.partial*"):
+                name = re.match(r"\.(.+)\.\d+\.partial", stray.name)
+                if name is not None and name.group(1) in stems:
+                    stray.unlink(missing_ok=True)
 
 
 def _run_workers(units: list[list[tuple[int, Task]]], runner: Runner, workers: int, batch_size: int,

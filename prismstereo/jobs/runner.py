@@ -137,6 +137,7 @@ class Runner:
 
         check_option(backend, BACKENDS, "backend")
         self.graph = model if isinstance(model, OnnxDepth) else None
+        self._graph_path = None if self.graph is None else self.graph.path
         if self.graph is not None and (backend != "onnx" or temporal is not None):
             raise PrismStereoError("an exported graph runs with backend 'onnx' and without the temporal prior (a "
                                    "sequence's temporal graph is exported from the model)")
@@ -164,17 +165,27 @@ class Runner:
         from prismstereo.export import OnnxDepth
 
         self.threads, self.progress = threads, None
-        if self.graph is not None:
-            self.graph = OnnxDepth(self.graph.path, threads=threads)
+        if self._graph_path is not None:
+            self.graph = OnnxDepth(self._graph_path, threads=threads)
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled for a spawned worker or a Ray actor: the model (or the graph's path), not a session or callback."""
+        state = dict(self.__dict__)
+        state["graph"], state["progress"] = None, None
+        return state
 
     def _session(self, temporal: Any = None):
-        if self.graph is not None:
+        if self._graph_path is not None:
+            if self.graph is None:  # unpickled
+                self.for_worker(self.threads)
             return self.graph
         from prismstereo.export import onnx_session
 
         return onnx_session(self.model, channels=1, threads=self.threads, temporal=temporal)
 
-    def _depth(self, batch: torch.Tensor):
+    def depth(self, batch: torch.Tensor):
+        """The model's (or graph's) result for a grey batch (B, 1, H, W): ``depth``, ``valid``, ``confidence``,
+        (B, 1, H, W_ref) each."""
         if self.backend == "onnx":
             return self._session()(batch)
         with torch.inference_mode():
@@ -262,7 +273,7 @@ class Runner:
                          if isinstance(im, str))
             if good:
                 start = time.perf_counter()
-                res = self._depth(torch.stack([grey for _, (grey, _) in good]))
+                res = self.depth(torch.stack([grey for _, (grey, _) in good]))
                 seconds = (time.perf_counter() - start) / len(good)
                 mask = (res.confidence > 0) if dense else res.valid  # dense: every pixel with a depth
                 points = self._points(res.depth, mask)
