@@ -24,14 +24,16 @@ static scene.
    2/255, a new seed per frame): per pixel valid in every frame, the standard deviation of depth over the frames;
    the median over pixels (mm and % of depth) per frame, with the temporal prior and for SGBM.
 
-3. **End to end** (``--cli N``, 1024 x 768 only): the moving sequence's N frames as a lossless FFV1 video, through
-   ``prismstereo depth VIDEO --out DIR`` in a subprocess as a user runs it (temporal and ``--no-temporal``, onnx and
-   torch backends): the wall time on all frames minus that on the first 3 (``--stop 3``), per remaining frame, best
-   of two, beside StereoSGBM's median time per frame on the same frames in the same run and the CLI's own share of
-   the depth computation; and ``--captures M`` single captures (the same sequence's first M frames as 8-bit PNGs)
-   with ``--workers 1`` and ``--workers 2``: (wall on M - wall on 2) / (M - 2) per capture.
+3. **End to end** (``--cli N``, 1024 x 768 only): a lossless FFV1 video of N frames going back and forth over the
+   moving sequence's 30 (so the motion stays smooth), through ``prismstereo depth VIDEO --out DIR`` in a subprocess
+   as a user runs it (temporal and ``--no-temporal``, onnx and torch backends): the wall time on all frames minus
+   that on the first 3 (``--stop 3``), per remaining frame, best of two (start-up cancels), beside StereoSGBM's
+   median time per frame on the same frames in the same run; also the CLI's own figures: its end-to-end rate
+   (``run``'s wall, without start-up), the median depth computation per frame (the graph and the stream's work on
+   it) and the key frames. ``--captures M`` single captures (the sequence's first M frames as 8-bit PNGs) with
+   ``--workers 1`` and ``--workers 2``: (wall on M - wall on 2) / (M - 2) per capture, and the CLI's rate.
 
-Run: .venv/bin/python benchmarks/video_speed.py [--frames 20] [--static 30] [--sizes 1024 640] [--cli 30]
+Run: .venv/bin/python benchmarks/video_speed.py [--frames 20] [--static 30] [--sizes 1024 640] [--cli 120]
      [--captures 16]
 """
 
@@ -201,23 +203,31 @@ def flicker(rig, frames: int, runs: dict[str, DepthStream]) -> None:
 
 
 def _cli_seconds(args: list[str]) -> tuple[float, str]:
-    """Wall seconds of ``prismstereo depth ARGS`` in a subprocess, and its summary line."""
+    """Wall seconds of ``prismstereo depth ARGS`` in a subprocess, and what it printed."""
     cli = Path(sys.executable).with_name("prismstereo")
     start = time.perf_counter()
     done = subprocess.run([str(cli), "depth", *args], capture_output=True, text=True, check=True)
     seconds = time.perf_counter() - start
-    return seconds, [line for line in done.stdout.splitlines() if "depth maps written" in line][-1]
+    return seconds, done.stdout
+
+
+def _pingpong(count: int, frames: int) -> list[int]:
+    """``frames`` indices going back and forth over 0 .. count - 1."""
+    period = max(1, 2 * (count - 1))
+    return [k % period if k % period < count else period - k % period for k in range(frames)]
 
 
 def end_to_end(frames: int, captures: int, tmp: Path) -> None:
     """Section 3 of the module docstring."""
     rig = sensor(1024)
-    scenes = sequences(rig, max(frames, captures))["moving"]
+    rendered = 30
+    scenes = sequences(rig, max(rendered, captures))["moving"]
     caps = render(rig, scenes, ImageFormation(supersample=2, noise_sigma=1 / 255, seed=3))
     video = tmp / "moving.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 10.0, (rig.image_width, rig.image_height))
     grey = [np.clip(np.rint(image[0].numpy() * 255), 0, 255).astype(np.uint8) for image in caps.image]
-    for k in range(frames):
+    order = _pingpong(rendered, frames)
+    for k in order:
         writer.write(cv2.cvtColor(grey[k], cv2.COLOR_GRAY2BGR))
     writer.release()
     for k in range(captures):
@@ -228,39 +238,45 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
     _, mirror = spread_report(sweep, type("C", (), {"covisible": caps.covisible[:1], "match_uv": caps.match_uv[:1],
                                                    "depth": caps.depth[:1]}))
     sgbm_ms = []
-    for k in range(frames):
+    for k in order:
         left, right = opencv_halves(caps.image[k:k + 1], rig.reference_width, mirror)
         start = time.perf_counter()
         sgbm.compute(left, right)
         sgbm_ms.append(1000 * (time.perf_counter() - start))
     sgbm_frame = statistics.median(sgbm_ms)
     common = ["--rig", str(tmp / "rig.json"), "--z-range", str(Z_RANGE[0]), str(Z_RANGE[1])]
-    print(f"\nend to end, prismstereo depth in a subprocess, {frames}-frame FFV1 video of the moving sequence and "
-          f"{captures} PNG captures at 1024 x 768; StereoSGBM {sgbm_frame:.1f} ms per frame (median, same frames)")
-    print(f"{'run':40s} {'ms per frame':>12s} {'x SGBM':>7s}  the CLI's summary")
+    print(f"\nend to end, prismstereo depth in a subprocess, {frames}-frame FFV1 video (back and forth over the "
+          f"moving sequence) and {captures} PNG captures at 1024 x 768; StereoSGBM {sgbm_frame:.1f} ms per frame "
+          "(median, same frames)")
+    print(f"{'run':40s} {'ms per frame':>12s} {'x SGBM':>7s} {'CLI ms/frame':>12s} {'depth median':>12s} "
+          f"{'key frames':>10s}")
     runs = {f"video --backend {b}{' --no-temporal' if not t else ''}": [str(video), "--backend", b] +
             ([] if t else ["--no-temporal"]) for b in ("onnx", "torch") for t in (True, False)}
     for name, extra in runs.items():
-        best = float("inf")
+        best, rates, medians, keys = float("inf"), [], [], "-"
         _cli_seconds([*extra, *common, "--out", str(tmp / "warm"), "--stop", "1"])  # exports into the cache
         for repeat in range(2):
             out = tmp / f"out{repeat}"
             head, _ = _cli_seconds([*extra, *common, "--out", str(out / "head"), "--stop", "3"])
-            whole, summary = _cli_seconds([*extra, *common, "--out", str(out / "all")])
+            whole, text = _cli_seconds([*extra, *common, "--out", str(out / "all")])
             best = min(best, 1000 * (whole - head) / (frames - 3))
-        share = re.search(r"the depth model \d+%", summary)
-        print(f"{name:40s} {best:12.1f} {best / sgbm_frame:7.2f}  {share.group(0) if share else summary}")
+            rates.append(1000 / float(re.search(r"([\d.]+) depth maps/s end to end", text).group(1)))
+            medians.append(float(re.search(r"([\d.]+) ms per frame \(median", text).group(1)))
+            found = re.search(r"(\d+) key frames", text)
+            keys = found.group(1) if found else "-"
+        print(f"{name:40s} {best:12.1f} {best / sgbm_frame:7.2f} {min(rates):12.1f} {min(medians):12.1f} {keys:>10s}")
     images = [str(tmp / f"capture{k:02d}.png") for k in range(captures)]
     _cli_seconds([images[0], "--backend", "onnx", *common, "--out", str(tmp / "warm.npy")])
     for workers in (1, 2):
-        best = float("inf")
+        best, rates = float("inf"), []
         for repeat in range(2):
             flags = ["--backend", "onnx", "--workers", str(workers), *common]
             head, _ = _cli_seconds([*images[:2], *flags, "--out", str(tmp / f"c{repeat}h")])
-            whole, summary = _cli_seconds([*images, *flags, "--out", str(tmp / f"c{repeat}a")])
+            whole, text = _cli_seconds([*images, *flags, "--out", str(tmp / f"c{repeat}a")])
             best = min(best, 1000 * (whole - head) / (captures - 2))
+            rates.append(1000 / float(re.search(r"([\d.]+) depth maps/s end to end", text).group(1)))
         print(f"{f'{captures} captures --backend onnx --workers {workers}':40s} {best:12.1f} "
-              f"{best / sgbm_frame:7.2f}  {summary}")
+              f"{best / sgbm_frame:7.2f} {min(rates):12.1f} {'':>12s} {'-':>10s}")
 
 
 def main() -> None:
@@ -268,7 +284,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=20, help="frames of the moving sequence")
     parser.add_argument("--static", type=int, default=30, help="frames of the flicker measurement (0 skips it)")
     parser.add_argument("--sizes", type=int, nargs="*", default=(1024, 640), help="sensor widths (none: only --cli)")
-    parser.add_argument("--cli", type=int, default=30, metavar="N", help="video frames end to end (0 skips)")
+    parser.add_argument("--cli", type=int, default=120, metavar="N", help="video frames end to end (0 skips)")
     parser.add_argument("--captures", type=int, default=16, metavar="M", help="captures end to end")
     args = parser.parse_args()
     torch.set_num_threads(2)
