@@ -37,9 +37,14 @@ from prismstereo.matching.aggregate import box_filter
 from prismstereo.nn import PrismCostVolume, depth_regression
 from prismstereo.runtime import exporting
 
-__all__ = ["DEFAULT_WEIGHTS", "FORMAT", "Architecture", "LearnedStereo", "WeightsError", "load_weights"]
+__all__ = ["DEFAULT_WEIGHTS", "FORMAT", "HYPOTHESIS_SPACING_PX", "Architecture", "LearnedStereo", "WeightsError",
+           "learned_hypotheses", "load_weights"]
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "thesis_setup1.pt"
+# the spacing of neighbouring hypotheses on the sweep at the feature stride (px) that the default count keeps on every
+# rig and range: the shipped weights' (trained with 24 hypotheses over 450-1000 mm on setup 1 binned by 2, 16 px of
+# sweep at stride 4 in 23 steps, 0.70 px; run with 48 at full resolution, 32 px in 47 steps, 0.68 px)
+HYPOTHESIS_SPACING_PX = 0.69
 FORMAT = "prismstereo.learned/1"
 SCALES = (2, 4, 8)
 
@@ -174,6 +179,34 @@ def load_weights(path: str | Path) -> tuple[Architecture, dict[str, torch.Tensor
     return arch, blob["state_dict"], dict(blob.get("metadata", {}))
 
 
+def learned_hypotheses(rig: BiPrismRig, z_range_mm: tuple[float, float], scale: int = 4,
+                       spacing_px: float = HYPOTHESIS_SPACING_PX) -> int:
+    """The learned model's default D: hypotheses uniform in the sweep parameter whose neighbours are at most
+    ``spacing_px`` apart on every reference pixel's sweep at the feature stride ``scale`` (the rig binned by it), so
+    that a wider range gets more hypotheses at the spacing the weights were trained with (the classical model's rule,
+    :func:`~prismstereo.defaults.default_hypotheses`, at the cost volume's resolution).
+
+    Args:
+        rig: the full-resolution rig.
+        z_range_mm: (z_min, z_max).
+        scale: the feature stride.
+        spacing_px: the largest neighbour spacing (px at the stride).
+
+    Returns:
+        D >= 2.
+
+    Example:
+        >>> learned_hypotheses(thesis_setup1(), (450.0, 1000.0)), learned_hypotheses(thesis_setup1(), (200.0, 1600.0))
+        (48, 168)
+    """
+    from prismstereo.defaults import default_hypotheses
+
+    if not (isinstance(spacing_px, (int, float)) and spacing_px > 0):
+        raise OptionError(f"spacing_px must be a positive number, got {spacing_px!r}")
+    intervals = default_hypotheses(rig.binned(scale), z_range_mm) - 1  # steps of <= 1 px: the sweep's length
+    return max(2, math.ceil(intervals / spacing_px) + 1)
+
+
 class LearnedStereo(nn.Module):
     """Learned depth of the reference half on the exact prism sweep (see the module docstring).
 
@@ -181,7 +214,7 @@ class LearnedStereo(nn.Module):
         rig: the full-resolution rig; its sensor size must be divisible by ``scale``. Its geometry is checked
             first (:func:`~prismstereo.geometry.optics.check_rig_images`), here and in :meth:`for_rig`.
         z_range_mm: (z_min, z_max) searched, beyond the prism's back plane.
-        num_hypotheses: D >= 2, uniform in 1/Z.
+        num_hypotheses: D >= 2, uniform in 1/Z; None: :func:`learned_hypotheses` of the rig and range.
         scale: feature stride (2, 4 or 8); part of the architecture.
         weights: ``'default'`` (the shipped ``weights/thesis_setup1.pt``), None (random initialisation from torch's
             global RNG) or a weights file path.
@@ -209,7 +242,7 @@ class LearnedStereo(nn.Module):
         rig: BiPrismRig,
         z_range_mm: tuple[float, float],
         *,
-        num_hypotheses: int = 48,
+        num_hypotheses: int | None = None,
         scale: int = 4,
         weights: str | Path | None | Literal["default"] = "default",
         architecture: Architecture | None = None,
@@ -240,11 +273,16 @@ class LearnedStereo(nn.Module):
                 raise WeightsError(f"weights do not fit the architecture {self.architecture}: {exc}") from exc
         self._attach(rig, z_range_mm, num_hypotheses, with_match)
 
-    def _attach(self, rig: BiPrismRig, z_range_mm: tuple[float, float], num_hypotheses: int, with_match: bool) -> None:
+    def _attach(self, rig: BiPrismRig, z_range_mm: tuple[float, float], num_hypotheses: int | None,
+                with_match: bool) -> None:
         """Build the rig-dependent buffers (not part of the state dict)."""
         s = self.architecture.scale
         if rig.image_width % s or rig.image_height % s:
             raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by scale {s}")
+        if num_hypotheses is None:
+            from prismstereo.depth import check_z_range
+
+            num_hypotheses = learned_hypotheses(rig, check_z_range(rig, z_range_mm), s)
         self.rig, self.with_match = rig, bool(with_match)
         self.volume = PrismCostVolume(rig, z_range_mm, num_hypotheses, s, groups=self.architecture.groups)
         self.z_range_mm = self.volume.z_range_mm
@@ -263,7 +301,8 @@ class LearnedStereo(nn.Module):
 
     def for_rig(self, rig: BiPrismRig, z_range_mm: tuple[float, float], *, num_hypotheses: int | None = None,
                 with_match: bool | None = None) -> LearnedStereo:
-        """A model for another rig or range that shares this one's CNNs (same parameter tensors).
+        """A model for another rig or range that shares this one's CNNs (same parameter tensors); ``num_hypotheses``
+        None: :func:`learned_hypotheses` of that rig and range.
 
         Example:
             >>> model = LearnedStereo(thesis_setup1().downscaled(8), (450.0, 1000.0), weights=None)
@@ -272,7 +311,7 @@ class LearnedStereo(nn.Module):
             (True, torch.Size([8]))
         """
         with torch.random.fork_rng(devices=[]):  # its own CNNs are replaced: their initialisation draws nothing
-            twin = LearnedStereo(rig, z_range_mm, num_hypotheses=num_hypotheses or self.num_hypotheses,
+            twin = LearnedStereo(rig, z_range_mm, num_hypotheses=num_hypotheses,
                                  scale=self.architecture.scale, weights=None, architecture=self.architecture,
                                  with_match=self.with_match if with_match is None else with_match)
         twin.metadata = self.metadata

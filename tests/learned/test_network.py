@@ -209,3 +209,25 @@ def test_the_learned_model_is_its_own_class_and_describes_its_weights(tmp_path):
         assert type(copy.deepcopy(m)) is type(m) and type(pickle.loads(pickle.dumps(m))) is type(m)
     with pytest.raises(TypeError, match="unexpected keyword argument 'matcher'"):
         PrismStereo(small, (450.0, 1000.0), matcher="learned")
+
+
+def test_hypotheses_follow_the_range_and_the_rig():
+    """The default D keeps the shipped weights' spacing (48 over their 450-1000 mm on setup 1), grows with the range
+    and the rig's sweep length, and ``for_rig`` follows the new range."""
+    from prismstereo import thesis_setup2
+    from prismstereo.defaults import default_hypotheses
+    from prismstereo.learned import HYPOTHESIS_SPACING_PX, learned_hypotheses
+
+    setup1 = thesis_setup1()
+    assert learned_hypotheses(setup1, (450.0, 1000.0)) == 48
+    wide = learned_hypotheses(setup1, (200.0, 1600.0))
+    assert wide > 3 * 48 and learned_hypotheses(thesis_setup2(), (450.0, 1000.0)) > 48
+    # the spacing at the stride: the sweep's length in px (steps of <= 1 px) over D - 1 steps
+    length = default_hypotheses(setup1.binned(4), (200.0, 1600.0)) - 1
+    assert length / (wide - 1) <= HYPOTHESIS_SPACING_PX < length / (wide - 2)
+    small = thesis_setup1().downscaled(4)
+    model = LearnedStereo(small, (450.0, 1000.0), with_match=False)
+    assert model.num_hypotheses == learned_hypotheses(small, (450.0, 1000.0))
+    assert model.for_rig(small, (300.0, 1500.0)).num_hypotheses == learned_hypotheses(small, (300.0, 1500.0))
+    with pytest.raises(OptionError, match="spacing_px must be a positive number"):
+        learned_hypotheses(small, (450.0, 1000.0), spacing_px=0)
