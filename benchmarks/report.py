@@ -62,7 +62,13 @@ BENCHMARKS: dict[str, Benchmark] = {
         "entering the view, a cut) at 1024 x 768 and 640 x 480, and the per-pixel depth flicker of a static plane "
         "over 30 noisy frames. `temporal ONNX` is the default temporal graph (`TemporalOptions()`: the band on the "
         "2 x 2-binned frame for the 1024 x 768 pyramid, at full resolution for the one-level 640 x 480 model), "
-        "`temporal k=...` the band at the other resolution. What the numbers mean: usage.md, *Video and streams*."),
+        "`temporal k=...` the band at the other resolution. What the numbers mean: usage.md, *Video and streams*. "
+        "First, `prismstereo depth` end to end on a video and on 16 captures (1 and 2 worker processes)."),
+    "hybrid_budget": Benchmark(
+        "hybrid_budget.py", (), "The time budget of a hybrid chain (block mode + a learned refinement stage)",
+        "Untrained candidate refinement stages (warp + dilated 3 x 3 CNN) at 1/2 and full resolution beside the "
+        "classical block mode in onnxruntime, against StereoSGBM in the same interleaved rounds, 1024 x 768: which "
+        "stage sizes keep the chain within 0.8x SGBM."),
     "middlebury": Benchmark(
         "middlebury.py", (), "The rectified matcher on the Middlebury pairs",
         "bad > 1 px (missing output counts as bad) against OpenCV StereoSGBM / StereoBM."),
