@@ -172,7 +172,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         key = request_key(rig, _request(args))
         cached = recall(key)
     if cached is not None:  # exported before for the same request: no torch model to build
-        model, summary = OnnxDepth(cached.path, threads=os.cpu_count() or 1), cached.summary + " (cached graph)"
+        model = OnnxDepth(cached.path, threads=os.cpu_count() or 1, spinning=False)  # as jobs.Runner's sessions
+        summary = cached.summary + " (cached graph)"
     else:
         model, summary = _build_model(args, rig)
     temporal = None

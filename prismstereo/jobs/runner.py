@@ -20,6 +20,7 @@ from torch import nn
 from prismstereo.errors import PrismStereoError, check_option
 from prismstereo.io import replacing
 from prismstereo.jobs.plan import Outputs, Task, WriteOptions
+from prismstereo.threads import torch_threads
 
 if TYPE_CHECKING:
     from prismstereo.export import OnnxDepth
@@ -59,9 +60,10 @@ def _prefetch(items: Iterable[Any], depth: int = 2) -> Iterator[Any]:
 
     def produce() -> None:
         try:
-            for item in items:
-                if not offer((True, item)):
-                    return
+            with torch_threads(1):  # decoding's tensor work must not compete with the model's thread pool
+                for item in items:
+                    if not offer((True, item)):
+                        return
             offer((False, None))
         except BaseException as exc:  # handed to the consumer
             offer((False, exc))
@@ -81,6 +83,13 @@ def _prefetch(items: Iterable[Any], depth: int = 2) -> Iterator[Any]:
         thread.join()
 
 
+def _one_thread(job: Callable[[], Any]) -> Any:
+    """``job()`` with one torch thread: a writer's tensor work beside the model's thread pool (its OpenMP team would
+    otherwise share the cores with a second one, and both wait on each other)."""
+    with torch_threads(1):
+        return job()
+
+
 class _Writer:
     """Runs write jobs on one background thread in submission order, at most ``depth`` pending; each job's
     ``done(future)`` is called on the submitting thread, in order."""
@@ -91,7 +100,7 @@ class _Writer:
         self._depth = depth
 
     def submit(self, job: Callable[[], Any], done: Callable[[Future], None]) -> None:
-        self._pending.append((self._pool.submit(job), done))
+        self._pending.append((self._pool.submit(_one_thread, job), done))
         while len(self._pending) > self._depth:
             self._finish_one()
 
@@ -111,6 +120,10 @@ _FAILURES = (PrismStereoError, OSError)  # what fails one input (unreadable, wro
 
 class Runner:
     """One process's model and writers: depth of captures in batches, and of sequences frame after frame.
+
+    The graph shares the cores with the reader and writer threads, so its onnxruntime threads sleep when idle
+    (``spinning=False``, :class:`~prismstereo.export.OnnxDepth`) and those threads' tensor work runs on one torch
+    thread: otherwise each waits on the other's busy threads.
 
     Args:
         model: a :class:`~prismstereo.model.PrismStereo` or :class:`~prismstereo.learned.LearnedStereo`, or an
@@ -152,7 +165,11 @@ class Runner:
 
     # ----------------------------------------------------------------------------- models
     def prepare(self) -> None:
-        """Export the ONNX graphs into the cache without opening a session (before worker processes fork)."""
+        """Export the ONNX graphs into the cache without opening a session (before worker processes fork).
+
+        Example:
+            >>> Runner(model, backend="onnx").prepare()  # doctest: +SKIP
+        """
         if self.backend == "onnx" and self.model is not None:
             from prismstereo.export import cache_path, export_cached
 
@@ -161,12 +178,16 @@ class Runner:
 
     def for_worker(self, threads: int) -> None:
         """Make this (forked or unpickled) runner a worker process's: its threads, no progress callback, and its
-        own onnxruntime session (a session is not shared across processes)."""
+        own onnxruntime session (a session is not shared across processes).
+
+        Example:
+            >>> runner.for_worker(1)  # doctest: +SKIP
+        """
         from prismstereo.export import OnnxDepth
 
         self.threads, self.progress = threads, None
         if self._graph_path is not None:
-            self.graph = OnnxDepth(self._graph_path, threads=threads)
+            self.graph = OnnxDepth(self._graph_path, threads=threads, spinning=False)
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickled for a spawned worker or a Ray actor: the model (or the graph's path), not a session or callback."""
@@ -181,11 +202,18 @@ class Runner:
             return self.graph
         from prismstereo.export import onnx_session
 
-        return onnx_session(self.model, channels=1, threads=self.threads, temporal=temporal)
+        return onnx_session(self.model, channels=1, threads=self.threads, temporal=temporal, spinning=False)
 
     def depth(self, batch: torch.Tensor):
         """The model's (or graph's) result for a grey batch (B, 1, H, W): ``depth``, ``valid``, ``confidence``,
-        (B, 1, H, W_ref) each."""
+        (B, 1, H, W_ref) each.
+
+        Example:
+            >>> from prismstereo.model import PrismStereo
+            >>> runner = Runner(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)))
+            >>> runner.depth(torch.rand(2, 1, 48, 64)).depth.shape
+            torch.Size([2, 1, 48, 32])
+        """
         if self.backend == "onnx":
             return self._session()(batch)
         with torch.inference_mode():
