@@ -84,6 +84,9 @@ XDIST_GROUPS = {
     "tests/depth/test_temporal.py": "temporal model and sequences",
     "tests/export/test_onnx.py": "exported graph and captures",
     "tests/test_cli_calibrate.py": "calibration bench",
+    **{f"tests/test_jobs.py::{name}": "local ray" for name in (
+        "test_ray_writes_the_same_files_and_survives_a_dead_worker",
+        "test_depth_predictor_maps_the_model_over_a_ray_dataset")},
     "tests/test_dense.py": "weak-texture models (weak)",
 }
 
