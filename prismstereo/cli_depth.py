@@ -155,6 +155,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     for flag, value in (("--batch-size", args.batch_size), ("--workers", args.workers)):
         if value < 1:
             raise PrismStereoError(f"{flag} must be >= 1, got {value}")
+    if args.ray is not None and args.workers > 1:
+        raise PrismStereoError("--ray and --workers exclude each other (Ray places the workers)")
     pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
     if pose is not None and not args.ply:
         raise PrismStereoError("--camera-to-world transforms the --ply point clouds: add --ply")

@@ -70,8 +70,10 @@ def test_plan_names_every_output_and_refuses_collisions(inputs, tmp_path):
         plan([inputs / "clip.avi", inputs / "clip.avi"], tmp_path, WriteOptions(preview_video=tmp_path / "p.mp4"))
     with pytest.raises(PrismStereoError, match="a video or sequence writes one file per frame"):
         plan([inputs / "clip.avi"], tmp_path / "d.npy", WriteOptions())
-    with pytest.raises(PrismStereoError, match="--workers must be an int >= 1"):
+    with pytest.raises(PrismStereoError, match="workers must be an int >= 1"):
         run(tasks, None, workers=0)
+    with pytest.raises(PrismStereoError, match="ray and workers > 1 exclude each other"):
+        run(tasks[:1], None, workers=2, ray="local")
 
 
 def test_workers_write_the_same_files_and_report_failures(inputs, tmp_path, capsys):

@@ -111,15 +111,17 @@ def run(tasks: Sequence[Task], runner: Runner, *, workers: int = 1, batch_size: 
 
     Example:
         >>> summary = run(plan(["a.png", "b.png"], Path("out"), WriteOptions()), runner)  # doctest: +SKIP
-        >>> summary.describe()  # doctest: +SKIP
-        '2 inputs, 2 depth maps written; 0.6 s, 3.3 depth maps/s end to end, the depth model 71% of the time'
+        >>> [report.written for report in summary.reports]  # doctest: +SKIP
+        [1, 1]
     """
     from tqdm import tqdm
 
     if not isinstance(workers, int) or workers < 1:
-        raise PrismStereoError(f"--workers must be an int >= 1, got {workers}")
+        raise PrismStereoError(f"workers must be an int >= 1, got {workers}")
     if not isinstance(batch_size, int) or batch_size < 1:
-        raise PrismStereoError(f"--batch-size must be >= 1, got {batch_size}")
+        raise PrismStereoError(f"batch_size must be an int >= 1, got {batch_size}")
+    if ray is not None and workers != 1:
+        raise PrismStereoError("ray and workers > 1 exclude each other (Ray places the workers)")
     start = time.perf_counter()
     reports: dict[int, TaskReport] = {}
     total = sum(len(t.outputs) - t.first for t in tasks if t.error is None)
@@ -144,9 +146,6 @@ def run(tasks: Sequence[Task], runner: Runner, *, workers: int = 1, batch_size: 
         units = _units(todo, batch_size)
         if ray is not None:
             from prismstereo.jobs.distributed import run_on_ray
-
-            if workers != 1:
-                raise PrismStereoError("--ray and --workers exclude each other (Ray places the workers)")
 
             def tally(i: int, rep: TaskReport) -> None:
                 deliver(i, rep)
