@@ -64,6 +64,10 @@ BENCHMARKS: dict[str, Benchmark] = {
         "2 x 2-binned frame for the 1024 x 768 pyramid, at full resolution for the one-level 640 x 480 model), "
         "`temporal k=...` the band at the other resolution. What the numbers mean: usage.md, *Video and streams*. "
         "First, `prismstereo depth` end to end on a video and on 16 captures (1 and 2 worker processes)."),
+    "keyframe_interval": Benchmark(
+        "keyframe_interval.py", (), "Video: the key-frame interval of the temporal prior",
+        "A 120-frame smooth sequence (back and forth over the moving plane) through the temporal ONNX stream with "
+        "key frames at least every 10, 30 and 60 frames: time per frame, depth error and coverage."),
     "hybrid_budget": Benchmark(
         "hybrid_budget.py", (), "The time budget of a hybrid chain (block mode + a learned refinement stage)",
         "Untrained candidate refinement stages (warp + dilated 3 x 3 CNN) at 1/2 and full resolution beside the "
