@@ -87,8 +87,8 @@ def local_cubic(table: torch.Tensor, s: torch.Tensor, top: int = 0) -> LocalCubi
         s: (B, 1, H_s, W) coordinates in [-1, 1] (clamp first) of the table's rows ``top`` ... ``top + H_s - 1``
             (all of them by default); gradients flow through the cubic's u.
         top: the table row of s's first row. A band of rows indexes the whole table instead of a slice of it:
-            in an ONNX export a slice of the table is a constant-folded copy (4 row strips stored the 53 MB
-            table of ``thesis_setup1`` ~1.9 times).
+            in an ONNX export a slice of the table is a constant-folded copy (row strips would store the table
+            again, about once more in all).
 
     Returns:
         LocalCubic.

@@ -263,7 +263,8 @@ class LearnedStereo(nn.Module):
         self.architecture = dataclasses.replace(architecture or Architecture(), scale=scale)
         self.metadata: dict[str, Any] = metadata or {}
         self.features = _features(self.architecture)
-        # channels-last 3-D convolutions run several times faster on CPU (oneDNN); values are unchanged
+        # channels-last 3-D convolutions take oneDNN's fast CPU path (benchmarks/learned.py times the model); values
+        # are unchanged
         self.aggregation = _aggregation(self.architecture).to(memory_format=torch.channels_last_3d)
         self.refinement = _refinement(self.architecture)
         if state is not None:
