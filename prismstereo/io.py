@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import NamedTuple
@@ -43,6 +44,7 @@ __all__ = [
     "write_depth",
     "read_depth",
     "replacing",
+    "partial_stem",
 ]
 
 DEPTH_FILE_FORMATS: tuple[str, ...] = ("npy", "png", "tiff")
@@ -160,12 +162,24 @@ def replacing(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+    partial = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")  # partial_stem reads it back
     try:
         yield partial
         os.replace(partial, path)
     finally:
         partial.unlink(missing_ok=True)
+
+
+def partial_stem(path: str | Path) -> str | None:
+    """The stem of the file a temporary file of :func:`replacing` was to become, None for any other name (a
+    process killed inside ``replacing`` leaves its temporary file; a job's clean-up finds them by this).
+
+    Example:
+        >>> partial_stem(".depth_000003.4711.partial.npy"), partial_stem("depth_000003.npy")
+        ('depth_000003', None)
+    """
+    found = re.fullmatch(r"\.(.+)\.\d+\.partial(\.[^.]*)?", Path(path).name)
+    return None if found is None else found.group(1)
 
 
 def _imwrite(path: Path, data: np.ndarray) -> None:

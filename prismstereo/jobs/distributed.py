@@ -124,7 +124,6 @@ class DepthPredictor:
 
         with torch_threads(1):
             res = self.runner.depth(x)
-        mask = (res.confidence > 0) if self.runner.options.dense else res.valid
-        depth = torch.where(mask, res.depth, torch.full_like(res.depth, float("nan")))
+        depth = torch.where(self.runner.written(res), res.depth, torch.full_like(res.depth, float("nan")))
         return {**batch, "depth": depth[:, 0].numpy().astype(np.float32),
                 "confidence": res.confidence[:, 0].numpy().astype(np.float32)}

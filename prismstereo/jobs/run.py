@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-import re
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, NamedTuple
 
 from prismstereo.errors import PrismStereoError
+from prismstereo.io import partial_stem
 from prismstereo.jobs.plan import Task
 from prismstereo.jobs.runner import Runner, TaskReport
 
@@ -59,9 +59,21 @@ def _work(unit: list[tuple[int, Task]], batch_size: int) -> list[tuple[int, Task
     return work(_WORKER["runner"], unit, batch_size)
 
 
+def unit_reports(runner: Runner, unit: list[tuple[int, Task]], batch_size: int) -> Iterator[tuple[int, TaskReport]]:
+    """A unit's (index, report) pairs as its tasks complete: a batch of captures or one sequence, with their task
+    indices, on ``runner``.
+
+    Example:
+        >>> list(unit_reports(runner, [(0, plan(["a.png"], Path("out"), WriteOptions())[0])], 1))  # doctest: +SKIP
+    """
+    if unit[0][1].sequence:
+        yield unit[0][0], runner.run_sequence(unit[0][1])
+        return
+    yield from zip((i for i, _ in unit), runner.run_captures([t for _, t in unit], batch_size), strict=True)
+
+
 def work(runner: Runner, unit: list[tuple[int, Task]], batch_size: int) -> list[tuple[int, TaskReport]]:
-    """A worker's unit (a batch of captures or one sequence, with their task indices) on ``runner`` and its threads:
-    the (index, report) pairs.
+    """A worker process's unit (:func:`unit_reports`) on its runner's threads: the (index, report) pairs.
 
     Example:
         >>> work(runner, [(0, plan(["a.png"], Path("out"), WriteOptions())[0])], 1)  # doctest: +SKIP
@@ -69,9 +81,7 @@ def work(runner: Runner, unit: list[tuple[int, Task]], batch_size: int) -> list[
     from prismstereo.threads import torch_threads
 
     with torch_threads(runner.threads):
-        if unit[0][1].sequence:
-            return [(unit[0][0], runner.run_sequence(unit[0][1]))]
-        return list(zip((i for i, _ in unit), runner.run_captures([t for _, t in unit], batch_size), strict=True))
+        return list(unit_reports(runner, unit, batch_size))
 
 
 def _units(tasks: Sequence[tuple[int, Task]], batch_size: int) -> list[list[tuple[int, Task]]]:
@@ -157,10 +167,7 @@ def run(tasks: Sequence[Task], runner: Runner, *, workers: int = 1, batch_size: 
             runner.progress = bar.update
             try:
                 for unit in units:
-                    if unit[0][1].sequence:
-                        deliver(unit[0][0], runner.run_sequence(unit[0][1]))
-                        continue
-                    for (i, _), rep in zip(unit, runner.run_captures([t for _, t in unit], batch_size), strict=True):
+                    for i, rep in unit_reports(runner, unit, batch_size):
                         deliver(i, rep)
             finally:
                 runner.progress = None
@@ -182,8 +189,7 @@ def _remove_partials(tasks: Sequence[Task]) -> None:
     for folder, stems in folders.items():
         if folder.is_dir():
             for stray in folder.glob(".*.partial*"):
-                name = re.match(r"\.(.+)\.\d+\.partial", stray.name)
-                if name is not None and name.group(1) in stems:
+                if partial_stem(stray) in stems:
                     stray.unlink(missing_ok=True)
 
 

@@ -254,6 +254,18 @@ class Runner:
             note += f", {files.ply.name} ({count} points)"
         return note
 
+    def written(self, result: Any) -> torch.Tensor:
+        """The (B, 1, H, W_ref) pixels whose depth is written: the valid ones, or with ``dense`` every pixel with a
+        depth (confidence > 0).
+
+        Example:
+            >>> from prismstereo.model import PrismStereo
+            >>> runner = Runner(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)))
+            >>> runner.written(runner.depth(torch.rand(1, 1, 48, 64))).shape
+            torch.Size([1, 1, 48, 32])
+        """
+        return (result.confidence > 0) if self.options.dense else result.valid
+
     def _points(self, depth: torch.Tensor, written: torch.Tensor) -> torch.Tensor | None:
         if not self.options.ply:
             return None
@@ -294,7 +306,6 @@ class Runner:
         ready: deque = deque()
         writer = _Writer()
         w_ref = self.rig.reference_width
-        dense = self.options.dense
         for chunk, images in zip(chunks, _prefetch([self._read(t.source) for t in c] for c in chunks), strict=True):
             good = [(t, im) for t, im in zip(chunk, images, strict=True) if not isinstance(im, str)]
             ready.extend(TaskReport(t.source, 0, 0, (), 0.0, im) for t, im in zip(chunk, images, strict=True)
@@ -303,7 +314,7 @@ class Runner:
                 start = time.perf_counter()
                 res = self.depth(torch.stack([grey for _, (grey, _) in good]))
                 seconds = (time.perf_counter() - start) / len(good)
-                mask = (res.confidence > 0) if dense else res.valid  # dense: every pixel with a depth
+                mask = self.written(res)
                 points = self._points(res.depth, mask)
                 for k, (task, (_, image)) in enumerate(good):
                     depth, valid = res.depth[k, 0], mask[k, 0]
@@ -390,7 +401,7 @@ class Runner:
         try:
             for files, frame in zip(task.outputs[task.first:], _prefetch(frames, depth=4), strict=False):
                 res = stream.push(frame.image)
-                mask = (res.confidence > 0) if opts.dense else res.valid
+                mask = self.written(res)
                 points = self._points(res.depth, mask)
                 writer.submit(functools.partial(job, files, res.depth[0, 0], mask[0, 0], res.confidence[0, 0],
                                                 None if points is None else points[0],
