@@ -61,15 +61,15 @@ def _requested_config(args: argparse.Namespace):
     return config
 
 
-def _request(args: argparse.Namespace) -> dict[str, object]:
-    """What the flags ask of the model, before the rig resolves it: the key of its graph in the ONNX cache (with the
-    rig; :func:`prismstereo.export.request_key`)."""
+def _request(args: argparse.Namespace, config) -> dict[str, object]:
+    """What the flags ask of the model (``config``: :func:`_requested_config`'s, parsed once), before the rig resolves
+    it: the key of its graph in the ONNX cache (with the rig; :func:`prismstereo.export.request_key`)."""
     import hashlib
 
     if args.learned or args.weights is not None:
         weights = "default" if args.weights is None else hashlib.sha256(Path(args.weights).read_bytes()).hexdigest()
         return {"learned": weights, "z_range_mm": args.z_range, "hypotheses": args.hypotheses}
-    return {"config": _requested_config(args).to_dict(), "z_range_mm": args.z_range}
+    return {"config": config.to_dict(), "z_range_mm": args.z_range}
 
 
 def _search_flags(args: argparse.Namespace) -> dict[str, object]:
@@ -149,7 +149,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     from prismstereo.jobs import Runner, Selection, WriteOptions, plan, run
 
     rig = load_rig(args.rig)
-    _requested_config(args)  # --preset / --config: fails early, and sets args.dense for the outputs
+    config = _requested_config(args)  # --preset / --config: fails early, and sets args.dense for the outputs
     if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
         raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
     for flag, value in (("--batch-size", args.batch_size), ("--workers", args.workers)):
@@ -171,7 +171,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     if args.backend == "onnx" and not any(t.sequence for t in runnable):  # captures: the graph alone will do
         from prismstereo.export import OnnxDepth, recall, request_key
 
-        key = request_key(rig, _request(args))
+        key = request_key(rig, _request(args, config))
         cached = recall(key)
     if cached is not None:  # exported before for the same request: no torch model to build
         model = OnnxDepth(cached.path, threads=os.cpu_count() or 1, spinning=False)  # as jobs.Runner's sessions
