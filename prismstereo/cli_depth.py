@@ -66,8 +66,10 @@ def _request(args: argparse.Namespace, config) -> dict[str, object]:
     it: the key of its graph in the ONNX cache (with the rig; :func:`prismstereo.export.request_key`)."""
     import hashlib
 
-    if args.learned or args.weights is not None:
+    if args.hybrid or args.learned or args.weights is not None:
         weights = "default" if args.weights is None else hashlib.sha256(Path(args.weights).read_bytes()).hexdigest()
+        if args.hybrid:
+            return {"hybrid": weights, "z_range_mm": args.z_range}
         return {"learned": weights, "z_range_mm": args.z_range, "hypotheses": args.hypotheses}
     return {"config": config.to_dict(), "z_range_mm": args.z_range}
 
@@ -88,14 +90,24 @@ def _z_range(args: argparse.Namespace, rig: BiPrismRig) -> tuple[tuple[float, fl
 
 
 def _learned_model(args: argparse.Namespace, rig: BiPrismRig):
-    """The :class:`~prismstereo.learned.LearnedStereo` of ``--learned`` (shipped weights) or ``--weights FILE``."""
-    from prismstereo.learned import LearnedStereo
+    """The :class:`~prismstereo.learned.LearnedStereo` of ``--learned`` or the
+    :class:`~prismstereo.learned.HybridStereo` of ``--hybrid`` (shipped weights, or ``--weights FILE``)."""
+    from prismstereo.learned import HybridStereo, LearnedStereo
 
+    flag = "--hybrid" if args.hybrid else "--learned"
     classical = [name for name, value in (("--preset", args.preset), ("--config", args.config),
                                           ("--downsample", args.downsample), ("--full-band", args.full_band),
                                           ("--band-edges", args.band_edges)) if value is not None]
+    if args.hybrid and args.learned:
+        classical.append("--learned")
+    if args.hybrid and args.hypotheses is not None:
+        classical.append("--hypotheses")
     if classical:
-        raise PrismStereoError(f"{', '.join(classical)} set the classical model's options, not --learned's")
+        raise PrismStereoError(f"{', '.join(classical)} set another model's options, not {flag}'s")
+    if args.hybrid:
+        z_range, how = _z_range(args, rig)
+        model = HybridStereo(rig, tuple(z_range), weights="default" if args.weights is None else args.weights).eval()
+        return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
     if args.hypotheses is not None and args.hypotheses < 2:
         raise PrismStereoError(f"--hypotheses must be an int >= 2, got {args.hypotheses}")
     z_range, how = _z_range(args, rig)
@@ -109,7 +121,7 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig):
     ``export``), with a line describing its range."""
     from prismstereo.model import PrismStereo
 
-    if args.learned or args.weights is not None:
+    if args.hybrid or args.learned or args.weights is not None:
         return _learned_model(args, rig)
     config = _requested_config(args)
     z_range, how = _z_range(args, rig)
@@ -232,8 +244,12 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the learned model (prismstereo.learned.LearnedStereo) with its shipped weights "
                              "instead of the classical one (--hypotheses: its D, default: neighbours 0.69 px apart on "
                              "the sweep at its 1/4 resolution, 48 over 450-1000 mm on thesis_setup1)")
+    parser.add_argument("--hybrid", action="store_true",
+                        help="the hybrid model (prismstereo.learned.HybridStereo: the classical block level refined "
+                             "by a learned 2-D stage, dense) with its shipped weights")
     parser.add_argument("--weights", default=None, metavar="FILE.pt",
-                        help="the learned model with these weights (written by prismstereo train); implies --learned")
+                        help="the learned model with these weights (written by prismstereo train; with --hybrid the "
+                             "hybrid's); implies --learned without --hybrid")
     parser.add_argument("--preset", choices=("accurate", "fast", "dense", "reference"), default=None,
                         help="named model settings (prismstereo.config.PRESETS; default accurate); the options "
                              "above override it")

@@ -83,6 +83,7 @@ XDIST_GROUPS = {
         "test_diverged_fit_is_an_error", "test_board_jacobian_matches_finite_differences")},
     "tests/depth/test_temporal.py": "temporal model and sequences",
     "tests/export/test_onnx.py": "exported graph and captures",
+    "tests/learned/test_hybrid.py": "hybrid model",
     "tests/test_cli_calibrate.py": "calibration bench",
     **{f"tests/test_jobs.py::{name}": "local ray" for name in (
         "test_ray_writes_the_same_files_and_survives_a_dead_worker",

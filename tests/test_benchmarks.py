@@ -7,6 +7,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from default_chain import score  # noqa: E402
 from dense_depth import best_coverage, edge_strength, jump_distance, model_config  # noqa: E402
 from fit_confidence import fit_options  # noqa: E402
 
@@ -90,3 +91,19 @@ def test_edge_strength_tells_marked_jumps_from_hidden_ones():
     assert hidden[0] < 75 and hidden[1] > 20
     nan = edge_strength(image, jump_distance(torch.full((40, 40), 500.0)), covisible)
     assert all(v != v for v in nan)
+
+
+def test_default_chain_score_counts_valid_and_dense_pixels():
+    from prismstereo.model import DepthResult
+
+    truth = torch.full((1, 1, 2, 5), 500.0, dtype=torch.float64)
+    depth = torch.tensor([[[[500.0, 501.0, 510.0, 500.0, 520.0], [500.0, 500.0, 500.0, 500.0, 500.0]]]])
+    valid = torch.tensor([[[[True, True, True, False, False], [True, True, True, True, True]]]])
+    confidence = torch.tensor([[[[0.9, 0.8, 0.7, 0.3, 0.2], [0.9, 0.9, 0.9, 0.9, 0.0]]]])
+    covisible = torch.ones(1, 1, 2, 5, dtype=torch.bool)
+    covisible[0, 0, 1, 3] = False
+    r = score(DepthResult(depth, valid, confidence, depth, depth), truth, covisible)
+    assert r["valid"] == pytest.approx(100 * 7 / 9) and r["valid bad"] == pytest.approx(100 / 7)  # 510 is 2 % off
+    assert r["dense"] == pytest.approx(100 * 8 / 9) and r["dense bad"] == pytest.approx(100 * 2 / 8)
+    # the most confident first: four 500s (0.9), 501 (0.8), then 510 (0.7: 1 of 6 wrong > 3 %): 5 of 9 kept
+    assert r["@3"] == pytest.approx(100 * 5 / 9)

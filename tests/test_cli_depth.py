@@ -296,9 +296,21 @@ def test_learned_model_from_the_cli(scene, tmp_path, capsys, backend):
     depth = np.load(out)
     assert depth.shape == (96, 64) and abs(np.nanmedian(depth) / FAR - 1) < 0.05
     assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--learned", "--preset", "fast") == 2
-    assert "--preset set the classical model's options, not --learned's" in capsys.readouterr().err
+    assert "--preset set another model's options, not --learned's" in capsys.readouterr().err
     assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--weights", tmp_path / "none.pt") == 2
     assert "none.pt" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_hybrid_model_from_the_cli(scene, tmp_path, capsys, backend):
+    """--hybrid runs the shipped hybrid (both backends, dense); the other models' options are refused with it."""
+    out = tmp_path / "far.npy"
+    assert _run(scene, scene / "far.png", "--out", out, "--hybrid", "--z-range", 400, 900, "--backend", backend) == 0
+    assert "hybrid: 4x4-binned classical level" in capsys.readouterr().out
+    depth = np.load(out)
+    assert depth.shape == (96, 64) and abs(np.nanmedian(depth) / FAR - 1) < 0.02
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--hybrid", "--hypotheses", 10) == 2
+    assert "--hypotheses set another model's options, not --hybrid's" in capsys.readouterr().err
 
 
 def test_export_learned(scene, tmp_path, capsys):

@@ -171,8 +171,8 @@ def graph_metadata(model: nn.Module, channels: int, opset: int,
 
 def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset: int = DEFAULT_OPSET,
                 temporal: TemporalOptions | None = None) -> Path:
-    """Export a :class:`~prismstereo.model.PrismStereo` (or a :class:`~prismstereo.learned.LearnedStereo`) to an
-    ONNX file (checked with ``onnx.checker``).
+    """Export a :class:`~prismstereo.model.PrismStereo` (or a :class:`~prismstereo.learned.LearnedStereo` or
+    :class:`~prismstereo.learned.HybridStereo`) to an ONNX file (checked with ``onnx.checker``).
 
     Args:
         model: the model (its rig, range and options are baked into the graph).
@@ -198,11 +198,11 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
     """
     import onnx
 
-    from prismstereo.learned import LearnedStereo
+    from prismstereo.learned import HybridStereo, LearnedStereo
     from prismstereo.model import PrismStereo
 
-    if not isinstance(model, (PrismStereo, LearnedStereo)):
-        raise ExportError(f"model must be a PrismStereo or a LearnedStereo, got {type(model).__name__}")
+    if not isinstance(model, (PrismStereo, LearnedStereo, HybridStereo)):
+        raise ExportError(f"model must be a PrismStereo, LearnedStereo or HybridStereo, got {type(model).__name__}")
     if channels not in (1, 3):
         raise ExportError(f"channels must be 1 or 3, got {channels!r}")
     if not isinstance(opset, int) or not 16 <= opset <= 20:

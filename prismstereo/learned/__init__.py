@@ -1,6 +1,8 @@
-"""A small learned depth model on the exact prism sweep, its training data and its trainer."""
+"""Learned depth on the exact prism sweep: a small cost-volume model (LearnedStereo) and the hybrid of the classical
+block level with a learned 2-D refinement (HybridStereo); their training data and trainers."""
 
 from prismstereo.learned.data import KINDS, TrainingSet, procedural_picture, random_capture_spec, training_set
+from prismstereo.learned.hybrid import HYBRID_WEIGHTS, HybridArchitecture, HybridStereo
 from prismstereo.learned.network import (
     DEFAULT_WEIGHTS,
     HYPOTHESIS_SPACING_PX,
@@ -13,6 +15,9 @@ from prismstereo.learned.network import (
 from prismstereo.learned.train import TrainResult, train
 
 __all__ = [
+    "HYBRID_WEIGHTS",
+    "HybridArchitecture",
+    "HybridStereo",
     "DEFAULT_WEIGHTS",
     "HYPOTHESIS_SPACING_PX",
     "Architecture",

@@ -1,0 +1,210 @@
+"""One dense, exact and fast default: every candidate chain on photographs as surfaces, textured planes and defocus,
+with its exported graph's time against OpenCV's StereoSGBM in the same run (1024 x 768, 228-1374 mm).
+
+Captures (held out from every training and fit; ``thesis_setup1`` unless named, 2 x 2 supersampling, read noise
+2/255, Fresnel, 8 bits): the Middlebury photographs Tsukuba and Venus and scikit-image's stereo Motorcycle (sub-pixel
+truth) as height fields 450-900 mm in front of the prism; a weakly textured height field; a textured plane at 525 mm
+through each thesis setup; a plane at 400 mm behind a thin lens focused at 600 mm at f/12.5 and f/6.25. The
+Middlebury and defocus renders are ``benchmarks/dense_depth.py``'s (shared cache).
+
+Chains: ``accurate`` (:class:`~prismstereo.PrismStereo`'s defaults: the pyramid with the calibrated confidence),
+``dense`` (its 'dense' preset), ``learned`` (:class:`~prismstereo.learned.LearnedStereo`, hypotheses by range),
+``block`` (the classical level of the hybrid alone: block mode on 4 x 4-binned pixels, dense) and ``hybrid``
+(:class:`~prismstereo.learned.HybridStereo`, the shipped weights, or ``--hybrid-weights FILE``). Per capture and
+chain: ``valid`` (co-visible pixels the chain calls valid, and the share of them off by more than 1 %), ``dense``
+(every co-visible pixel it gives a depth, same), mean relative error of the valid ones, and ``@3 %``: the largest
+share of co-visible pixels a threshold on the confidence keeps with <= 3 % of them off by more than 1 %. Then the
+speed: each chain's exported graph in onnxruntime (2 intra-op threads) and StereoSGBM (``cv2.setNumThreads(2)``) in
+interleaved rounds (``benchmarks/_timing.py``), median ms and the paired ratio; and the peak resident memory of one
+torch forward of the hybrid at 1024 x 768 (a child process). ``--plot FILE`` draws the frontier: time / SGBM against
+the photographs' mean ``@3 %`` share, one point per chain.
+
+Run: .venv/bin/python benchmarks/default_chain.py [--rounds 7] [--plot docs/frontier.png] [--chains a,b,...]
+     [--hybrid-weights FILE] [--accuracy-only]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import interleaved_ms, paired_ratio  # noqa: E402
+from dense_depth import best_coverage, captures  # noqa: E402
+from onnx_speed import opencv_halves, pixel_sweep  # noqa: E402
+from video_speed import disparities  # noqa: E402
+
+from prismstereo import PrismStereo, thesis_setup1, thesis_setup2  # noqa: E402
+from prismstereo.export import OnnxDepth, export_onnx  # noqa: E402
+from prismstereo.learned import HybridStereo, LearnedStereo  # noqa: E402
+from prismstereo.synthetic import ImageFormation, disparity_scene, fronto_parallel_plane, render  # noqa: E402
+
+Z_RANGE = (228.0, 1374.0)
+CHAINS = ("accurate", "dense", "learned", "block", "hybrid")
+PHOTOS = ("Tsukuba 450-900 mm", "Venus 450-900 mm", "Motorcycle 450-900 mm")
+MEMORY = """
+import resource, sys, torch
+from prismstereo import thesis_setup1
+from prismstereo.learned import HybridStereo
+torch.set_num_threads(2)
+model = HybridStereo(thesis_setup1(), (228.0, 1374.0), weights=sys.argv[1] if len(sys.argv) > 1 else "default").eval()
+with torch.inference_mode():
+    model(torch.rand(1, 1, 768, 1024))
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+"""
+
+
+def more_captures(cache: Path) -> dict[str, tuple[object, dict]]:
+    """Motorcycle and the two setups' planes (rendered once into ``cache``): name -> (rig, capture)."""
+    import skimage.data
+
+    base = dict(supersample=2, noise_sigma=2 / 255, fresnel=True, seed=7)
+    s1, s2 = thesis_setup1(), thesis_setup2()
+
+    def motorcycle():
+        left, _, disparity = skimage.data.stereo_motorcycle()
+        picture = torch.from_numpy(left.astype(np.float32).mean(-1) / 255.0)
+        return disparity_scene(picture, torch.from_numpy(disparity.astype(np.float32)), 450.0, 900.0,
+                               name="motorcycle")
+
+    specs = {"Motorcycle 450-900 mm": (s1, motorcycle), "plane 525 mm setup 1": (s1, lambda: fronto_parallel_plane(
+        s1, 525.0, seed=11)), "plane 525 mm setup 2": (s2, lambda: fronto_parallel_plane(s2, 525.0, seed=12))}
+    out = {}
+    cache.mkdir(parents=True, exist_ok=True)
+    for name, (rig, scene) in specs.items():
+        path = cache / f"{name.replace(' ', '_')}.pt"
+        if not path.exists():
+            torch.save(render(rig, scene(), ImageFormation(**base))._asdict(), path)
+        out[name] = (rig, torch.load(path))
+    return out
+
+
+def build(chain: str, rig, hybrid_weights: str) -> torch.nn.Module:
+    """The chain's model of ``rig`` over :data:`Z_RANGE`."""
+    if chain == "accurate":
+        return PrismStereo(rig, Z_RANGE).eval()
+    if chain == "dense":
+        return PrismStereo(rig, Z_RANGE, "dense").eval()
+    if chain == "learned":
+        return LearnedStereo(rig, Z_RANGE).eval()
+    hybrid = HybridStereo(rig, Z_RANGE, weights=hybrid_weights).eval()
+    return hybrid.classical if chain == "block" else hybrid
+
+
+def score(res, gt: torch.Tensor, covisible: torch.Tensor) -> dict[str, float]:
+    """valid / dense coverage and bad shares, mean error, and the @3 % share (module docstring)."""
+    rel = (res.depth.double() - gt).abs() / gt
+    total = int(covisible.sum())
+    out = {}
+    for key, has in (("valid", res.valid), ("dense", res.confidence > 0)):
+        sel = has & covisible & torch.isfinite(rel)
+        out[key] = 100 * int(sel.sum()) / total
+        out[f"{key} bad"] = 100 * float((rel[sel] > 0.01).double().mean()) if sel.any() else float("nan")
+    sel = res.valid & covisible
+    out["mean"] = 100 * float(rel[sel].mean()) if sel.any() else float("nan")
+    sel = (res.confidence > 0) & covisible & torch.isfinite(rel)
+    out["@3"] = best_coverage(res.confidence[sel], rel[sel] <= 0.01, total, bad=0.03)[0]
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
+    parser.add_argument("--cache", type=Path, default=Path(".cache/dense_depth"))
+    parser.add_argument("--hybrid-weights", default="default", help="the hybrid's weights file")
+    parser.add_argument("--chains", default=",".join(CHAINS), help="comma-separated subset of " + ",".join(CHAINS))
+    parser.add_argument("--plot", type=Path, default=None, help="write the frontier plot here")
+    parser.add_argument("--accuracy-only", action="store_true", help="no timing and no memory measurement")
+    args = parser.parse_args()
+    chains = [c for c in args.chains.split(",") if c]
+    unknown = set(chains) - set(CHAINS)
+    if unknown:
+        raise SystemExit(f"unknown chains {sorted(unknown)}; choose from {', '.join(CHAINS)}")
+    torch.set_num_threads(2)
+    cv2.setNumThreads(2)
+    s1 = thesis_setup1()
+    caps = {name: (s1, cap) for name, cap in captures(s1, args.cache).items()}
+    caps.update(more_captures(args.cache))
+    models: dict[tuple[str, str], torch.nn.Module] = {}
+    print(f"1024 x 768, searched {Z_RANGE[0]:g}-{Z_RANGE[1]:g} mm; valid / dense: % of co-visible pixels and % of "
+          "those off by > 1 %; @3 %: the most a confidence threshold keeps at <= 3 % off")
+    print(f"{'capture':26s} {'chain':9s} {'valid %':>8s} {'bad %':>6s} {'dense %':>8s} {'bad %':>6s} "
+          f"{'mean %':>7s} {'@3 %':>6s}")
+    photo_share: dict[str, list[float]] = {c: [] for c in chains}
+    for name, (rig, cap) in caps.items():
+        w = rig.reference_width
+        gt, covisible = cap["depth"][..., :w].double(), cap["covisible"][..., :w]
+        for chain in chains:
+            key = (chain, rig.to_json() if hasattr(rig, "to_json") else repr(rig))
+            if key not in models:
+                models[key] = build(chain, rig, args.hybrid_weights)
+            with torch.inference_mode():
+                res = models[key](cap["image"][:, :1].float())
+            r = score(res, gt, covisible)
+            if name in PHOTOS:
+                photo_share[chain].append(r["@3"])
+            print(f"{name:26s} {chain:9s} {r['valid']:8.1f} {r['valid bad']:6.2f} {r['dense']:8.1f} "
+                  f"{r['dense bad']:6.2f} {r['mean']:7.3f} {r['@3']:6.1f}")
+    if args.accuracy_only:
+        return
+    # speed: the exported graphs against StereoSGBM, interleaved
+    plane = caps["plane 525 mm setup 1"][1]["image"][:, :1].float()
+    left, right = opencv_halves(plane, s1.reference_width, False)
+    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=disparities(pixel_sweep(s1, Z_RANGE)), blockSize=5)
+    runs = {"StereoSGBM": lambda: sgbm.compute(left, right)}
+    image = plane.numpy()
+    with tempfile.TemporaryDirectory() as folder:
+        for chain in chains:
+            model = models[(chain, s1.to_json() if hasattr(s1, "to_json") else repr(s1))]
+            graph = OnnxDepth(export_onnx(model, Path(folder) / f"{chain}.onnx"))
+            runs[chain] = (lambda g: lambda: g(image))(graph)
+        times = interleaved_ms(runs, rounds=args.rounds)
+    sgbm_ms = times["StereoSGBM"]
+    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                if line.startswith("model name")), "unknown CPU")
+    print(f"\nexported graphs, onnxruntime 2 threads, {args.rounds} interleaved rounds on {cpu}")
+    print(f"{'run':12s} {'median ms':>9s} {'x SGBM':>7s} {'photos @3 %':>12s}")
+    ratios = {}
+    for run, values in times.items():
+        ratios[run] = paired_ratio(values, sgbm_ms)
+        share = f"{statistics.mean(photo_share[run]):12.1f}" if run in photo_share and photo_share[run] else ""
+        print(f"{run:12s} {statistics.median(values):9.1f} {ratios[run]:7.2f} {share}")
+    if "hybrid" in chains:
+        extra = [] if args.hybrid_weights == "default" else [args.hybrid_weights]
+        peak = subprocess.run([sys.executable, "-c", MEMORY, *extra], capture_output=True, text=True, check=True)
+        print(f"\nhybrid, one torch forward at 1024 x 768: peak resident memory {float(peak.stdout):.0f} MB")
+    if args.plot is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for chain in chains:
+            if photo_share[chain]:
+                x, y = ratios[chain], statistics.mean(photo_share[chain])
+                ax.scatter([x], [y])
+                ax.annotate(chain, (x, y), textcoords="offset points", xytext=(5, 3))
+        ax.axvline(0.8, color="grey", linestyle=":", label="speed target 0.8x SGBM")
+        ax.axhline(95.0, color="grey", linestyle="--", label="accuracy target 95 %")
+        ax.set_xlabel("exported graph time / StereoSGBM (same run)")
+        ax.set_ylabel("photographs: share kept at <= 3 % bad (%)")
+        ax.legend(loc="lower right", fontsize=8)
+        fig.tight_layout()
+        args.plot.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(args.plot, dpi=110)
+        print(f"wrote {args.plot}")
+    print(json.dumps({"ratios": {k: round(v, 3) for k, v in ratios.items()}}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,421 @@
+"""HybridStereo: the exact classical sweep at its cheap binned level, then a learned image-guided 2-D refinement.
+
+Data path (one capture, both halves as recorded; k = ``block``; (h, w) the reference half binned 2 x 2):
+
+1. :class:`~prismstereo.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band, dense): the
+   exact plane sweep on the k x k-binned capture gives every covered block a sweep coordinate s (linear in 1/Z),
+   its calibrated confidence and the coverage;
+2. those three maps bilinearly onto the 2 x 2-binned grid (block centres kept: pixel j of the finer grid is at
+   full-sensor 2 j + 1/2);
+3. the 2 x 2-binned capture normalised (:func:`~prismstereo.learned.network.normalise_image`), and the other half
+   sampled along every reference pixel's exact sweep (:func:`~prismstereo.epipolar.sweep.evaluate_sweep` of the
+   binned rig, thesis eq. 4.1-4.10) at s + o for offsets o of one step (a step of the sweep is <= 1 px at this
+   resolution: :func:`~prismstereo.defaults.default_hypotheses`): the local absolute differences at each offset are
+   a small cost curve around the estimate;
+4. a dilated 3 x 3 CNN (the StereoNet / HITNet refinement) on the reference image, the cost curve, the estimate's
+   local relief and the classical confidence and coverage predicts a residual of s in steps and a confidence logit
+   (``iterations`` such stages, each re-sampling at the updated s);
+5. s and the confidence bilinearly to full resolution, depth exact from s (thesis eq. 6.1-6.10 via the sweep).
+
+The weights are the CNNs only; the sweep, masks and the classical level are built from the rig and range the model
+is constructed with, so the same weights run on any rig whose sensor the block divides.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from pathlib import Path
+from typing import Any, Literal, NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from prismstereo.defaults import default_coarse_factor, default_hypotheses
+from prismstereo.depth.level import upsample
+from prismstereo.depth.result import DepthResult
+from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
+from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.geometry.optics import check_rig_images, trace_pixels
+from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.learned.network import WeightsError, normalise_image
+from prismstereo.matching.aggregate import box_filter
+from prismstereo.runtime import sample_grid
+
+__all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "HybridArchitecture", "HybridStereo", "RefinementInputs",
+           "load_hybrid_weights", "sweep_match", "truth_sweep"]
+
+HYBRID_WEIGHTS = Path(__file__).resolve().parent / "weights" / "hybrid.pt"
+HYBRID_FORMAT = "prismstereo.hybrid/1"
+DILATIONS = (1, 2, 4, 8, 1, 1, 1, 1)
+RELIEF_STEPS = 8.0  # the estimate's local relief is given to the CNN in steps, clipped to +- this
+
+
+@dataclasses.dataclass(frozen=True)
+class HybridArchitecture:
+    """The hyper-parameters that shape the weights (stored beside them).
+
+    Attributes:
+        block: k, the binning of the classical level (2 or 4).
+        channels: C, channels of each refinement CNN.
+        layers: 3 x 3 convolutions per CNN (2-8, dilations 1, 2, 4, 8, 1, ...), the output head included.
+        offsets: the cost curve is sampled at s + o steps for o = -offsets ... +offsets.
+        iterations: refinement stages, each with its own CNN.
+
+    Example:
+        >>> HybridArchitecture().block, HybridArchitecture(offsets=1).inputs
+        (4, 8)
+    """
+
+    block: int = 4
+    channels: int = 16
+    layers: int = 5
+    offsets: int = 2
+    iterations: int = 1
+
+    def __post_init__(self) -> None:
+        if self.block not in (2, 4):
+            raise OptionError(f"Unknown block {self.block!r}. Choose from: 2, 4")
+        for name, low, high in (("channels", 1, 256), ("layers", 2, len(DILATIONS)), ("offsets", 0, 8),
+                                ("iterations", 1, 4)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise OptionError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+
+    @property
+    def inputs(self) -> int:
+        """Input channels of a CNN: 2 image, 2 offsets + 1 costs, relief, confidence, coverage."""
+        return 2 + 2 * self.offsets + 1 + 3
+
+
+class RefinementInputs(NamedTuple):
+    """The classical estimate on the 2 x 2-binned grid (:meth:`HybridStereo.initial`; training stores it).
+
+    Attributes:
+        image: (B, 2, h, W2) the normalised 2 x 2-binned capture (both halves).
+        s: (B, 1, h, w) sweep coordinate of the classical estimate (0 where it has none).
+        confidence: (B, 1, h, w) its calibrated confidence (0 where it has no depth).
+        covered: (B, 1, h, w) 1 where it has a depth, else 0 (float: the bilinear share of covered blocks).
+    """
+
+    image: torch.Tensor
+    s: torch.Tensor
+    confidence: torch.Tensor
+    covered: torch.Tensor
+
+
+def _conv(cin: int, cout: int, dilation: int = 1) -> nn.Conv2d:
+    return nn.Conv2d(cin, cout, 3, padding=dilation, dilation=dilation)
+
+
+class RefinementCNN(nn.Module):
+    """One stage's CNN: (B, inputs, h, w) -> (B, 2, h, w), the residual in steps and the confidence logit; the head
+    starts at zero, so an untrained stage keeps the classical estimate.
+
+    Example:
+        >>> RefinementCNN(HybridArchitecture())(torch.rand(1, 10, 8, 8)).abs().max().item()
+        0.0
+    """
+
+    def __init__(self, arch: HybridArchitecture) -> None:
+        super().__init__()
+        c = arch.channels
+        self.convs = nn.ModuleList([_conv(arch.inputs, c)] + [_conv(c, c, d) for d in DILATIONS[1:arch.layers - 1]])
+        self.head = _conv(c, 2)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        for conv in self.convs:
+            x = F.leaky_relu(conv(x), 0.1)
+        return self.head(x)
+
+
+def load_hybrid_weights(path: str | Path) -> tuple[HybridArchitecture, dict[str, torch.Tensor], dict[str, Any]]:
+    """Read a weights file written by :meth:`HybridStereo.save`: (architecture, state_dict, metadata).
+
+    Raises:
+        WeightsError: missing or unreadable file, or not a HybridStereo weights file.
+
+    Example:
+        >>> arch, state, meta = load_hybrid_weights(HYBRID_WEIGHTS)  # doctest: +SKIP
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise WeightsError(f"weights file {path} does not exist")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for a file it cannot read: say what the file is not
+        raise WeightsError(f"{path} is not a HybridStereo weights file (torch.load cannot read it safely: "
+                           f"{type(exc).__name__})") from exc
+    if not isinstance(blob, dict) or blob.get("format") != HYBRID_FORMAT or not isinstance(blob.get("state_dict"),
+                                                                                          dict):
+        raise WeightsError(f"{path} is not a HybridStereo weights file (format {HYBRID_FORMAT!r})")
+    try:
+        arch = HybridArchitecture(**blob["architecture"])
+    except (TypeError, OptionError) as exc:
+        raise WeightsError(f"{path} holds an invalid architecture {blob.get('architecture')!r}: {exc}") from exc
+    return arch, blob["state_dict"], dict(blob.get("metadata", {}))
+
+
+class HybridStereo(nn.Module):
+    """Dense depth of the reference half: classical block mode refined by a learned 2-D stage (module docstring).
+
+    Args:
+        rig: the full-resolution rig; its sensor size must be divisible by the architecture's ``block``.
+        z_range_mm: (z_min, z_max) searched; None: the classical model's default
+            (:func:`~prismstereo.depth.range.default_z_range`).
+        weights: ``'default'`` (the shipped ``weights/hybrid.pt``), None (random initialisation from torch's global
+            RNG; the untrained heads keep the classical estimate) or a weights file path.
+        architecture: without weights, the hyper-parameters (default :class:`HybridArchitecture` ()).
+
+    Raises:
+        OptionError: a sensor the block does not divide, or bad options. WeightsError: a weights file that cannot
+            be read. RigError: bad rig or range.
+
+    Example:
+        >>> model = HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None)
+        >>> out = model(torch.rand(1, 1, 192, 256))
+        >>> out.depth.shape, out.valid.dtype
+        (torch.Size([1, 1, 192, 128]), torch.bool)
+    """
+
+    coefficients: torch.Tensor
+    rays_valid: torch.Tensor
+
+    def __init__(self, rig: BiPrismRig, z_range_mm: tuple[float, float] | None = None, *,
+                 weights: str | Path | None | Literal["default"] = "default",
+                 architecture: HybridArchitecture | None = None) -> None:
+        super().__init__()
+        from prismstereo.depth.range import check_z_range, default_z_range
+        from prismstereo.model import PrismStereo
+
+        if not isinstance(rig, BiPrismRig):
+            raise OptionError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
+        check_rig_images(rig)
+        state, metadata = None, {}
+        if weights is not None:
+            path = HYBRID_WEIGHTS if isinstance(weights, str) and weights == "default" else Path(weights)
+            architecture, state, metadata = load_hybrid_weights(path)
+        self.architecture = arch = architecture or HybridArchitecture()
+        self.metadata: dict[str, Any] = metadata
+        if rig.image_width % arch.block or rig.image_height % arch.block:
+            raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by block {arch.block}")
+        k = arch.block
+        z = default_z_range(rig) if z_range_mm is None else check_z_range(rig, z_range_mm)
+        binned = rig.binned(k)  # dense needs a band to place: a coarse level even where the default has none
+        factor = max(2, default_coarse_factor(default_hypotheses(binned, z), binned.image_height,
+                                              binned.reference_width))
+        self.classical = PrismStereo(rig, z, {"downsample": k, "full_band": 0, "dense": True,
+                                              "coarse_factor": factor})
+        self.stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.iterations)])
+        if state is not None:
+            try:
+                self.stages.load_state_dict(state)
+            except RuntimeError as exc:
+                raise WeightsError(f"weights do not fit the architecture {arch}: {exc}") from exc
+        self.rig = rig
+        self.half = half = rig.binned(2)
+        z = self.classical.z_range
+        # a step of s: the sweep's largest pixel spacing at the half resolution is <= 1 px per step
+        self.step = 2.0 / (default_hypotheses(half, z) - 1)
+        f64 = torch.float64
+        v, u = torch.meshgrid(torch.arange(half.image_height, dtype=f64), torch.arange(half.reference_width,
+                                                                                       dtype=f64), indexing="ij")
+        coefficients = sweep_coefficients(fit_sweep(half, z), torch.stack([u, v], -1)).permute(2, 3, 0, 1)
+        self.register_buffer("coefficients", coefficients.to(torch.get_default_dtype()), persistent=False)
+        v, u = torch.meshgrid(torch.arange(rig.image_height, dtype=f64), torch.arange(rig.reference_width, dtype=f64),
+                              indexing="ij")
+        rays = trace_pixels(rig, torch.stack([u, v], -1))
+        self.register_buffer("rays_valid", (rays.valid & rays.left).view(1, 1, *u.shape), persistent=False)
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        """(z_min, z_max) searched, mm."""
+        return self.classical.z_range
+
+    @property
+    def num_hypotheses(self) -> int:
+        """D of the classical level (``index`` is a fractional index into its ``depths``)."""
+        return self.classical.num_hypotheses
+
+    @property
+    def depths(self) -> torch.Tensor:
+        """(D,) the classical level's hypotheses, mm."""
+        return self.classical.depths
+
+    def describe(self) -> dict[str, Any]:
+        """What the model is, JSON-ready (the ONNX export's metadata and cache key).
+
+        Example:
+            >>> HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None).describe()["model"]
+            'HybridStereo'
+        """
+        digest = hashlib.sha256()
+        for name, tensor in sorted(self.stages.state_dict().items()):
+            digest.update(name.encode())
+            digest.update(tensor.detach().float().cpu().numpy().tobytes())
+        return {"model": "HybridStereo", "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses,
+                "architecture": dataclasses.asdict(self.architecture), "classical": self.classical.describe(),
+                "weights_sha256": digest.hexdigest()[:16]}
+
+    def summary(self) -> str:
+        """The model in one line.
+
+        Example:
+            >>> HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None).summary()
+            'hybrid: 4x4-binned classical level (...), then 1 learned 2-D stage at 1/2 (5 x 16 ch, ... parameters)'
+        """
+        a = self.architecture
+        count = sum(p.numel() for p in self.stages.parameters())
+        return (f"hybrid: {a.block}x{a.block}-binned classical level ({self.classical.final.summary()}), then "
+                f"{a.iterations} learned 2-D stage{'s' if a.iterations > 1 else ''} at 1/2 ({a.layers} x "
+                f"{a.channels} ch, {count} parameters)")
+
+    def save(self, path: str | Path, **metadata: Any) -> Path:
+        """Write the CNNs' weights with the architecture and ``metadata`` (small, plain values)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        state = {k: v.detach().float().cpu().clone() for k, v in self.stages.state_dict().items()}
+        torch.save({"format": HYBRID_FORMAT, "architecture": dataclasses.asdict(self.architecture),
+                    "state_dict": state, "metadata": {**self.metadata, **metadata}}, path)
+        return path
+
+    def initial(self, image: torch.Tensor) -> RefinementInputs:
+        """Steps 1-2: the classical estimate on the 2 x 2-binned grid and the normalised binned capture.
+
+        Args:
+            image: (B, C, H, W) captures in [0, 1] of the rig's sensor.
+
+        Returns:
+            RefinementInputs, (B, *, h, w) maps.
+        """
+        self._check(image)
+        grey = image.mean(1, keepdim=True)
+        k = self.architecture.block
+        with torch.no_grad():
+            level = self.classical.final
+            res = level.depth(F.avg_pool2d(grey, k))
+            covered = (res.confidence > 0).to(grey.dtype)
+            s = torch.where(covered > 0, res.index * level.step - 1.0, torch.zeros_like(res.index))
+        h, w = self.half.image_height, self.half.reference_width
+        maps = torch.cat([s, res.confidence, covered], 1)
+        maps = upsample(maps, k // 2, (h, w), mode="bilinear")  # a block level may end short of the grid: repeated
+        s, confidence, covered = maps.split(1, 1)
+        return RefinementInputs(normalise_image(F.avg_pool2d(grey, 2)), s, confidence, covered)
+
+    def _check(self, image: torch.Tensor) -> None:
+        check_shape(image, ["B", "C", "H", "W"], "image")
+        rig = self.rig
+        if not torch.is_floating_point(image) or image.shape[1] not in (1, 3) or tuple(image.shape[-2:]) != (
+                rig.image_height, rig.image_width):
+            raise ShapeError(f"image must be a floating-point (B, 1 or 3, {rig.image_height}, {rig.image_width}) "
+                             f"tensor in [0, 1], got {image.dtype} {tuple(image.shape)}")
+
+    def sample_costs(self, image: torch.Tensor, s: torch.Tensor, window: tuple[int, int] = (0, 0)) -> torch.Tensor:
+        """Step 3: the cost curve around ``s``: (B, 2 offsets + 1, h, w) mean absolute differences (3 x 3) of the
+        locally normalised reference and the other half sampled along the exact sweep at s + o steps (the match
+        at s exact to the sweep fit, the offsets to first order in o: their cost only guides the CNN).
+
+        Args:
+            image: (B, 2, h, W2) the normalised binned capture (:attr:`RefinementInputs.image`).
+            s: (B, 1, h', w') sweep coordinates of the reference pixels from row, column ``window`` on (training
+                refines crops).
+        """
+        n = self.architecture.offsets
+        b, _, h, w = s.shape
+        r, c = window
+        match, slope = sweep_match(self.coefficients[..., r:r + h, c:c + w], s)  # (B, 2, h, w) each
+        offsets = torch.arange(-n, n + 1, dtype=s.dtype, device=s.device).view(1, -1, 1, 1, 1) * self.step
+        at = match.unsqueeze(1) + offsets * slope.unsqueeze(1)  # (B, O, 2, h, w)
+        size = torch.tensor([image.shape[-1], image.shape[-2]], dtype=s.dtype, device=s.device).view(1, 1, 2, 1, 1)
+        grid = ((2.0 * at + 1.0) / size - 1.0).permute(0, 1, 3, 4, 2).reshape(b, -1, w, 2)  # align_corners=False
+        local = image[:, 1:2]
+        warped = sample_grid(local, grid).view(b, 2 * n + 1, h, w)
+        return box_filter((local[..., r:r + h, c:c + w] - warped).abs(), 3)
+
+    def refine(self, inputs: RefinementInputs, window: tuple[int, int] = (0, 0)) -> list[tuple[torch.Tensor,
+                                                                                              torch.Tensor]]:
+        """Steps 3-4 on the 2 x 2-binned grid: each stage's refined s (B, 1, h, w) and confidence logit
+        (B, 1, h, w); ``inputs`` may be a crop from row, column ``window`` on (its ``image`` the whole capture)."""
+        s = inputs.s
+        h, w = s.shape[-2:]
+        r, c = window
+        reference = inputs.image[..., r:r + h, c:c + w]
+        out = []
+        for stage in self.stages:
+            relief = ((s - box_filter(s, 5)) / self.step).clamp(-RELIEF_STEPS, RELIEF_STEPS) / RELIEF_STEPS
+            x = torch.cat([reference, self.sample_costs(inputs.image, s, window), relief, inputs.confidence,
+                           inputs.covered], 1)
+            delta, logit = stage(x).split(1, 1)
+            s = (s + delta * self.step).clamp(-1.0, 1.0)
+            out.append((s, logit))
+        return out
+
+    def forward(self, image: torch.Tensor) -> DepthResult:
+        """Depth of the reference half of captures ``image`` (B, C, H, W) in [0, 1] (colour is averaged to grey).
+
+        Returns:
+            :class:`~prismstereo.depth.result.DepthResult`: depth (B, 1, H, W_ref) mm on every ray that sees
+            through the prism; valid (B, 1, H, W_ref) bool (confidence >= 0.5); confidence (B, 1, H, W_ref) in
+            [0, 1] (trained as the probability of a depth within 1 % of the truth; 0 exactly where there is no
+            depth); index into :attr:`depths`; match (B, 2, H, W_ref), the 2 x 2-binned match interpolated.
+
+        Raises:
+            ShapeError: an image that is not (B, 1 or 3, H, W) of the rig's sensor, or not floating point.
+        """
+        self._check(image)
+        dtype = self.coefficients.dtype
+        inputs = self.initial(image.to(dtype))
+        s, logit = self.refine(inputs)[-1]
+        match = sweep_match(self.coefficients, s)[0] * 2.0 + 0.5  # full-sensor pixels
+        size = (self.rig.image_height, self.rig.reference_width)
+        full = upsample(torch.cat([s, torch.sigmoid(logit), match], 1), 2, size, mode="bilinear")
+        s, confidence, match = full[:, :1], full[:, 1:2], full[:, 2:]
+        z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
+        confidence = confidence * self.rays_valid.to(dtype)
+        level = self.classical.final
+        depth = sweep_to_depth(s, z_range)
+        out = image.dtype
+        return DepthResult(depth.to(out), confidence >= 0.5, confidence.to(out), ((s + 1.0) / level.step).to(out),
+                           match.to(out))
+
+
+def sweep_match(coefficients: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The per-pixel sweep polynomials (Chebyshev in s, :func:`~prismstereo.epipolar.sweep.sweep_coefficients`)
+    at ``s`` and their slope d m / d s, term by term on whole maps (T_n' = n U_(n-1)).
+
+    Args:
+        coefficients: (N, 2, h, w) per-pixel coefficients.
+        s: (B, 1, h, w) sweep coordinates in [-1, 1].
+
+    Returns:
+        (match, slope): (B, 2, h, w) each, positions in the other half (px of the polynomials' rig) and d/ds.
+
+    Example:
+        >>> c = torch.zeros(3, 2, 1, 1); c[1] = 1.0  # m(s) = T_1(s) = s
+        >>> [t.flatten().tolist() for t in sweep_match(c, torch.full((1, 1, 1, 1), 0.5))]
+        [[0.5, 0.5], [1.0, 1.0]]
+    """
+    check_shape(coefficients, ["N", 2, "H", "W"], "coefficients")
+    t_prev, t_cur = torch.ones_like(s), s  # T_0, T_1
+    u_prev, u_cur = torch.ones_like(s), 2.0 * s  # U_0, U_1
+    match = t_prev * coefficients[0] + t_cur * coefficients[1]
+    slope = u_prev * coefficients[1]
+    for n in range(2, coefficients.shape[0]):
+        t_prev, t_cur = t_cur, 2.0 * s * t_cur - t_prev
+        match = match + t_cur * coefficients[n]
+        slope = slope + (n * u_cur) * coefficients[n]
+        u_prev, u_cur = u_cur, 2.0 * s * u_cur - u_prev
+    return match, slope
+
+
+def truth_sweep(depth: torch.Tensor, z_range_mm: tuple[float, float]) -> torch.Tensor:
+    """The sweep coordinate of true depths (mm, NaN where unknown) over a range (NaN stays NaN).
+
+    Example:
+        >>> truth_sweep(torch.tensor([450.0, float("nan")]), (450.0, 900.0))
+        tensor([-1., nan])
+    """
+    return depth_to_sweep(depth, torch.tensor(z_range_mm, dtype=depth.dtype, device=depth.device))

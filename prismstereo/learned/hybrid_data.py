@@ -1,0 +1,244 @@
+"""Training captures for :class:`~prismstereo.learned.hybrid.HybridStereo`: varied rigs, ranges, photographs and
+image formation, each stored with the classical estimate the refinement starts from.
+
+Scenes alternate between this package's procedural kinds (:func:`~prismstereo.learned.data.random_capture_spec`:
+noise-textured planes, slanted planes, steps, spheres, weakly textured height fields) and photographs as surfaces:
+one of scikit-image's bundled photographs (:data:`TRAIN_PHOTOS`; its stereo Motorcycle and the Middlebury pairs are
+kept for evaluation) cropped and draped over a height field of smooth relief, a slant, and depth jumps along the
+photograph's own edges (regions of a thresholded, blurred copy of it moved nearer), as objects in real photographs
+are. Image formation varies read noise, blur, thin-lens defocus, Fresnel and vignetting in the render, then gamma
+(0.7-1.4) and a brightness ratio of the halves (0.85-1.15) on the 8-bit capture. Rigs (:func:`training_rigs`): the
+thesis' two setups at their default and narrower ranges, and setup 1 with another prism angle, apex distance and a
+barrel distortion.
+
+Rendering dominates; :func:`hybrid_set` keeps each rig's captures in a ``.pt`` file when given a cache folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+
+from prismstereo.errors import OptionError
+from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
+from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.learned.data import KINDS, SEED_LIMIT, random_capture_spec
+from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, truth_sweep
+from prismstereo.synthetic import ImageFormation, Scene, height_field_scene, render
+
+__all__ = ["HELD_OUT_PHOTOS", "TRAIN_PHOTOS", "HybridSet", "hybrid_set", "photo_scene", "photographs",
+           "training_rigs", "training_sets"]
+
+TRAIN_PHOTOS: tuple[str, ...] = ("astronaut", "brick", "camera", "cat", "coffee", "coins", "grass", "gravel",
+                                 "hubble_deep_field", "immunohistochemistry", "moon", "page", "retina", "rocket",
+                                 "text", "cell", "clock")
+HELD_OUT_PHOTOS: tuple[str, ...] = ("stereo_motorcycle",)  # evaluation only, with the Middlebury pairs
+
+
+def photographs(names: tuple[str, ...] = TRAIN_PHOTOS) -> list[torch.Tensor]:
+    """scikit-image's bundled photographs as grey (h, w) float32 tensors in [0, 1].
+
+    Raises:
+        OptionError: scikit-image is missing (``pip install prismstereo[fit]``) or a name it does not have.
+
+    Example:
+        >>> photographs(("camera",))[0].shape  # doctest: +SKIP
+        torch.Size([512, 512])
+    """
+    try:
+        import skimage.data
+    except ImportError as exc:
+        raise OptionError("the photographs need scikit-image: pip install prismstereo[fit]") from exc
+    out = []
+    for name in names:
+        if name not in TRAIN_PHOTOS + HELD_OUT_PHOTOS or not hasattr(skimage.data, name):
+            raise OptionError(f"Unknown photograph {name!r}. Choose from: {', '.join(TRAIN_PHOTOS)}")
+        picture = getattr(skimage.data, name)()
+        picture = picture[0] if isinstance(picture, tuple) else picture
+        t = torch.from_numpy(picture).float()
+        t = t[..., :3].mean(-1) if t.dim() == 3 else t
+        out.append((t / t.max().clamp_min(1.0)).contiguous())
+    return out
+
+
+def training_rigs() -> list[tuple[str, BiPrismRig, tuple[float, float]]]:
+    """The (name, rig, range) variants training renders through, all 1024 x 768.
+
+    Example:
+        >>> [name for name, _, _ in training_rigs()][:2]
+        ['setup1', 'setup1 450-1000']
+    """
+    s1, s2 = thesis_setup1(), thesis_setup2()
+    return [("setup1", s1, (228.0, 1374.0)), ("setup1 450-1000", s1, (450.0, 1000.0)),
+            ("setup2", s2, (220.0, 1280.0)), ("setup2 300-900", s2, (300.0, 900.0)),
+            ("alpha 8", s1.replace(alpha_deg=8.0), (250.0, 1200.0)),
+            ("apex 130", s1.replace(apex_distance_mm=130.0), (200.0, 1000.0)),
+            ("barrel", s1.replace(distortion=(-0.12, 0.0, 0.0, 0.0, 0.0)), (250.0, 1300.0))]
+
+
+def _uniform(gen: torch.Generator, lo: float, hi: float) -> float:
+    return lo + (hi - lo) * float(torch.rand(1, generator=gen))
+
+
+def _smooth(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    r = max(1, int(3 * sigma))
+    k = torch.exp(-torch.arange(-r, r + 1, dtype=x.dtype) ** 2 / (2 * sigma**2))
+    k = k / k.sum()
+    x = F.conv2d(F.pad(x[None, None], (r, r, 0, 0), mode="replicate"), k.view(1, 1, 1, -1))
+    return F.conv2d(F.pad(x, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1))[0, 0]
+
+
+def photo_scene(photo: torch.Tensor, gen: torch.Generator, z_range_mm: tuple[float, float]) -> Scene:
+    """A random crop of ``photo`` (h, w) as a height field inside ``z_range_mm``: smooth relief, a slant, and up to
+    three regions of the blurred photograph above a random level moved nearer (depth jumps along its edges).
+
+    Example:
+        >>> scene = photo_scene(torch.rand(200, 300), torch.Generator().manual_seed(0), (450.0, 900.0))
+        >>> scene.surfaces[0].z_min >= 450.0
+        True
+    """
+    lo, hi = z_range_mm
+    h, w = photo.shape
+    cw = int(min(w, max(96, _uniform(gen, 0.3, 1.0) * w)))
+    ch = min(h, int(cw * 0.75))
+    cw = int(ch / 0.75)
+    r0, c0 = int(torch.randint(h - ch + 1, (1,), generator=gen)), int(torch.randint(w - cw + 1, (1,), generator=gen))
+    picture = photo[r0:r0 + ch, c0:c0 + cw]
+    if bool(torch.rand(1, generator=gen) < 0.5):
+        picture = picture.flip(-1)
+    size = (min(ch, 192), min(cw, 256))  # the renderer marches the field in steps of its texels
+    picture = F.interpolate(picture[None, None], size=size, mode="area")[0, 0].clamp(0, 1)
+    gy, gx = torch.meshgrid(torch.linspace(-1, 1, size[0]), torch.linspace(-1, 1, size[1]), indexing="ij")
+    z = _uniform(gen, lo + 0.15 * (hi - lo), hi - 0.1 * (hi - lo))
+    inv = 1.0 / z + (_uniform(gen, -0.15, 0.15) * gx + _uniform(gen, -0.1, 0.1) * gy) / z
+    relief = torch.randn(1, 1, 4, 5, generator=gen)
+    inv = inv + _uniform(gen, 0.0, 0.05) / z * F.interpolate(relief, size=size, mode="bicubic")[0, 0]
+    blurred = _smooth(picture, _uniform(gen, 1.0, 4.0))
+    for _ in range(int(torch.randint(4, (1,), generator=gen))):
+        level = torch.quantile(blurred.flatten(), _uniform(gen, 0.5, 0.9))
+        sign = 1 if bool(torch.rand(1, generator=gen) < 0.5) else -1
+        region = (sign * (blurred - level) > 0).float()
+        inv = inv + region * _uniform(gen, 0.03, 0.25) / z
+    depth = (1.0 / inv).clamp(lo + 5, hi - 5)
+    return height_field_scene(depth, picture, width_mm=float(depth.mean()) * _uniform(gen, 0.2, 0.3),
+                              name=f"photo_{z:.0f}mm")
+
+
+def _formation(gen: torch.Generator, z_range_mm: tuple[float, float], base: ImageFormation | None) -> ImageFormation:
+    lo, hi = z_range_mm
+    defocus = float(torch.rand(1, generator=gen)) < 0.2
+    return dataclasses.replace(
+        base or ImageFormation(supersample=1), noise_sigma=_uniform(gen, 0.5, 3.0) / 255,
+        blur_sigma_px=_uniform(gen, 0.0, 1.2) if float(torch.rand(1, generator=gen)) < 0.5 else 0.0,
+        f_number=_uniform(gen, 6.0, 16.0) if defocus else None, focus_mm=_uniform(gen, lo, hi),
+        fresnel=float(torch.rand(1, generator=gen)) < 0.5, vignetting=_uniform(gen, 0.0, 0.4),
+        seed=int(torch.randint(SEED_LIMIT, (1,), generator=gen)))
+
+
+def _photometric(image: torch.Tensor, w_ref: int, gen: torch.Generator) -> torch.Tensor:
+    """Gamma and a brightness ratio of the halves, re-quantised to 8 bits."""
+    out = image.clamp(0, 1) ** _uniform(gen, 0.7, 1.4)
+    out[..., w_ref:] = out[..., w_ref:] * _uniform(gen, 0.85, 1.15)
+    return (out.clamp(0, 1) * 255).round() / 255
+
+
+class HybridSet(NamedTuple):
+    """One rig variant's training captures on the 2 x 2-binned grid (h, w the binned reference half).
+
+    Attributes:
+        name, rig, z_range_mm: the variant.
+        image: (N, 2, h, W2) normalised binned captures.
+        s, confidence, covered: (N, 1, h, w) the classical estimate (:class:`~prismstereo.learned.hybrid.
+            RefinementInputs`).
+        truth: (N, 1, h, w) true sweep coordinate (the mean over the 2 x 2 block), NaN where unknown.
+        known: (N, 1, h, w) bool, blocks the other half sees whose four true depths agree within half a step.
+        rays: (N, 1, h, w) bool, blocks with a true depth (the confidence's domain).
+    """
+
+    name: str
+    rig: BiPrismRig
+    z_range_mm: tuple[float, float]
+    image: torch.Tensor
+    s: torch.Tensor
+    confidence: torch.Tensor
+    covered: torch.Tensor
+    truth: torch.Tensor
+    known: torch.Tensor
+    rays: torch.Tensor
+
+
+def hybrid_set(name: str, rig: BiPrismRig, z_range_mm: tuple[float, float], count: int, *, seed: int = 0,
+               model: HybridStereo | None = None, cache: str | Path | None = None,
+               progress: bool = False) -> HybridSet:
+    """Render ``count`` captures through one rig variant (photographs and procedural kinds in turn) and store the
+    classical estimate of ``model`` (a :class:`HybridStereo` of that rig and range; built when None).
+
+    Raises:
+        OptionError: ``count`` < 1.
+
+    Example:
+        >>> data = hybrid_set("small", thesis_setup1().downscaled(4), (450.0, 1000.0), 1)  # doctest: +SKIP
+    """
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise OptionError(f"count must be an int >= 1, got {count!r}")
+    path = None
+    if cache is not None:
+        block = model.architecture.block if model is not None else HybridArchitecture().block
+        key = f"{name}_{rig.image_width}x{rig.image_height}_{z_range_mm[0]:g}-{z_range_mm[1]:g}".replace(" ", "_")
+        path = Path(cache) / f"hybrid_{key}_k{block}_{count}_{seed}.pt"
+        if path.is_file():
+            blob = torch.load(path, weights_only=True)
+            return HybridSet(name, rig, z_range_mm, *(blob[k] for k in HybridSet._fields[3:]))
+    model = model or HybridStereo(rig, z_range_mm, weights=None)
+    gen = torch.Generator().manual_seed(seed)
+    photos = photographs()
+    w_ref = rig.reference_width
+    rows: dict[str, list[torch.Tensor]] = {k: [] for k in HybridSet._fields[3:]}
+    from tqdm.auto import tqdm
+
+    for i in tqdm(range(count), desc=f"render {name}", disable=not progress):
+        if i % 2 == 0:
+            photo = photos[int(torch.randint(len(photos), (1,), generator=gen))]
+            scene, formation = photo_scene(photo, gen, z_range_mm), _formation(gen, z_range_mm, None)
+        else:
+            scene, base = random_capture_spec(rig, gen, z_range_mm, KINDS[(i // 2) % len(KINDS)])
+            formation = _formation(gen, z_range_mm, base)
+        capture = render(rig, scene, formation)
+        image = _photometric(capture.image.float().mean(1, keepdim=True), w_ref, gen)
+        with torch.no_grad():
+            inputs = model.initial(image)
+        depth = capture.depth[..., :w_ref].float()
+        truth = truth_sweep(depth, model.z_range)
+        block = F.unfold(torch.nan_to_num(truth, nan=1e3), 2, stride=2).view(1, 4, *inputs.s.shape[-2:])
+        seen = F.avg_pool2d(capture.covisible[..., :w_ref].float(), 2) > 0.99
+        finite = F.avg_pool2d(torch.isfinite(depth).float(), 2) > 0.99
+        known = seen & finite & ((block.amax(1, keepdim=True) - block.amin(1, keepdim=True)) < 0.5 * model.step)
+        mean = block.mean(1, keepdim=True)
+        for key, value in (("image", inputs.image), ("s", inputs.s), ("confidence", inputs.confidence),
+                           ("covered", inputs.covered), ("truth", torch.where(finite, mean, math.nan)),
+                           ("known", known), ("rays", finite)):
+            rows[key].append(value)
+    data = HybridSet(name, rig, z_range_mm, *(torch.cat(rows[k]) for k in HybridSet._fields[3:]))
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save({k: getattr(data, k) for k in HybridSet._fields[3:]}, path)
+    return data
+
+
+def training_sets(captures: int, *, seed: int = 0, variants: list[int] | None = None, cache: str | Path | None = None,
+                  models: list[HybridStereo] | None = None, progress: bool = False) -> list[HybridSet]:
+    """:func:`hybrid_set` of every :func:`training_rigs` variant (or those numbered in ``variants``), ``captures``
+    each, variant i seeded by ``seed`` * 100 + i (so that separate processes can render variants into one cache).
+
+    Example:
+        >>> sets = training_sets(24, variants=[0], cache=".cache/hybrid")  # doctest: +SKIP
+    """
+    rigs = training_rigs()
+    chosen = range(len(rigs)) if variants is None else variants
+    return [hybrid_set(*rigs[i], captures, seed=seed * 100 + i, cache=cache, progress=progress,
+                       model=None if models is None else models[i]) for i in chosen]

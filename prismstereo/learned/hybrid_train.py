@@ -1,0 +1,194 @@
+"""Train :class:`~prismstereo.learned.hybrid.HybridStereo`'s refinement on :mod:`~prismstereo.learned.hybrid_data`
+captures, on a CPU, resumable.
+
+The classical estimate of every capture is computed once when the set is rendered (it does not learn), so a step
+only runs the refinement: ``batch_size`` captures of one rig variant, a random crop of the 2 x 2-binned reference
+half (the other half stays whole for the warp), every stage. Loss, in steps of the sweep (<= 1 px at 1/2): smooth L1
+of each stage's s against the truth on the known blocks (the last stage weighted 1, earlier ones 0.5), plus 0.3 times
+the binary cross-entropy of the last confidence against "depth within 1 %" on every block with a true depth (blocks
+the other half does not see are negatives). Adam, warm-up then cosine learning rate, gradients clipped at 1.
+
+A checkpoint (``<out>.ckpt``: the CNNs, optimiser, schedule, random states and losses) is written every
+``checkpoint_every`` steps; a run started again with the same options continues from it, and the result is the
+same as an uninterrupted run's.
+
+The shipped ``weights/hybrid.pt``: the command is in its metadata and in the comment below the imports.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from tqdm.auto import tqdm
+
+from prismstereo.epipolar.sweep import sweep_to_depth
+from prismstereo.errors import OptionError
+from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, RefinementInputs
+from prismstereo.learned.hybrid_data import HybridSet, training_rigs, training_sets
+from prismstereo.learned.train import TrainResult
+
+__all__ = ["hybrid_loss", "train_hybrid"]
+
+# The shipped weights/hybrid.pt (7 rig variants x 24 captures; one torch thread):
+#   OMP_NUM_THREADS=1 .venv/bin/prismstereo train --model hybrid --cache .cache/hybrid \
+#       --out prismstereo/learned/weights/hybrid.pt
+
+
+def hybrid_loss(model: HybridStereo, inputs: RefinementInputs, truth: torch.Tensor, known: torch.Tensor,
+                rays: torch.Tensor, window: tuple[int, int] = (0, 0)) -> torch.Tensor:
+    """The training loss of one batch (module docstring).
+
+    Args:
+        model: the model of the captures' rig and range.
+        inputs: (B, *, h, w) the classical estimate of a crop from row, column ``window`` on.
+        truth: (B, 1, h, w) true sweep coordinates (NaN where unknown).
+        known, rays: (B, 1, h, w) bool, blocks with a reliable truth / with a true depth.
+
+    Returns:
+        () the loss.
+
+    Example:
+        >>> model = HybridStereo(thesis_setup1().downscaled(2), (450.0, 1000.0), weights=None)
+        >>> h, w = model.half.image_height, model.half.reference_width
+        >>> inputs = model.initial(torch.rand(1, 1, 384, 512))
+        >>> ones = torch.ones(1, 1, h, w, dtype=torch.bool)
+        >>> hybrid_loss(model, inputs, torch.zeros(1, 1, h, w), ones, ones).shape
+        torch.Size([])
+    """
+    z_range = torch.tensor(model.z_range, dtype=inputs.s.dtype)
+    target = torch.where(known, truth, torch.zeros_like(truth))
+    count = known.sum().clamp_min(1)
+    outputs = model.refine(inputs, window)
+    loss = inputs.s.new_zeros(())
+    for i, (s, _) in enumerate(outputs):
+        weight = 1.0 if i == len(outputs) - 1 else 0.5
+        error = F.smooth_l1_loss(s / model.step, target / model.step, reduction="none")
+        loss = loss + weight * (error * known).sum() / count
+    s, logit = outputs[-1]
+    with torch.no_grad():
+        true_depth = sweep_to_depth(target, z_range)
+        correct = known & ((sweep_to_depth(s, z_range) - true_depth).abs() < 0.01 * true_depth)
+    bce = F.binary_cross_entropy_with_logits(logit, correct.to(logit.dtype), reduction="none")
+    return loss + 0.3 * (bce * rays).sum() / rays.sum().clamp_min(1)
+
+
+def _batch(data: HybridSet, pick: torch.Tensor, crop: tuple[int, int], gen: torch.Generator):
+    h, w = data.s.shape[-2:]
+    ch, cw = min(crop[0], h), min(crop[1], w)
+    r = int(torch.randint(h - ch + 1, (1,), generator=gen))
+    c = int(torch.randint(w - cw + 1, (1,), generator=gen))
+    rows, cols = slice(r, r + ch), slice(c, c + cw)
+    inputs = RefinementInputs(data.image[pick], *(t[pick][..., rows, cols] for t in (data.s, data.confidence,
+                                                                                    data.covered)))
+    return inputs, data.truth[pick][..., rows, cols], data.known[pick][..., rows, cols], \
+        data.rays[pick][..., rows, cols], (r, c)
+
+
+def train_hybrid(
+    out_path: str | Path,
+    *,
+    steps: int = 6000,
+    seed: int = 0,
+    batch_size: int = 8,
+    crop: tuple[int, int] = (96, 128),
+    captures: int = 24,
+    learning_rate: float = 2e-3,
+    architecture: HybridArchitecture | None = None,
+    cache: str | Path | None = None,
+    checkpoint_every: int = 250,
+    progress: bool = True,
+    sets: list[HybridSet] | None = None,
+) -> TrainResult:
+    """Train the refinement from random initialisation (or from ``<out>.ckpt``) and write its weights.
+
+    Args:
+        out_path: weights file to write (:meth:`HybridStereo.save`).
+        steps: optimiser steps (>= 1).
+        seed: seeds the initialisation, the data order and the rendered sets.
+        batch_size: captures per step.
+        crop: (rows, columns) of the binned reference half per capture.
+        captures: captures rendered per rig variant (ignored with ``sets``).
+        learning_rate: Adam's peak learning rate.
+        architecture: the CNNs' hyper-parameters (default :class:`HybridArchitecture` ()).
+        cache: folder of the rendered sets.
+        checkpoint_every: steps between checkpoints (0: none).
+        progress: progress bars.
+        sets: training sets to use instead of :func:`~prismstereo.learned.hybrid_data.training_sets` (each with
+            the rig and range of its captures).
+
+    Returns:
+        TrainResult(losses, seconds, path).
+
+    Raises:
+        OptionError: bad ``steps``, ``batch_size`` or ``checkpoint_every``.
+
+    Example:
+        >>> result = train_hybrid("hybrid.pt", steps=2)  # doctest: +SKIP
+    """
+    for name, value, low in (("steps", steps, 1), ("batch_size", batch_size, 1), ("checkpoint_every",
+                                                                                   checkpoint_every, 0)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise OptionError(f"{name} must be an int >= {low}, got {value!r}")
+    arch = architecture or HybridArchitecture()
+    out_path = Path(out_path)
+    torch.manual_seed(seed)
+    models: list[HybridStereo] = []
+    variants = [(d.name, d.rig, d.z_range_mm) for d in sets] if sets is not None else training_rigs()
+    for _, rig, z_range in variants:
+        model = HybridStereo(rig, z_range, weights=None, architecture=arch)
+        if models:
+            model.stages = models[0].stages
+        models.append(model)
+    if sets is None:
+        sets = training_sets(captures, seed=seed, cache=cache, models=models, progress=progress)
+    stages = models[0].stages
+    optimiser = torch.optim.Adam(stages.parameters(), lr=learning_rate)
+    warmup = max(1, min(50, steps // 10))
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimiser, lambda k: min(1.0, (k + 1) / warmup) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * k / steps))))
+    gen = torch.Generator().manual_seed(seed)
+    losses = torch.zeros(steps, dtype=torch.float64)
+    first, seconds = 0, 0.0
+    checkpoint = out_path.with_suffix(".ckpt")
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    if checkpoint.is_file():
+        state = torch.load(checkpoint, weights_only=False)
+        if state["steps"] == steps and state["architecture"] == arch:
+            stages.load_state_dict(state["stages"])
+            optimiser.load_state_dict(state["optimiser"])
+            schedule.load_state_dict(state["schedule"])
+            gen.set_state(state["generator"])
+            losses, first, seconds = state["losses"], state["step"], state["seconds"]
+    weights = torch.tensor([float(d.s.shape[0]) for d in sets])
+    stages.train()
+    start = time.perf_counter()
+    bar = tqdm(range(first, steps), desc="train hybrid", disable=not progress, initial=first, total=steps)
+    for step in bar:
+        v = int(torch.multinomial(weights, 1, generator=gen))
+        data, model = sets[v], models[v]
+        pick = torch.randint(data.s.shape[0], (batch_size,), generator=gen)
+        inputs, truth, known, rays, window = _batch(data, pick, crop, gen)
+        loss = hybrid_loss(model, inputs, truth, known, rays, window)
+        optimiser.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(stages.parameters(), 1.0)
+        optimiser.step()
+        schedule.step()
+        losses[step] = loss.item()
+        bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
+        if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
+            torch.save({"steps": steps, "architecture": arch, "stages": stages.state_dict(),
+                        "optimiser": optimiser.state_dict(), "schedule": schedule.state_dict(),
+                        "generator": gen.get_state(), "losses": losses, "step": step + 1,
+                        "seconds": seconds + time.perf_counter() - start}, checkpoint)
+    seconds += time.perf_counter() - start
+    curve = [float(chunk.mean()) for chunk in losses.chunk(min(10, steps))]
+    path = models[0].save(out_path, steps=steps, seed=seed, batch_size=batch_size, crop=list(crop),
+                          captures=[int(d.s.shape[0]) for d in sets], variants=[d.name for d in sets],
+                          final_loss=float(losses[-50:].mean()), loss_curve=curve, seconds=round(seconds, 1))
+    checkpoint.unlink(missing_ok=True)
+    return TrainResult(losses, seconds, path)

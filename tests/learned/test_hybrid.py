@@ -1,0 +1,221 @@
+"""HybridStereo: the classical block level refined by a learned 2-D stage; its data and trainer."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from prismstereo import thesis_setup1
+from prismstereo.cli import main
+from prismstereo.epipolar.sweep import evaluate_sweep, fit_sweep, sweep_coefficients
+from prismstereo.errors import OptionError, ShapeError
+from prismstereo.learned import HYBRID_WEIGHTS, HybridArchitecture, HybridStereo, WeightsError
+from prismstereo.learned.hybrid import RefinementInputs, load_hybrid_weights, sweep_match
+from prismstereo.learned.hybrid_data import hybrid_set, photo_scene, photographs, training_rigs
+from prismstereo.learned.hybrid_train import hybrid_loss, train_hybrid
+from prismstereo.model import DepthResult
+from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+Z = (450.0, 1000.0)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return thesis_setup1().downscaled(2)
+
+
+@pytest.fixture(scope="module")
+def untrained(rig):
+    torch.manual_seed(0)
+    return HybridStereo(rig, Z, weights=None).eval()
+
+
+@pytest.fixture(scope="module")
+def plane(rig):
+    return render(rig, fronto_parallel_plane(rig, 600.0, seed=3), ImageFormation(supersample=2, noise_sigma=1 / 255))
+
+
+@pytest.fixture(scope="module")
+def data(rig, untrained):
+    return hybrid_set("test", rig, Z, 1, seed=1, model=untrained)
+
+
+@torch.no_grad()
+def test_outputs_and_shapes(untrained, rig):
+    out = untrained(torch.rand(2, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(0)))
+    assert isinstance(out, DepthResult)
+    shape = (2, 1, rig.image_height, rig.reference_width)
+    assert out.depth.shape == out.valid.shape == out.confidence.shape == out.index.shape == shape
+    assert out.match.shape == (2, 2, rig.image_height, rig.reference_width)
+    assert out.valid.dtype == torch.bool and out.depth.dtype == torch.float32
+    inside = untrained.rays_valid.expand_as(out.valid)
+    assert torch.isfinite(out.depth[inside]).all() and (out.confidence[~inside] == 0).all()
+    assert Z[0] - 1e-3 <= float(out.depth[inside].min()) and float(out.depth[inside].max()) <= Z[1] + 1e-3
+
+
+@torch.no_grad()
+def test_untrained_stage_keeps_the_classical_estimate(untrained, plane):
+    inputs = untrained.initial(plane.image)
+    s, logit = untrained.refine(inputs)[-1]
+    assert torch.equal(s, inputs.s.clamp(-1, 1)) and torch.equal(logit, torch.zeros_like(logit))
+    # on a textured plane the classical block level is exact: depth within 0.1 % where it is confident
+    out = untrained(plane.image)
+    w = untrained.rig.reference_width
+    truth = plane.depth[..., :w]
+    inner = torch.zeros_like(out.valid)
+    inner[..., 8:-8, 8:-8] = True
+    seen = inner & plane.covisible[..., :w]
+    sel = seen & untrained.classical(plane.image).valid
+    rel = ((out.depth - truth).abs() / truth)[sel]
+    assert float(sel.sum()) > 0.8 * float(seen.sum()) and float(rel.median()) < 1e-3
+
+
+def test_sweep_match_is_the_sweep_and_its_slope():
+    half = thesis_setup1().binned(2)
+    uv = torch.rand(4, 6, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * torch.tensor(
+        [250.0, 380.0], dtype=torch.float64)
+    c = sweep_coefficients(fit_sweep(half, (228.0, 1374.0)), uv)  # (4, 6, N, 2)
+    s = torch.rand(1, 1, 4, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(2)) * 2 - 1
+    match, slope = sweep_match(c.permute(2, 3, 0, 1), s)
+    assert torch.allclose(match[0].permute(1, 2, 0), evaluate_sweep(c, s[0, 0]), atol=1e-9)
+    h = 1e-6
+    numeric = (evaluate_sweep(c, s[0, 0] + h) - evaluate_sweep(c, s[0, 0] - h)) / (2 * h)
+    assert torch.allclose(slope[0].permute(1, 2, 0), numeric, atol=1e-5)
+    small = c[:2, :2].permute(2, 3, 0, 1).contiguous()
+    probe = s[..., :2, :2].clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda x: sweep_match(small, x)[0], (probe,))
+    with pytest.raises(ShapeError, match="coefficients"):
+        sweep_match(torch.zeros(3, 4, 5), s)
+
+
+def test_architecture_and_option_errors(rig):
+    assert HybridArchitecture().inputs == 10
+    with pytest.raises(OptionError, match="Choose from: 2, 4"):
+        HybridArchitecture(block=3)
+    with pytest.raises(OptionError, match="layers must be an int in"):
+        HybridArchitecture(layers=1)
+    with pytest.raises(OptionError, match="rig must be a BiPrismRig"):
+        HybridStereo("setup1", Z, weights=None)
+    with pytest.raises(OptionError, match="not divisible by block 4"):
+        HybridStereo(rig.replace(image_width=510, principal_point=(254.5, 191.5)), Z, weights=None)
+
+
+def test_shape_errors(untrained, rig):
+    with pytest.raises(ShapeError, match="image must be a floating-point"):
+        untrained(torch.zeros(1, 1, rig.image_height, rig.image_width, dtype=torch.uint8))
+    with pytest.raises(ShapeError, match="image must be a floating-point"):
+        untrained(torch.rand(1, 1, 64, 64))
+
+
+def test_weights_round_trip_and_errors(tmp_path, rig, untrained):
+    torch.manual_seed(1)
+    arch = HybridArchitecture(channels=8, layers=4)
+    model = HybridStereo(rig, Z, weights=None, architecture=arch)
+    path = model.save(tmp_path / "w.pt", note="test")
+    again = HybridStereo(rig, Z, weights=path)
+    assert again.architecture == arch and again.metadata["note"] == "test"
+    assert all(torch.equal(a, b) for a, b in zip(model.stages.state_dict().values(),
+                                                 again.stages.state_dict().values(), strict=True))
+    assert again.describe()["weights_sha256"] == model.describe()["weights_sha256"]
+    assert again.describe()["weights_sha256"] != untrained.describe()["weights_sha256"]
+    with pytest.raises(WeightsError, match="does not exist"):
+        load_hybrid_weights(tmp_path / "missing.pt")
+    (tmp_path / "junk.pt").write_bytes(b"not a weights file")
+    with pytest.raises(WeightsError, match="is not a HybridStereo weights file"):
+        load_hybrid_weights(tmp_path / "junk.pt")
+    torch.save({"format": "something else"}, tmp_path / "other.pt")
+    with pytest.raises(WeightsError, match="format"):
+        load_hybrid_weights(tmp_path / "other.pt")
+
+
+def test_shipped_weights_load_and_keep_a_textured_plane(rig, plane):
+    arch, state, meta = load_hybrid_weights(HYBRID_WEIGHTS)
+    assert HYBRID_WEIGHTS.stat().st_size < 200_000 and meta["steps"] >= 1 and "variants" in meta
+    model = HybridStereo(rig, Z).eval()
+    with torch.inference_mode():
+        out, classical = model(plane.image), model.classical(plane.image)
+    w = rig.reference_width
+    truth, covisible = plane.depth[..., :w], plane.covisible[..., :w]
+    inner = torch.zeros_like(out.valid)
+    inner[..., 8:-8, 8:-8] = True
+    confident = inner & covisible & classical.valid  # the classical estimate is exact there
+    rel_h = ((out.depth - truth).abs() / truth)[confident]
+    rel_c = ((classical.depth - truth).abs() / truth)[confident]
+    assert float(rel_h.mean()) <= float(rel_c.mean()) + 2e-4  # the learned stage does not make it worse
+    assert float((out.valid & inner & covisible).sum()) >= 0.95 * float((inner & covisible).sum())
+
+
+def test_onnxruntime_matches_torch(tmp_path, untrained, rig):
+    from prismstereo.export import OnnxDepth, export_onnx
+
+    torch.manual_seed(3)
+    model = HybridStereo(rig, Z, weights=None).eval()
+    with torch.no_grad():
+        for p in model.stages.parameters():
+            p.normal_(0.0, 0.05)
+    image = torch.rand(1, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(4))
+    with torch.no_grad():
+        ref = model(image)
+    graph = OnnxDepth(export_onnx(model, tmp_path / "hybrid.onnx"))
+    out = graph(image.numpy())
+    depth = torch.as_tensor(np.asarray(out.depth))
+    assert torch.allclose(depth, ref.depth, rtol=1e-4)
+    assert torch.allclose(torch.as_tensor(np.asarray(out.confidence)), ref.confidence, atol=1e-4)
+    agree = torch.as_tensor(np.asarray(out.valid)) == ref.valid
+    assert float(agree.float().mean()) > 0.999  # pixels at confidence 0.5 may round either way
+
+
+def test_training_data(data, rig):
+    h, w = rig.image_height // 2, rig.reference_width // 2
+    assert data.image.shape == (1, 2, h, rig.image_width // 2)
+    for t in (data.s, data.confidence, data.covered, data.truth, data.known, data.rays):
+        assert t.shape == (1, 1, h, w)
+    assert data.known.dtype == torch.bool and float(data.known.float().mean()) > 0.3
+    assert torch.isfinite(data.truth[data.known]).all()
+    assert [name for name, _, _ in training_rigs()][0] == "setup1" and len(training_rigs()) >= 5
+    scene = photo_scene(photographs(("camera",))[0], torch.Generator().manual_seed(0), (450.0, 900.0))
+    field = scene.surfaces[0]
+    assert 450.0 <= field.z_min and field.z_max <= 900.0
+    with pytest.raises(OptionError, match="Unknown photograph"):
+        photographs(("lena",))
+    with pytest.raises(OptionError, match="count must be an int >= 1"):
+        hybrid_set("test", rig, Z, 0)
+
+
+def test_loss_and_training_resume_from_a_checkpoint(tmp_path, data, untrained, monkeypatch):
+    inputs = RefinementInputs(data.image[:1], data.s[:1], data.confidence[:1], data.covered[:1])
+    loss = hybrid_loss(untrained, inputs, data.truth[:1], data.known[:1], data.rays[:1])
+    assert loss.shape == () and math.isfinite(loss.item())
+    options = dict(steps=6, sets=[data], progress=False, crop=(48, 64), batch_size=1, checkpoint_every=2)
+    whole = train_hybrid(tmp_path / "whole.pt", **options)
+    calls = {"n": 0}
+    real = hybrid_loss
+
+    def interrupted(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    import prismstereo.learned.hybrid_train as module
+
+    monkeypatch.setattr(module, "hybrid_loss", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        train_hybrid(tmp_path / "resumed.pt", **options)
+    assert (tmp_path / "resumed.ckpt").is_file() and not (tmp_path / "resumed.pt").exists()
+    monkeypatch.setattr(module, "hybrid_loss", real)
+    resumed = train_hybrid(tmp_path / "resumed.pt", **options)
+    assert not (tmp_path / "resumed.ckpt").exists()
+    assert torch.equal(whole.losses, resumed.losses)
+    a, b = load_hybrid_weights(whole.path)[1], load_hybrid_weights(resumed.path)[1]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(OptionError, match="steps must be an int >= 1"):
+        train_hybrid(tmp_path / "x.pt", **{**options, "steps": 0})
+
+
+def test_cli_train_needs_a_rig_for_the_learned_model(tmp_path, capsys):
+    assert main(["train", "--out", str(tmp_path / "w.pt")]) == 2
+    assert "--rig is required" in capsys.readouterr().err
