@@ -15,8 +15,8 @@ chain: ``valid`` (co-visible pixels the chain calls valid, and the share of them
 (every co-visible pixel it gives a depth, same), mean relative error of the valid ones, and ``@3 %``: the largest
 share of co-visible pixels a threshold on the confidence keeps with <= 3 % of them off by more than 1 %. Then the
 speed: each chain's exported graph in onnxruntime (2 intra-op threads) and StereoSGBM (``cv2.setNumThreads(2)``) in
-interleaved rounds (``benchmarks/_timing.py``), median ms and the paired ratio; and the peak resident memory of one
-torch forward of the hybrid at 1024 x 768 (a child process). ``--plot FILE`` draws the frontier: time / SGBM against
+interleaved rounds (``benchmarks/_timing.py``), median ms and the paired ratio; and the peak resident memory of a
+fresh process building the hybrid at 1024 x 768 and during one torch forward (``/proc/self/status`` VmHWM). ``--plot FILE`` draws the frontier: time / SGBM against
 the photographs' mean ``@3 %`` share, one point per chain.
 
 Run: .venv/bin/python benchmarks/default_chain.py [--rounds 7] [--plot docs/frontier.png] [--chains a,b,...]
@@ -52,16 +52,23 @@ Z_RANGE = (228.0, 1374.0)
 CHAINS = ("accurate", "dense", "learned", "block", "hybrid")
 PHOTOS = ("Tsukuba 450-900 mm", "Venus 450-900 mm", "Motorcycle 450-900 mm")
 MEMORY = """
-import resource, sys, torch
+import sys, torch
+from pathlib import Path
 from prismstereo import thesis_setup1
 from prismstereo.learned import HybridStereo
+
+def peak():  # this process's own high-water mark (ru_maxrss would include the parent's at the fork)
+    line = next(x for x in Path("/proc/self/status").read_text().splitlines() if x.startswith("VmHWM"))
+    return int(line.split()[1]) / 1024
+
 torch.set_num_threads(2)
 model = HybridStereo(thesis_setup1(), (228.0, 1374.0), weights=sys.argv[1] if len(sys.argv) > 1 else "default").eval()
+built = peak()
+Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current resident size
 with torch.inference_mode():
     model(torch.rand(1, 1, 768, 1024))
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+print(built, peak())
 """
-
 
 def more_captures(cache: Path) -> dict[str, tuple[object, dict]]:
     """Motorcycle and the two setups' planes (rendered once into ``cache``): name -> (rig, capture)."""
@@ -180,8 +187,10 @@ def main() -> None:
         print(f"{run:12s} {statistics.median(values):9.1f} {ratios[run]:7.2f} {share}")
     if "hybrid" in chains:
         extra = [] if args.hybrid_weights == "default" else [args.hybrid_weights]
-        peak = subprocess.run([sys.executable, "-c", MEMORY, *extra], capture_output=True, text=True, check=True)
-        print(f"\nhybrid, one torch forward at 1024 x 768: peak resident memory {float(peak.stdout):.0f} MB")
+        run = subprocess.run([sys.executable, "-c", MEMORY, *extra], capture_output=True, text=True, check=True)
+        built, forward = (float(x) for x in run.stdout.split())
+        print(f"\nhybrid at 1024 x 768, peak resident memory of a fresh process: {built:.0f} MB building the model, "
+              f"{forward:.0f} MB during one torch forward")
     if args.plot is not None:
         import matplotlib
 

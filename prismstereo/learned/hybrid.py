@@ -2,9 +2,9 @@
 
 Data path (one capture, both halves as recorded; k = ``block``; (h, w) the reference half binned 2 x 2):
 
-1. :class:`~prismstereo.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band, dense): the
-   exact plane sweep on the k x k-binned capture gives every covered block a sweep coordinate s (linear in 1/Z),
-   its calibrated confidence and the coverage;
+1. :class:`~prismstereo.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band) with the
+   'dense' preset's matching (:data:`CLASSICAL`): the exact plane sweep on the k x k-binned capture gives every
+   covered block a sweep coordinate s (linear in 1/Z), its calibrated confidence and the coverage;
 2. those three maps bilinearly onto the 2 x 2-binned grid (block centres kept: pixel j of the finer grid is at
    full-sensor 2 j + 1/2);
 3. the 2 x 2-binned capture normalised (:func:`~prismstereo.learned.network.normalise_image`), and the other half
@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo.defaults import default_coarse_factor, default_hypotheses
+from prismstereo.defaults import default_hypotheses
 from prismstereo.depth.level import upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
@@ -41,7 +41,7 @@ from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.network import WeightsError, normalise_image
 from prismstereo.matching.aggregate import box_filter
-from prismstereo.runtime import sample_grid
+from prismstereo.runtime import sample_bilinear
 
 __all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "HybridArchitecture", "HybridStereo", "RefinementInputs",
            "load_hybrid_weights", "sweep_match", "truth_sweep"]
@@ -50,6 +50,10 @@ HYBRID_WEIGHTS = Path(__file__).resolve().parent / "weights" / "hybrid.pt"
 HYBRID_FORMAT = "prismstereo.hybrid/1"
 DILATIONS = (1, 2, 4, 8, 1, 1, 1, 1)
 RELIEF_STEPS = 8.0  # the estimate's local relief is given to the CNN in steps, clipped to +- this
+# the classical level: the 'dense' preset's matching (gradient-augmented absolute differences, guided-filter
+# aggregation, a coarse level at factor 2) in block mode, a depth for every covered pixel
+CLASSICAL = {"full_band": 0, "dense": True, "coarse_factor": 2, "cost": "ad_gradient", "aggregation": "guided",
+             "box": 1}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +65,9 @@ class HybridArchitecture:
         channels: C, channels of each refinement CNN.
         layers: 3 x 3 convolutions per CNN (2-8, dilations 1, 2, 4, 8, 1, ...), the output head included.
         offsets: the cost curve is sampled at s + o steps for o = -offsets ... +offsets.
-        iterations: refinement stages, each with its own CNN.
+        iterations: refinement stages at 1/2, each with its own CNN.
+        quarter: refinement stages at 1/4 before them (block 4 only: on the classical level's own grid, with 4
+            times the context per layer).
 
     Example:
         >>> HybridArchitecture().block, HybridArchitecture(offsets=1).inputs
@@ -73,15 +79,18 @@ class HybridArchitecture:
     layers: int = 5
     offsets: int = 2
     iterations: int = 1
+    quarter: int = 1
 
     def __post_init__(self) -> None:
         if self.block not in (2, 4):
             raise OptionError(f"Unknown block {self.block!r}. Choose from: 2, 4")
         for name, low, high in (("channels", 1, 256), ("layers", 2, len(DILATIONS)), ("offsets", 0, 8),
-                                ("iterations", 1, 4)):
+                                ("iterations", 1, 4), ("quarter", 0, 4)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise OptionError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+        if self.quarter and self.block != 4:
+            raise OptionError(f"quarter stages need block 4 (the classical level's grid), got block {self.block}")
 
     @property
     def inputs(self) -> int:
@@ -90,13 +99,14 @@ class HybridArchitecture:
 
 
 class RefinementInputs(NamedTuple):
-    """The classical estimate on the 2 x 2-binned grid (:meth:`HybridStereo.initial`; training stores it).
+    """The classical estimate on its k x k-binned grid (h_k, w_k) and the normalised 2 x 2-binned capture
+    (:meth:`HybridStereo.initial`; training computes it once per capture).
 
     Attributes:
         image: (B, 2, h, W2) the normalised 2 x 2-binned capture (both halves).
-        s: (B, 1, h, w) sweep coordinate of the classical estimate (0 where it has none).
-        confidence: (B, 1, h, w) its calibrated confidence (0 where it has no depth).
-        covered: (B, 1, h, w) 1 where it has a depth, else 0 (float: the bilinear share of covered blocks).
+        s: (B, 1, h_k, w_k) sweep coordinate of the classical estimate (0 where it has none).
+        confidence: (B, 1, h_k, w_k) its calibrated confidence (0 where it has no depth).
+        covered: (B, 1, h_k, w_k) 1 where it has a depth, else 0.
     """
 
     image: torch.Tensor
@@ -204,15 +214,13 @@ class HybridStereo(nn.Module):
             raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by block {arch.block}")
         k = arch.block
         z = default_z_range(rig) if z_range_mm is None else check_z_range(rig, z_range_mm)
-        binned = rig.binned(k)  # dense needs a band to place: a coarse level even where the default has none
-        factor = max(2, default_coarse_factor(default_hypotheses(binned, z), binned.image_height,
-                                              binned.reference_width))
-        self.classical = PrismStereo(rig, z, {"downsample": k, "full_band": 0, "dense": True,
-                                              "coarse_factor": factor})
+        self.classical = PrismStereo(rig, z, {**CLASSICAL, "downsample": k})
         self.stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.iterations)])
+        self.quarter_stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.quarter)])
         if state is not None:
             try:
-                self.stages.load_state_dict(state)
+                self.stages.load_state_dict({k[5:]: v for k, v in state.items() if k.startswith("half.")})
+                self.quarter_stages.load_state_dict({k[8:]: v for k, v in state.items() if k.startswith("quarter.")})
             except RuntimeError as exc:
                 raise WeightsError(f"weights do not fit the architecture {arch}: {exc}") from exc
         self.rig = rig
@@ -225,6 +233,16 @@ class HybridStereo(nn.Module):
                                                                                        dtype=f64), indexing="ij")
         coefficients = sweep_coefficients(fit_sweep(half, z), torch.stack([u, v], -1)).permute(2, 3, 0, 1)
         self.register_buffer("coefficients", coefficients.to(torch.get_default_dtype()), persistent=False)
+        quarter = rig.binned(4)
+        self.quarter_step = 2.0 / (default_hypotheses(quarter, z) - 1)
+        quarter_coefficients = torch.zeros(0)
+        if arch.quarter:
+            v, u = torch.meshgrid(torch.arange(quarter.image_height, dtype=f64),
+                                  torch.arange(quarter.reference_width, dtype=f64), indexing="ij")
+            quarter_coefficients = sweep_coefficients(fit_sweep(quarter, z), torch.stack([u, v], -1)).permute(
+                2, 3, 0, 1)
+        self.register_buffer("quarter_coefficients", quarter_coefficients.to(torch.get_default_dtype()),
+                             persistent=False)
         v, u = torch.meshgrid(torch.arange(rig.image_height, dtype=f64), torch.arange(rig.reference_width, dtype=f64),
                               indexing="ij")
         rays = trace_pixels(rig, torch.stack([u, v], -1))
@@ -245,6 +263,11 @@ class HybridStereo(nn.Module):
         """(D,) the classical level's hypotheses, mm."""
         return self.classical.depths
 
+    def weights(self) -> dict[str, torch.Tensor]:
+        """The learned tensors (what a weights file holds): ``half.*`` and ``quarter.*`` stages."""
+        return {**{f"half.{k}": v for k, v in self.stages.state_dict().items()},
+                **{f"quarter.{k}": v for k, v in self.quarter_stages.state_dict().items()}}
+
     def describe(self) -> dict[str, Any]:
         """What the model is, JSON-ready (the ONNX export's metadata and cache key).
 
@@ -253,7 +276,7 @@ class HybridStereo(nn.Module):
             'HybridStereo'
         """
         digest = hashlib.sha256()
-        for name, tensor in sorted(self.stages.state_dict().items()):
+        for name, tensor in sorted(self.weights().items()):
             digest.update(name.encode())
             digest.update(tensor.detach().float().cpu().numpy().tobytes())
         return {"model": "HybridStereo", "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses,
@@ -268,16 +291,17 @@ class HybridStereo(nn.Module):
             'hybrid: 4x4-binned classical level (...), then 1 learned 2-D stage at 1/2 (5 x 16 ch, ... parameters)'
         """
         a = self.architecture
-        count = sum(p.numel() for p in self.stages.parameters())
+        count = sum(v.numel() for v in self.weights().values())
+        quarter = f"{a.quarter} at 1/4 and " if a.quarter else ""
         return (f"hybrid: {a.block}x{a.block}-binned classical level ({self.classical.final.summary()}), then "
-                f"{a.iterations} learned 2-D stage{'s' if a.iterations > 1 else ''} at 1/2 ({a.layers} x "
-                f"{a.channels} ch, {count} parameters)")
+                f"learned 2-D stages: {quarter}{a.iterations} at 1/2 ({a.layers} x {a.channels} ch, {count} "
+                f"parameters)")
 
     def save(self, path: str | Path, **metadata: Any) -> Path:
         """Write the CNNs' weights with the architecture and ``metadata`` (small, plain values)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        state = {k: v.detach().float().cpu().clone() for k, v in self.stages.state_dict().items()}
+        state = {k: v.detach().float().cpu().clone() for k, v in self.weights().items()}
         torch.save({"format": HYBRID_FORMAT, "architecture": dataclasses.asdict(self.architecture),
                     "state_dict": state, "metadata": {**self.metadata, **metadata}}, path)
         return path
@@ -292,18 +316,23 @@ class HybridStereo(nn.Module):
             RefinementInputs, (B, *, h, w) maps.
         """
         self._check(image)
-        grey = image.mean(1, keepdim=True)
+        return self.initial_binned(F.avg_pool2d(image.mean(1, keepdim=True), 2))
+
+    def initial_binned(self, grey: torch.Tensor) -> RefinementInputs:
+        """:meth:`initial` of the 2 x 2-binned grey capture ``grey`` (B, 1, H/2, W/2) (training keeps captures so).
+
+        Example:
+            >>> model = HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None)
+            >>> model.initial_binned(torch.rand(1, 1, 96, 128)).s.shape  # on the 4 x 4-binned grid
+            torch.Size([1, 1, 48, 32])
+        """
         k = self.architecture.block
         with torch.no_grad():
             level = self.classical.final
-            res = level.depth(F.avg_pool2d(grey, k))
+            res = level.depth(grey if k == 2 else F.avg_pool2d(grey, k // 2))
             covered = (res.confidence > 0).to(grey.dtype)
             s = torch.where(covered > 0, res.index * level.step - 1.0, torch.zeros_like(res.index))
-        h, w = self.half.image_height, self.half.reference_width
-        maps = torch.cat([s, res.confidence, covered], 1)
-        maps = upsample(maps, k // 2, (h, w), mode="bilinear")  # a block level may end short of the grid: repeated
-        s, confidence, covered = maps.split(1, 1)
-        return RefinementInputs(normalise_image(F.avg_pool2d(grey, 2)), s, confidence, covered)
+        return RefinementInputs(normalise_image(grey), s, res.confidence, covered)
 
     def _check(self, image: torch.Tensor) -> None:
         check_shape(image, ["B", "C", "H", "W"], "image")
@@ -313,43 +342,68 @@ class HybridStereo(nn.Module):
             raise ShapeError(f"image must be a floating-point (B, 1 or 3, {rig.image_height}, {rig.image_width}) "
                              f"tensor in [0, 1], got {image.dtype} {tuple(image.shape)}")
 
-    def sample_costs(self, image: torch.Tensor, s: torch.Tensor, window: tuple[int, int] = (0, 0)) -> torch.Tensor:
+    def sample_costs(self, image: torch.Tensor, s: torch.Tensor, window: tuple[int, int] = (0, 0),
+                     quarter: bool = False) -> torch.Tensor:
         """Step 3: the cost curve around ``s``: (B, 2 offsets + 1, h, w) mean absolute differences (3 x 3) of the
         locally normalised reference and the other half sampled along the exact sweep at s + o steps (the match
         at s exact to the sweep fit, the offsets to first order in o: their cost only guides the CNN).
 
         Args:
-            image: (B, 2, h, W2) the normalised binned capture (:attr:`RefinementInputs.image`).
+            image: (B, 2, h, W2) the normalised binned capture at the stage's resolution.
             s: (B, 1, h', w') sweep coordinates of the reference pixels from row, column ``window`` on (training
                 refines crops).
+            quarter: on the 4 x 4-binned grid (else the 2 x 2-binned one).
         """
         n = self.architecture.offsets
         b, _, h, w = s.shape
         r, c = window
-        match, slope = sweep_match(self.coefficients[..., r:r + h, c:c + w], s)  # (B, 2, h, w) each
-        offsets = torch.arange(-n, n + 1, dtype=s.dtype, device=s.device).view(1, -1, 1, 1, 1) * self.step
+        coefficients, step = (self.quarter_coefficients, self.quarter_step) if quarter else (self.coefficients,
+                                                                                            self.step)
+        match, slope = sweep_match(coefficients[..., r:r + h, c:c + w], s)  # (B, 2, h, w) each
+        offsets = torch.arange(-n, n + 1, dtype=s.dtype, device=s.device).view(1, -1, 1, 1, 1) * step
         at = match.unsqueeze(1) + offsets * slope.unsqueeze(1)  # (B, O, 2, h, w)
-        size = torch.tensor([image.shape[-1], image.shape[-2]], dtype=s.dtype, device=s.device).view(1, 1, 2, 1, 1)
-        grid = ((2.0 * at + 1.0) / size - 1.0).permute(0, 1, 3, 4, 2).reshape(b, -1, w, 2)  # align_corners=False
         local = image[:, 1:2]
-        warped = sample_grid(local, grid).view(b, 2 * n + 1, h, w)
+        warped = sample_bilinear(local, at[:, :, 0], at[:, :, 1])[:, 0]  # (B, O, h, w)
         return box_filter((local[..., r:r + h, c:c + w] - warped).abs(), 3)
 
-    def refine(self, inputs: RefinementInputs, window: tuple[int, int] = (0, 0)) -> list[tuple[torch.Tensor,
-                                                                                              torch.Tensor]]:
-        """Steps 3-4 on the 2 x 2-binned grid: each stage's refined s (B, 1, h, w) and confidence logit
-        (B, 1, h, w); ``inputs`` may be a crop from row, column ``window`` on (its ``image`` the whole capture)."""
-        s = inputs.s
+    def _stage(self, stage: RefinementCNN, image: torch.Tensor, s: torch.Tensor, confidence: torch.Tensor,
+               covered: torch.Tensor, window: tuple[int, int], quarter: bool) -> tuple[torch.Tensor, torch.Tensor]:
         h, w = s.shape[-2:]
         r, c = window
-        reference = inputs.image[..., r:r + h, c:c + w]
-        out = []
+        step = self.quarter_step if quarter else self.step
+        relief = ((s - box_filter(s, 5)) / step).clamp(-RELIEF_STEPS, RELIEF_STEPS) / RELIEF_STEPS
+        x = torch.cat([image[..., r:r + h, c:c + w], self.sample_costs(image, s, window, quarter), relief,
+                       confidence, covered], 1)
+        delta, logit = stage(x).split(1, 1)
+        return (s + delta * step).clamp(-1.0, 1.0), logit
+
+    def refine(self, inputs: RefinementInputs, window: tuple[int, int] = (0, 0),
+               size: tuple[int, int] | None = None) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Steps 2-4: the stages at 1/4 on the classical grid, the maps bilinearly onto the 2 x 2-binned grid (block
+        centres kept: pixel j of that grid is at full-sensor 2 j + 1/2), the stages at 1/2. Returns every stage's s
+        and confidence logit on the 2 x 2-binned grid, (B, 1, h, w) each.
+
+        Args:
+            inputs: the classical estimate, or a crop of it from row, column ``window`` of its grid on (its
+                ``image`` the whole capture; training refines crops).
+            window: the crop's origin on the classical grid.
+            size: (h, w) on the 2 x 2-binned grid; None: the whole reference half.
+        """
+        s, confidence, covered = inputs.s, inputs.confidence, inputs.covered
+        f = self.architecture.block // 2
+        if size is None:
+            size = (self.half.image_height, self.half.reference_width)
+        out, logit = [], None
+        if len(self.quarter_stages):
+            image = F.avg_pool2d(inputs.image, 2)
+            for stage in self.quarter_stages:
+                s, logit = self._stage(stage, image, s, confidence, covered, window, True)
+                out.append(tuple(upsample(torch.cat([s, logit], 1), f, size, mode="bilinear").split(1, 1)))
+        # a block level may end short of the grid: its last row and column repeated
+        s, confidence, covered = upsample(torch.cat([s, confidence, covered], 1), f, size, mode="bilinear").split(1, 1)
+        window = (window[0] * f, window[1] * f)
         for stage in self.stages:
-            relief = ((s - box_filter(s, 5)) / self.step).clamp(-RELIEF_STEPS, RELIEF_STEPS) / RELIEF_STEPS
-            x = torch.cat([reference, self.sample_costs(inputs.image, s, window), relief, inputs.confidence,
-                           inputs.covered], 1)
-            delta, logit = stage(x).split(1, 1)
-            s = (s + delta * self.step).clamp(-1.0, 1.0)
+            s, logit = self._stage(stage, inputs.image, s, confidence, covered, window, False)
             out.append((s, logit))
         return out
 
@@ -384,7 +438,7 @@ class HybridStereo(nn.Module):
 
 def sweep_match(coefficients: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The per-pixel sweep polynomials (Chebyshev in s, :func:`~prismstereo.epipolar.sweep.sweep_coefficients`)
-    at ``s`` and their slope d m / d s, term by term on whole maps (T_n' = n U_(n-1)).
+    at ``s`` and their slope d m / d s, on whole maps (Clenshaw's recurrence and its derivative).
 
     Args:
         coefficients: (N, 2, h, w) per-pixel coefficients.
@@ -399,16 +453,12 @@ def sweep_match(coefficients: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tens
         [[0.5, 0.5], [1.0, 1.0]]
     """
     check_shape(coefficients, ["N", 2, "H", "W"], "coefficients")
-    t_prev, t_cur = torch.ones_like(s), s  # T_0, T_1
-    u_prev, u_cur = torch.ones_like(s), 2.0 * s  # U_0, U_1
-    match = t_prev * coefficients[0] + t_cur * coefficients[1]
-    slope = u_prev * coefficients[1]
-    for n in range(2, coefficients.shape[0]):
-        t_prev, t_cur = t_cur, 2.0 * s * t_cur - t_prev
-        match = match + t_cur * coefficients[n]
-        slope = slope + (n * u_cur) * coefficients[n]
-        u_prev, u_cur = u_cur, 2.0 * s * u_cur - u_prev
-    return match, slope
+    terms = coefficients.unbind(0)  # one Split when exported, not a Slice per term
+    two_s = 2.0 * s
+    b1 = b2 = d1 = d2 = torch.zeros_like(terms[0] * s)
+    for k in range(len(terms) - 1, 0, -1):  # Clenshaw: b_k = c_k + 2 s b_(k+1) - b_(k+2), and d/ds
+        b1, b2, d1, d2 = terms[k] + two_s * b1 - b2, b1, 2.0 * b1 + two_s * d1 - d2, d1
+    return terms[0] + s * b1 - b2, b1 + s * d1 - d2
 
 
 def truth_sweep(depth: torch.Tensor, z_range_mm: tuple[float, float]) -> torch.Tensor:

@@ -11,7 +11,9 @@ are. Image formation varies read noise, blur, thin-lens defocus, Fresnel and vig
 thesis' two setups at their default and narrower ranges, and setup 1 with another prism angle, apex distance and a
 barrel distortion.
 
-Rendering dominates; :func:`hybrid_set` keeps each rig's captures in a ``.pt`` file when given a cache folder.
+Rendering dominates; :func:`render_set` keeps each rig's binned captures and truth in a ``.pt`` file when given a
+cache folder, and :func:`hybrid_set` adds the classical estimate (seconds), so that the classical level can change
+without rendering again.
 """
 
 from __future__ import annotations
@@ -24,15 +26,16 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 
+from prismstereo.defaults import default_hypotheses
 from prismstereo.errors import OptionError
 from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.data import KINDS, SEED_LIMIT, random_capture_spec
-from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, truth_sweep
+from prismstereo.learned.hybrid import HybridStereo, truth_sweep
 from prismstereo.synthetic import ImageFormation, Scene, height_field_scene, render
 
-__all__ = ["HELD_OUT_PHOTOS", "TRAIN_PHOTOS", "HybridSet", "hybrid_set", "photo_scene", "photographs",
-           "training_rigs", "training_sets"]
+__all__ = ["HELD_OUT_PHOTOS", "TRAIN_PHOTOS", "HybridSet", "Rendered", "hybrid_set", "photo_scene", "photographs",
+           "render_set", "training_rigs", "training_sets"]
 
 TRAIN_PHOTOS: tuple[str, ...] = ("astronaut", "brick", "camera", "cat", "coffee", "coins", "grass", "gravel",
                                  "hubble_deep_field", "immunohistochemistry", "moon", "page", "retina", "rocket",
@@ -147,17 +150,33 @@ def _photometric(image: torch.Tensor, w_ref: int, gen: torch.Generator) -> torch
     return (out.clamp(0, 1) * 255).round() / 255
 
 
+class Rendered(NamedTuple):
+    """One rig variant's rendered captures on the 2 x 2-binned grid (what the cache keeps; h, w the binned reference
+    half, W2 the binned sensor width).
+
+    Attributes:
+        grey: (N, 1, h, W2) the 2 x 2-binned grey captures (8-bit values in [0, 1]).
+        truth: (N, 1, h, w) true sweep coordinate over the variant's range (the mean over each 2 x 2 block), NaN where
+            unknown.
+        known: (N, 1, h, w) bool, blocks the other half sees whose four true depths agree within half a step.
+        rays: (N, 1, h, w) bool, blocks with a true depth (the confidence's domain).
+    """
+
+    grey: torch.Tensor
+    truth: torch.Tensor
+    known: torch.Tensor
+    rays: torch.Tensor
+
+
 class HybridSet(NamedTuple):
-    """One rig variant's training captures on the 2 x 2-binned grid (h, w the binned reference half).
+    """One rig variant's training captures with the classical estimate the refinement starts from.
 
     Attributes:
         name, rig, z_range_mm: the variant.
         image: (N, 2, h, W2) normalised binned captures.
         s, confidence, covered: (N, 1, h, w) the classical estimate (:class:`~prismstereo.learned.hybrid.
             RefinementInputs`).
-        truth: (N, 1, h, w) true sweep coordinate (the mean over the 2 x 2 block), NaN where unknown.
-        known: (N, 1, h, w) bool, blocks the other half sees whose four true depths agree within half a step.
-        rays: (N, 1, h, w) bool, blocks with a true depth (the confidence's domain).
+        truth, known, rays: :class:`Rendered`'s.
     """
 
     name: str
@@ -172,33 +191,31 @@ class HybridSet(NamedTuple):
     rays: torch.Tensor
 
 
-def hybrid_set(name: str, rig: BiPrismRig, z_range_mm: tuple[float, float], count: int, *, seed: int = 0,
-               model: HybridStereo | None = None, cache: str | Path | None = None,
-               progress: bool = False) -> HybridSet:
-    """Render ``count`` captures through one rig variant (photographs and procedural kinds in turn) and store the
-    classical estimate of ``model`` (a :class:`HybridStereo` of that rig and range; built when None).
+def render_set(name: str, rig: BiPrismRig, z_range_mm: tuple[float, float], count: int, *, seed: int = 0,
+               cache: str | Path | None = None, progress: bool = False) -> Rendered:
+    """Render ``count`` captures through one rig variant (photographs and procedural kinds in turn), or read them
+    from ``cache``.
 
     Raises:
         OptionError: ``count`` < 1.
 
     Example:
-        >>> data = hybrid_set("small", thesis_setup1().downscaled(4), (450.0, 1000.0), 1)  # doctest: +SKIP
+        >>> rendered = render_set("small", thesis_setup1().downscaled(4), (450.0, 1000.0), 1)  # doctest: +SKIP
     """
     if isinstance(count, bool) or not isinstance(count, int) or count < 1:
         raise OptionError(f"count must be an int >= 1, got {count!r}")
     path = None
     if cache is not None:
-        block = model.architecture.block if model is not None else HybridArchitecture().block
         key = f"{name}_{rig.image_width}x{rig.image_height}_{z_range_mm[0]:g}-{z_range_mm[1]:g}".replace(" ", "_")
-        path = Path(cache) / f"hybrid_{key}_k{block}_{count}_{seed}.pt"
+        path = Path(cache) / f"rendered_{key}_{count}_{seed}.pt"
         if path.is_file():
             blob = torch.load(path, weights_only=True)
-            return HybridSet(name, rig, z_range_mm, *(blob[k] for k in HybridSet._fields[3:]))
-    model = model or HybridStereo(rig, z_range_mm, weights=None)
+            return Rendered(*(blob[k] for k in Rendered._fields))
     gen = torch.Generator().manual_seed(seed)
     photos = photographs()
     w_ref = rig.reference_width
-    rows: dict[str, list[torch.Tensor]] = {k: [] for k in HybridSet._fields[3:]}
+    step = 2.0 / (default_hypotheses(rig.binned(2), z_range_mm) - 1)
+    rows: dict[str, list[torch.Tensor]] = {k: [] for k in Rendered._fields}
     from tqdm.auto import tqdm
 
     for i in tqdm(range(count), desc=f"render {name}", disable=not progress):
@@ -210,24 +227,43 @@ def hybrid_set(name: str, rig: BiPrismRig, z_range_mm: tuple[float, float], coun
             formation = _formation(gen, z_range_mm, base)
         capture = render(rig, scene, formation)
         image = _photometric(capture.image.float().mean(1, keepdim=True), w_ref, gen)
-        with torch.no_grad():
-            inputs = model.initial(image)
         depth = capture.depth[..., :w_ref].float()
-        truth = truth_sweep(depth, model.z_range)
-        block = F.unfold(torch.nan_to_num(truth, nan=1e3), 2, stride=2).view(1, 4, *inputs.s.shape[-2:])
+        truth = truth_sweep(depth, z_range_mm)
+        h, w = depth.shape[-2] // 2, depth.shape[-1] // 2
+        block = F.unfold(torch.nan_to_num(truth, nan=1e3), 2, stride=2).view(1, 4, h, w)
         seen = F.avg_pool2d(capture.covisible[..., :w_ref].float(), 2) > 0.99
         finite = F.avg_pool2d(torch.isfinite(depth).float(), 2) > 0.99
-        known = seen & finite & ((block.amax(1, keepdim=True) - block.amin(1, keepdim=True)) < 0.5 * model.step)
+        known = seen & finite & ((block.amax(1, keepdim=True) - block.amin(1, keepdim=True)) < 0.5 * step)
         mean = block.mean(1, keepdim=True)
-        for key, value in (("image", inputs.image), ("s", inputs.s), ("confidence", inputs.confidence),
-                           ("covered", inputs.covered), ("truth", torch.where(finite, mean, math.nan)),
+        for key, value in (("grey", F.avg_pool2d(image, 2)), ("truth", torch.where(finite, mean, math.nan)),
                            ("known", known), ("rays", finite)):
             rows[key].append(value)
-    data = HybridSet(name, rig, z_range_mm, *(torch.cat(rows[k]) for k in HybridSet._fields[3:]))
+    data = Rendered(*(torch.cat(rows[k]) for k in Rendered._fields))
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        torch.save({k: getattr(data, k) for k in HybridSet._fields[3:]}, path)
+        torch.save(data._asdict(), path)
     return data
+
+
+def hybrid_set(name: str, rig: BiPrismRig, z_range_mm: tuple[float, float], count: int, *, seed: int = 0,
+               model: HybridStereo | None = None, cache: str | Path | None = None,
+               progress: bool = False) -> HybridSet:
+    """:func:`render_set`'s captures with the classical estimate of ``model`` (a :class:`HybridStereo` of that rig and
+    range; built when None), computed here (a few seconds), so that the classical level can change without
+    rendering again.
+
+    Raises:
+        OptionError: ``count`` < 1.
+
+    Example:
+        >>> data = hybrid_set("small", thesis_setup1().downscaled(4), (450.0, 1000.0), 1)  # doctest: +SKIP
+    """
+    rendered = render_set(name, rig, z_range_mm, count, seed=seed, cache=cache, progress=progress)
+    model = model or HybridStereo(rig, z_range_mm, weights=None)
+    with torch.no_grad():
+        parts = [model.initial_binned(chunk) for chunk in rendered.grey.split(8)]
+    image, s, confidence, covered = (torch.cat(t) for t in zip(*parts, strict=True))
+    return HybridSet(name, rig, z_range_mm, image, s, confidence, covered, *rendered[1:])
 
 
 def training_sets(captures: int, *, seed: int = 0, variants: list[int] | None = None, cache: str | Path | None = None,

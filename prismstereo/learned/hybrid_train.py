@@ -1,18 +1,19 @@
 """Train :class:`~prismstereo.learned.hybrid.HybridStereo`'s refinement on :mod:`~prismstereo.learned.hybrid_data`
 captures, on a CPU, resumable.
 
-The classical estimate of every capture is computed once when the set is rendered (it does not learn), so a step
-only runs the refinement: ``batch_size`` captures of one rig variant, a random crop of the 2 x 2-binned reference
-half (the other half stays whole for the warp), every stage. Loss, in steps of the sweep (<= 1 px at 1/2): smooth L1
-of each stage's s against the truth on the known blocks (the last stage weighted 1, earlier ones 0.5), plus 0.3 times
-the binary cross-entropy of the last confidence against "depth within 1 %" on every block with a true depth (blocks
-the other half does not see are negatives). Adam, warm-up then cosine learning rate, gradients clipped at 1.
+The classical estimate of every capture is computed once before training (it does not learn), so a step only runs
+the refinement: ``batch_size`` captures of one rig variant, a random crop of the reference half aligned to the
+classical grid (the other half stays whole for the warp), every stage. Loss, in steps of the sweep (<= 1 px at 1/2):
+smooth L1 of each stage's s (upsampled to 1/2) against the truth on the known blocks (the last stage weighted 1,
+earlier ones 0.5), plus 0.3 times the binary cross-entropy of the last confidence against "depth within 1 %" on every
+block with a true depth (blocks the other half does not see are negatives). Adam, warm-up then cosine learning rate,
+gradients clipped at 1.
 
 A checkpoint (``<out>.ckpt``: the CNNs, optimiser, schedule, random states and losses) is written every
 ``checkpoint_every`` steps; a run started again with the same options continues from it, and the result is the
 same as an uninterrupted run's.
 
-The shipped ``weights/hybrid.pt``: the command is in its metadata and in the comment below the imports.
+The shipped ``weights/hybrid.pt``: the command is in the comment below the imports, its options in its metadata.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+from torch import nn
 from tqdm.auto import tqdm
 
 from prismstereo.epipolar.sweep import sweep_to_depth
@@ -33,20 +35,22 @@ from prismstereo.learned.train import TrainResult
 
 __all__ = ["hybrid_loss", "train_hybrid"]
 
-# The shipped weights/hybrid.pt (7 rig variants x 24 captures; one torch thread):
+# The shipped weights/hybrid.pt (7 rig variants x 24 captures, 6000 steps; one torch thread, 19 min after the renders):
 #   OMP_NUM_THREADS=1 .venv/bin/prismstereo train --model hybrid --cache .cache/hybrid \
 #       --out prismstereo/learned/weights/hybrid.pt
 
 
 def hybrid_loss(model: HybridStereo, inputs: RefinementInputs, truth: torch.Tensor, known: torch.Tensor,
-                rays: torch.Tensor, window: tuple[int, int] = (0, 0)) -> torch.Tensor:
+                rays: torch.Tensor, window: tuple[int, int] = (0, 0), size: tuple[int, int] | None = None
+                ) -> torch.Tensor:
     """The training loss of one batch (module docstring).
 
     Args:
         model: the model of the captures' rig and range.
-        inputs: (B, *, h, w) the classical estimate of a crop from row, column ``window`` on.
-        truth: (B, 1, h, w) true sweep coordinates (NaN where unknown).
+        inputs: the classical estimate of a crop from row, column ``window`` of its grid on.
+        truth: (B, 1, h, w) true sweep coordinates on the 2 x 2-binned grid (NaN where unknown).
         known, rays: (B, 1, h, w) bool, blocks with a reliable truth / with a true depth.
+        window, size: the crop (:meth:`HybridStereo.refine`).
 
     Returns:
         () the loss.
@@ -54,7 +58,7 @@ def hybrid_loss(model: HybridStereo, inputs: RefinementInputs, truth: torch.Tens
     Example:
         >>> model = HybridStereo(thesis_setup1().downscaled(2), (450.0, 1000.0), weights=None)
         >>> h, w = model.half.image_height, model.half.reference_width
-        >>> inputs = model.initial(torch.rand(1, 1, 384, 512))
+        >>> inputs = model.initial(torch.rand(1, 1, 384, 512))  # the whole capture: no window
         >>> ones = torch.ones(1, 1, h, w, dtype=torch.bool)
         >>> hybrid_loss(model, inputs, torch.zeros(1, 1, h, w), ones, ones).shape
         torch.Size([])
@@ -62,7 +66,7 @@ def hybrid_loss(model: HybridStereo, inputs: RefinementInputs, truth: torch.Tens
     z_range = torch.tensor(model.z_range, dtype=inputs.s.dtype)
     target = torch.where(known, truth, torch.zeros_like(truth))
     count = known.sum().clamp_min(1)
-    outputs = model.refine(inputs, window)
+    outputs = model.refine(inputs, window, size)
     loss = inputs.s.new_zeros(())
     for i, (s, _) in enumerate(outputs):
         weight = 1.0 if i == len(outputs) - 1 else 0.5
@@ -76,16 +80,19 @@ def hybrid_loss(model: HybridStereo, inputs: RefinementInputs, truth: torch.Tens
     return loss + 0.3 * (bce * rays).sum() / rays.sum().clamp_min(1)
 
 
-def _batch(data: HybridSet, pick: torch.Tensor, crop: tuple[int, int], gen: torch.Generator):
-    h, w = data.s.shape[-2:]
-    ch, cw = min(crop[0], h), min(crop[1], w)
-    r = int(torch.randint(h - ch + 1, (1,), generator=gen))
-    c = int(torch.randint(w - cw + 1, (1,), generator=gen))
-    rows, cols = slice(r, r + ch), slice(c, c + cw)
-    inputs = RefinementInputs(data.image[pick], *(t[pick][..., rows, cols] for t in (data.s, data.confidence,
-                                                                                    data.covered)))
-    return inputs, data.truth[pick][..., rows, cols], data.known[pick][..., rows, cols], \
-        data.rays[pick][..., rows, cols], (r, c)
+def _batch(model: HybridStereo, data: HybridSet, pick: torch.Tensor, crop: tuple[int, int], gen: torch.Generator):
+    """A step's crop: the classical estimate's crop (``crop`` in 2 x 2-binned pixels, aligned to the classical grid),
+    its window and size, and the truth maps of the crop."""
+    f = model.architecture.block // 2
+    hk, wk = data.s.shape[-2:]
+    ch, cw = min(crop[0] // f, hk), min(crop[1] // f, wk)
+    r = int(torch.randint(hk - ch + 1, (1,), generator=gen))
+    c = int(torch.randint(wk - cw + 1, (1,), generator=gen))
+    inputs = RefinementInputs(data.image[pick], *(t[pick][..., r:r + ch, c:c + cw] for t in (data.s, data.confidence,
+                                                                                            data.covered)))
+    rows, cols = slice(r * f, (r + ch) * f), slice(c * f, (c + cw) * f)
+    truth = tuple(t[pick][..., rows, cols] for t in (data.truth, data.known, data.rays))
+    return inputs, truth, (r, c), (ch * f, cw * f)
 
 
 def train_hybrid(
@@ -110,7 +117,7 @@ def train_hybrid(
         steps: optimiser steps (>= 1).
         seed: seeds the initialisation, the data order and the rendered sets.
         batch_size: captures per step.
-        crop: (rows, columns) of the binned reference half per capture.
+        crop: (rows, columns) of the 2 x 2-binned reference half per capture.
         captures: captures rendered per rig variant (ignored with ``sets``).
         learning_rate: Adam's peak learning rate.
         architecture: the CNNs' hyper-parameters (default :class:`HybridArchitecture` ()).
@@ -141,11 +148,11 @@ def train_hybrid(
     for _, rig, z_range in variants:
         model = HybridStereo(rig, z_range, weights=None, architecture=arch)
         if models:
-            model.stages = models[0].stages
+            model.stages, model.quarter_stages = models[0].stages, models[0].quarter_stages
         models.append(model)
     if sets is None:
         sets = training_sets(captures, seed=seed, cache=cache, models=models, progress=progress)
-    stages = models[0].stages
+    stages = nn.ModuleList([models[0].stages, models[0].quarter_stages])
     optimiser = torch.optim.Adam(stages.parameters(), lr=learning_rate)
     warmup = max(1, min(50, steps // 10))
     schedule = torch.optim.lr_scheduler.LambdaLR(
@@ -171,8 +178,8 @@ def train_hybrid(
         v = int(torch.multinomial(weights, 1, generator=gen))
         data, model = sets[v], models[v]
         pick = torch.randint(data.s.shape[0], (batch_size,), generator=gen)
-        inputs, truth, known, rays, window = _batch(data, pick, crop, gen)
-        loss = hybrid_loss(model, inputs, truth, known, rays, window)
+        inputs, truth, window, size = _batch(model, data, pick, crop, gen)
+        loss = hybrid_loss(model, inputs, *truth, window, size)
         optimiser.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(stages.parameters(), 1.0)

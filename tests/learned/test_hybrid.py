@@ -8,6 +8,7 @@ import torch
 
 from prismstereo import thesis_setup1
 from prismstereo.cli import main
+from prismstereo.depth.level import upsample
 from prismstereo.epipolar.sweep import evaluate_sweep, fit_sweep, sweep_coefficients
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.learned import HYBRID_WEIGHTS, HybridArchitecture, HybridStereo, WeightsError
@@ -60,8 +61,10 @@ def test_outputs_and_shapes(untrained, rig):
 def test_untrained_stage_keeps_the_classical_estimate(untrained, plane):
     inputs = untrained.initial(plane.image)
     s, logit = untrained.refine(inputs)[-1]
-    assert torch.equal(s, inputs.s.clamp(-1, 1)) and torch.equal(logit, torch.zeros_like(logit))
-    # on a textured plane the classical block level is exact: depth within 0.1 % where it is confident
+    size = (untrained.half.image_height, untrained.half.reference_width)
+    assert torch.allclose(s, upsample(inputs.s, 2, size, mode="bilinear").clamp(-1, 1), atol=1e-6)
+    assert torch.equal(logit, torch.zeros_like(logit))
+    # on a textured plane the classical block level is close: depth within 0.2 % where it is confident
     out = untrained(plane.image)
     w = untrained.rig.reference_width
     truth = plane.depth[..., :w]
@@ -70,7 +73,7 @@ def test_untrained_stage_keeps_the_classical_estimate(untrained, plane):
     seen = inner & plane.covisible[..., :w]
     sel = seen & untrained.classical(plane.image).valid
     rel = ((out.depth - truth).abs() / truth)[sel]
-    assert float(sel.sum()) > 0.8 * float(seen.sum()) and float(rel.median()) < 1e-3
+    assert float(sel.sum()) > 0.8 * float(seen.sum()) and float(rel.median()) < 2e-3
 
 
 def test_sweep_match_is_the_sweep_and_its_slope():
@@ -97,6 +100,8 @@ def test_architecture_and_option_errors(rig):
         HybridArchitecture(block=3)
     with pytest.raises(OptionError, match="layers must be an int in"):
         HybridArchitecture(layers=1)
+    with pytest.raises(OptionError, match="quarter stages need block 4"):
+        HybridArchitecture(block=2, quarter=1)
     with pytest.raises(OptionError, match="rig must be a BiPrismRig"):
         HybridStereo("setup1", Z, weights=None)
     with pytest.raises(OptionError, match="not divisible by block 4"):
@@ -152,7 +157,7 @@ def test_onnxruntime_matches_torch(tmp_path, untrained, rig):
     from prismstereo.export import OnnxDepth, export_onnx
 
     torch.manual_seed(3)
-    model = HybridStereo(rig, Z, weights=None).eval()
+    model = HybridStereo(rig, Z, weights=None, architecture=HybridArchitecture(quarter=1)).eval()
     with torch.no_grad():
         for p in model.stages.parameters():
             p.normal_(0.0, 0.05)
@@ -171,7 +176,9 @@ def test_onnxruntime_matches_torch(tmp_path, untrained, rig):
 def test_training_data(data, rig):
     h, w = rig.image_height // 2, rig.reference_width // 2
     assert data.image.shape == (1, 2, h, rig.image_width // 2)
-    for t in (data.s, data.confidence, data.covered, data.truth, data.known, data.rays):
+    for t in (data.s, data.confidence, data.covered):  # the classical grid, 4 x 4-binned
+        assert t.shape == (1, 1, h // 2, w // 2)
+    for t in (data.truth, data.known, data.rays):
         assert t.shape == (1, 1, h, w)
     assert data.known.dtype == torch.bool and float(data.known.float().mean()) > 0.3
     assert torch.isfinite(data.truth[data.known]).all()
@@ -189,7 +196,8 @@ def test_loss_and_training_resume_from_a_checkpoint(tmp_path, data, untrained, m
     inputs = RefinementInputs(data.image[:1], data.s[:1], data.confidence[:1], data.covered[:1])
     loss = hybrid_loss(untrained, inputs, data.truth[:1], data.known[:1], data.rays[:1])
     assert loss.shape == () and math.isfinite(loss.item())
-    options = dict(steps=6, sets=[data], progress=False, crop=(48, 64), batch_size=1, checkpoint_every=2)
+    options = dict(steps=6, sets=[data], progress=False, crop=(48, 64), batch_size=1, checkpoint_every=2,
+                   architecture=HybridArchitecture(quarter=1, channels=8))
     whole = train_hybrid(tmp_path / "whole.pt", **options)
     calls = {"n": 0}
     real = hybrid_loss
