@@ -16,8 +16,8 @@ chain: ``valid`` (co-visible pixels the chain calls valid, and the share of them
 share of co-visible pixels a threshold on the confidence keeps with <= 3 % of them off by more than 1 %. Then the
 speed: each chain's exported graph in onnxruntime (2 intra-op threads) and StereoSGBM (``cv2.setNumThreads(2)``) in
 interleaved rounds (``benchmarks/_timing.py``), median ms and the paired ratio; and the peak resident memory of a
-fresh process building the hybrid at 1024 x 768 and during one torch forward (``/proc/self/status`` VmHWM). ``--plot FILE`` draws the frontier: time / SGBM against
-the photographs' mean ``@3 %`` share, one point per chain.
+fresh process building the hybrid at 1024 x 768 and during one torch forward (``/proc/self/status`` VmHWM).
+``--plot FILE`` draws the frontier: time / SGBM against the photographs' mean ``@3 %`` share, one point per chain.
 
 Run: .venv/bin/python benchmarks/default_chain.py [--rounds 7] [--plot docs/frontier.png] [--chains a,b,...]
      [--hybrid-weights FILE] [--accuracy-only]
