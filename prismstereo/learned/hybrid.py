@@ -425,8 +425,8 @@ class HybridStereo(nn.Module):
         s, logit = self.refine(inputs)[-1]
         match = sweep_match(self.coefficients, s)[0] * 2.0 + 0.5  # full-sensor pixels
         size = (self.rig.image_height, self.rig.reference_width)
-        full = upsample(torch.cat([s, torch.sigmoid(logit), match], 1), 2, size, mode="bilinear")
-        s, confidence, match = full[:, :1], full[:, 1:2], full[:, 2:]
+        # each map on its own: the exported graph keeps only what its outputs need (not the match)
+        s, confidence, match = (upsample(t, 2, size, mode="bilinear") for t in (s, torch.sigmoid(logit), match))
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         confidence = confidence * self.rays_valid.to(dtype)
         level = self.classical.final
