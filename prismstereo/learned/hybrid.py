@@ -5,17 +5,16 @@ Data path (one capture, both halves as recorded; k = ``block``; (h, w) the refer
 1. :class:`~prismstereo.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band) with the
    'dense' preset's matching (:data:`CLASSICAL`): the exact plane sweep on the k x k-binned capture gives every
    covered block a sweep coordinate s (linear in 1/Z), its calibrated confidence and the coverage;
-2. those three maps bilinearly onto the 2 x 2-binned grid (block centres kept: pixel j of the finer grid is at
-   full-sensor 2 j + 1/2);
-3. the 2 x 2-binned capture normalised (:func:`~prismstereo.learned.network.normalise_image`), and the other half
-   sampled along every reference pixel's exact sweep (:func:`~prismstereo.epipolar.sweep.evaluate_sweep` of the
-   binned rig, thesis eq. 4.1-4.10) at s + o for offsets o of one step (a step of the sweep is <= 1 px at this
-   resolution: :func:`~prismstereo.defaults.default_hypotheses`): the local absolute differences at each offset are
-   a small cost curve around the estimate;
-4. a dilated 3 x 3 CNN (the StereoNet / HITNet refinement) on the reference image, the cost curve, the estimate's
-   local relief and the classical confidence and coverage predicts a residual of s in steps and a confidence logit
-   (``iterations`` such stages, each re-sampling at the updated s);
-5. s and the confidence bilinearly to full resolution, depth exact from s (thesis eq. 6.1-6.10 via the sweep).
+2. refinement stages, first on that k x k grid (``quarter``, block 4: twice the reach per layer), then on the
+   2 x 2-binned grid (``iterations``; the maps carried over bilinearly, block centres kept: pixel j of that grid is
+   at full-sensor 2 j + 1/2). Each samples the other half of the normalised binned capture
+   (:func:`~prismstereo.learned.network.normalise_image`) along every reference pixel's exact sweep (the binned
+   rig's sweep polynomials, thesis eq. 4.1-4.10 done exactly: :func:`sweep_match`) at s + o steps for offsets
+   o = -2 ... 2 (a step is <= 1 px at the stage's resolution: :func:`~prismstereo.defaults.default_hypotheses`);
+   the local absolute differences are a small cost curve around the estimate. A dilated 3 x 3 CNN (the StereoNet /
+   HITNet refinement) on the reference image, the cost curve, the estimate's local relief and the classical
+   confidence and coverage predicts a residual of s in steps and a confidence logit;
+3. s and the confidence bilinearly to full resolution, depth exact from s (thesis eq. 6.1-6.10 via the sweep).
 
 The weights are the CNNs only; the sweep, masks and the classical level are built from the rig and range the model
 is constructed with, so the same weights run on any rig whose sensor the block divides.
@@ -66,8 +65,8 @@ class HybridArchitecture:
         layers: 3 x 3 convolutions per CNN (2-8, dilations 1, 2, 4, 8, 1, ...), the output head included.
         offsets: the cost curve is sampled at s + o steps for o = -offsets ... +offsets.
         iterations: refinement stages at 1/2, each with its own CNN.
-        quarter: refinement stages at 1/4 before them (block 4 only: on the classical level's own grid, with 4
-            times the context per layer).
+        quarter: refinement stages at 1/4 before them (block 4 only: on the classical level's own grid, with twice
+            the reach per layer).
 
     Example:
         >>> HybridArchitecture().block, HybridArchitecture(offsets=1).inputs
