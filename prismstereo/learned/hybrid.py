@@ -38,7 +38,7 @@ from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coeffici
 from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.learned.network import WeightsError, normalise_image
+from prismstereo.learned.network import WeightsError, normalise_image, read_weights
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.runtime import sample_bilinear
 
@@ -150,22 +150,7 @@ def load_hybrid_weights(path: str | Path) -> tuple[HybridArchitecture, dict[str,
     Example:
         >>> arch, state, meta = load_hybrid_weights(HYBRID_WEIGHTS)  # doctest: +SKIP
     """
-    path = Path(path)
-    if not path.is_file():
-        raise WeightsError(f"weights file {path} does not exist")
-    try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a file it cannot read: say what the file is not
-        raise WeightsError(f"{path} is not a HybridStereo weights file (torch.load cannot read it safely: "
-                           f"{type(exc).__name__})") from exc
-    if not isinstance(blob, dict) or blob.get("format") != HYBRID_FORMAT or not isinstance(blob.get("state_dict"),
-                                                                                          dict):
-        raise WeightsError(f"{path} is not a HybridStereo weights file (format {HYBRID_FORMAT!r})")
-    try:
-        arch = HybridArchitecture(**blob["architecture"])
-    except (TypeError, OptionError) as exc:
-        raise WeightsError(f"{path} holds an invalid architecture {blob.get('architecture')!r}: {exc}") from exc
-    return arch, blob["state_dict"], dict(blob.get("metadata", {}))
+    return read_weights(path, HYBRID_FORMAT, HybridArchitecture, "HybridStereo")
 
 
 class HybridStereo(nn.Module):

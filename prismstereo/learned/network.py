@@ -38,7 +38,7 @@ from prismstereo.nn import PrismCostVolume, depth_regression
 from prismstereo.runtime import exporting
 
 __all__ = ["DEFAULT_WEIGHTS", "FORMAT", "HYPOTHESIS_SPACING_PX", "Architecture", "LearnedStereo", "WeightsError",
-           "learned_hypotheses", "load_weights"]
+           "learned_hypotheses", "load_weights", "read_weights"]
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "thesis_setup1.pt"
 # the spacing of neighbouring hypotheses on the sweep at the feature stride (px) that the default count keeps on every
@@ -162,18 +162,33 @@ def load_weights(path: str | Path) -> tuple[Architecture, dict[str, torch.Tensor
         >>> arch.scale, meta["rig"]
         (4, 'thesis_setup1')
     """
+    return read_weights(path, FORMAT, Architecture, "LearnedStereo")
+
+
+def read_weights(path: str | Path, fmt: str, architecture: type, model: str) -> tuple[Any, dict[str, torch.Tensor],
+                                                                                     dict[str, Any]]:
+    """A weights file of ``model`` (format tag ``fmt``): (``architecture`` (**its stored fields), state_dict,
+    metadata), loaded safely (``weights_only``).
+
+    Raises:
+        WeightsError: missing or unreadable file, another format, or an invalid architecture.
+
+    Example:
+        >>> read_weights(DEFAULT_WEIGHTS, FORMAT, Architecture, "LearnedStereo")[0].scale
+        4
+    """
     path = Path(path)
     if not path.is_file():
         raise WeightsError(f"weights file {path} does not exist")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a file it cannot read: say what the file is not
-        raise WeightsError(f"{path} is not a LearnedStereo weights file (torch.load cannot read it safely: "
+        raise WeightsError(f"{path} is not a {model} weights file (torch.load cannot read it safely: "
                            f"{type(exc).__name__})") from exc
-    if not isinstance(blob, dict) or blob.get("format") != FORMAT or not isinstance(blob.get("state_dict"), dict):
-        raise WeightsError(f"{path} is not a LearnedStereo weights file (format {FORMAT!r})")
+    if not isinstance(blob, dict) or blob.get("format") != fmt or not isinstance(blob.get("state_dict"), dict):
+        raise WeightsError(f"{path} is not a {model} weights file (format {fmt!r})")
     try:
-        arch = Architecture(**blob["architecture"])
+        arch = architecture(**blob["architecture"])
     except (TypeError, PrismStereoError) as exc:
         raise WeightsError(f"{path} holds an invalid architecture {blob.get('architecture')!r}: {exc}") from exc
     return arch, blob["state_dict"], dict(blob.get("metadata", {}))
