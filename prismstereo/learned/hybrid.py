@@ -272,7 +272,7 @@ class HybridStereo(nn.Module):
 
         Example:
             >>> HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None).summary()
-            'hybrid: 4x4-binned classical level (...), then 1 learned 2-D stage at 1/2 (5 x 16 ch, ... parameters)'
+            'hybrid: 4x4-binned classical level (...), then learned 2-D stages: 1 at 1/4 and 1 at 1/2 (5 x 16 ch, ...)'
         """
         a = self.architecture
         count = sum(v.numel() for v in self.weights().values())

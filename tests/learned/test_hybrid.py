@@ -40,8 +40,14 @@ def plane(rig):
 
 
 @pytest.fixture(scope="module")
-def data(rig, untrained):
-    return hybrid_set("test", rig, Z, 1, seed=1, model=untrained)
+def small():
+    torch.manual_seed(0)
+    return HybridStereo(thesis_setup1().downscaled(4), Z, weights=None)
+
+
+@pytest.fixture(scope="module")
+def data(small):
+    return hybrid_set("test", small.rig, Z, 1, seed=1, model=small)
 
 
 @torch.no_grad()
@@ -173,7 +179,8 @@ def test_onnxruntime_matches_torch(tmp_path, untrained, rig):
     assert float(agree.float().mean()) > 0.999  # pixels at confidence 0.5 may round either way
 
 
-def test_training_data(data, rig):
+def test_training_data(data, small):
+    rig = small.rig
     h, w = rig.image_height // 2, rig.reference_width // 2
     assert data.image.shape == (1, 2, h, rig.image_width // 2)
     for t in (data.s, data.confidence, data.covered):  # the classical grid, 4 x 4-binned
@@ -192,11 +199,11 @@ def test_training_data(data, rig):
         hybrid_set("test", rig, Z, 0)
 
 
-def test_loss_and_training_resume_from_a_checkpoint(tmp_path, data, untrained, monkeypatch):
+def test_loss_and_training_resume_from_a_checkpoint(tmp_path, data, small, monkeypatch):
     inputs = RefinementInputs(data.image[:1], data.s[:1], data.confidence[:1], data.covered[:1])
-    loss = hybrid_loss(untrained, inputs, data.truth[:1], data.known[:1], data.rays[:1])
+    loss = hybrid_loss(small, inputs, data.truth[:1], data.known[:1], data.rays[:1])
     assert loss.shape == () and math.isfinite(loss.item())
-    options = dict(steps=6, sets=[data], progress=False, crop=(48, 64), batch_size=1, checkpoint_every=2,
+    options = dict(steps=6, sets=[data], progress=False, crop=(32, 32), batch_size=1, checkpoint_every=2,
                    architecture=HybridArchitecture(quarter=1, channels=8))
     whole = train_hybrid(tmp_path / "whole.pt", **options)
     calls = {"n": 0}
