@@ -311,6 +311,17 @@ def test_hybrid_model_from_the_cli(scene, tmp_path, capsys, backend):
     assert depth.shape == (96, 64) and abs(np.nanmedian(depth) / FAR - 1) < 0.02
     assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--hybrid", "--hypotheses", 10) == 2
     assert "--hypotheses set another model's options, not --hybrid's" in capsys.readouterr().err
+    if backend == "torch":  # --weights with --hybrid reads a hybrid weights file
+        from prismstereo.learned import HybridStereo
+        from prismstereo.learned.hybrid import HybridArchitecture
+
+        torch.manual_seed(0)
+        rig = thesis_setup1().downscaled(8)
+        weights = HybridStereo(rig, (400.0, 900.0), weights=None, architecture=HybridArchitecture(channels=4)).save(
+            tmp_path / "h.pt")
+        assert _run(scene, scene / "far.png", "--out", tmp_path / "w.npy", "--hybrid", "--weights", weights,
+                    "--z-range", 400, 900) == 0
+        assert "5 x 4 ch" in capsys.readouterr().out
 
 
 def test_export_learned(scene, tmp_path, capsys):
