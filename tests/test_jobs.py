@@ -193,7 +193,7 @@ def _ray_workers() -> list[int]:
 
 def test_ray_writes_the_same_files_and_survives_a_dead_worker(inputs, tmp_path, local_ray, capsys):
     """``--ray`` on a local instance: the files of the single-process run (float rounding: one thread per actor),
-    the failing input reported; one actor killed after the first report is restarted by Ray and its work retried,
+    the failing input reported; one actor killed after the first report is replaced and its work retried,
     and no temporary file is left."""
     import signal
 

@@ -4,9 +4,11 @@ of captures.
 
 Each Ray worker is an actor holding one copy of the :class:`~prismstereo.jobs.runner.Runner` (the model or its
 exported graph, shipped once through Ray's object store) on one CPU; the driver hands the captures (in batches)
-and sequences to idle actors and gathers the reports. An actor whose process dies is restarted by Ray and its task
-retried (``max_restarts`` / ``max_task_retries``); its files are renamed into place only when whole, so a retry
-rewrites them and a dead attempt leaves at most a temporary file, which :func:`~prismstereo.jobs.run.run` removes.
+and sequences to idle actors and gathers the reports. When an actor's process dies, the driver starts a new actor in
+its place and gives it the dead one's unit again (up to :data:`RETRIES` times per unit; Ray's own ``max_restarts``
+would keep the runner's reference as a constructor argument in the object store, which Ray reports as an error
+for restartable actors). Files are renamed into place only when whole, so a retry rewrites them and a dead attempt
+leaves at most a temporary file, which :func:`~prismstereo.jobs.run.run` removes.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from prismstereo.jobs.runner import Runner, TaskReport
 
 __all__ = ["DepthPredictor", "RETRIES"]
 
-RETRIES = 3  # restarts of a dead actor and retries of its task
+RETRIES = 3  # replacements of a dead actor per unit of work
 
 
 def _ray():
@@ -57,23 +59,32 @@ def run_on_ray(units: list[list[tuple[int, Task]]], runner: Runner, address: str
     try:
         runner.prepare()
         shared = ray.put(runner)
-        actor = ray.remote(num_cpus=1, max_restarts=RETRIES, max_task_retries=RETRIES)(_Worker)
+        actor = ray.remote(num_cpus=1)(_Worker)
         count = max(1, min(int(ray.available_resources().get("CPU", 1)), len(units)))
         idle = [actor.remote(shared) for _ in range(count)]
-        pending: dict[Any, tuple[Any, list[tuple[int, Task]]]] = {}
-        queue = list(reversed(units))
+        pending: dict[Any, tuple[Any, int]] = {}
+        queue = list(reversed(range(len(units))))
+        attempts = [0] * len(units)
         while queue or pending:
             while queue and idle:
-                worker, unit = idle.pop(), queue.pop()
-                pending[worker.work.remote(unit, batch_size)] = (worker, unit)
+                worker, u = idle.pop(), queue.pop()
+                pending[worker.work.remote(units[u], batch_size)] = (worker, u)
             ready, _ = ray.wait(list(pending), num_returns=1)
-            worker, unit = pending.pop(ready[0])
-            idle.append(worker)
+            worker, u = pending.pop(ready[0])
             try:
                 done = ray.get(ready[0])
-            except ray.exceptions.RayError as exc:  # the actor died more often than it is restarted
+                idle.append(worker)
+            except ray.exceptions.RayActorError:  # its process died: a new actor in its place, the unit again
+                idle.append(actor.remote(shared))
+                attempts[u] += 1
+                if attempts[u] <= RETRIES:
+                    queue.append(u)
+                    continue
+                done = [(i, TaskReport(t.source, 0, 0, (), 0.0, "its Ray worker died")) for i, t in units[u]]
+            except ray.exceptions.RayError as exc:
+                idle.append(worker)
                 done = [(i, TaskReport(t.source, 0, 0, (), 0.0, f"its Ray worker failed ({type(exc).__name__})"))
-                        for i, t in unit]
+                        for i, t in units[u]]
             for i, rep in done:
                 deliver(i, rep)
         return count
