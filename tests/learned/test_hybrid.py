@@ -231,6 +231,9 @@ def test_loss_and_training_resume_from_a_checkpoint(tmp_path, data, small, monke
         train_hybrid(tmp_path / "x.pt", **{**options, "steps": 0})
 
 
-def test_cli_train_needs_a_rig_for_the_learned_model(tmp_path, capsys):
+def test_cli_train_options_of_each_model(tmp_path, capsys):
     assert main(["train", "--out", str(tmp_path / "w.pt")]) == 2
     assert "--rig is required" in capsys.readouterr().err
+    assert main(["train", "--model", "hybrid", "--rig", "thesis_setup1", "--z-range", "400", "900",
+                 "--out", str(tmp_path / "w.pt")]) == 2
+    assert "--rig, --z-range apply to --model learned only" in capsys.readouterr().err
