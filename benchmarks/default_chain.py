@@ -143,7 +143,7 @@ def main() -> None:
     s1 = thesis_setup1()
     caps = {name: (s1, cap) for name, cap in captures(s1, args.cache).items()}
     caps.update(more_captures(args.cache))
-    models: dict[tuple[str, str], torch.nn.Module] = {}
+    models: dict[tuple[str, object], torch.nn.Module] = {}
     print(f"1024 x 768, searched {Z_RANGE[0]:g}-{Z_RANGE[1]:g} mm; valid / dense: % of co-visible pixels and % of "
           "those off by > 1 %; @3 %: the most a confidence threshold keeps at <= 3 % off")
     print(f"{'capture':26s} {'chain':9s} {'valid %':>8s} {'bad %':>6s} {'dense %':>8s} {'bad %':>6s} "
@@ -153,7 +153,7 @@ def main() -> None:
         w = rig.reference_width
         gt, covisible = cap["depth"][..., :w].double(), cap["covisible"][..., :w]
         for chain in chains:
-            key = (chain, rig.to_json() if hasattr(rig, "to_json") else repr(rig))
+            key = (chain, rig)
             if key not in models:
                 models[key] = build(chain, rig, args.hybrid_weights)
             with torch.inference_mode():
@@ -175,7 +175,7 @@ def main() -> None:
     times: dict[str, list[float]] = {}
     with tempfile.TemporaryDirectory() as folder:
         for chain in chains:
-            model = models[(chain, s1.to_json() if hasattr(s1, "to_json") else repr(s1))]
+            model = models[(chain, s1)]
             graphs[chain] = OnnxDepth(export_onnx(model, Path(folder) / f"{chain}.onnx"))
         # the learned graph (seconds a run) in rounds of its own: among the others it slowed every graph timed after
         # it (the accurate chain 78 -> 142 ms)

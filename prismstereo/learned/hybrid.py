@@ -38,7 +38,7 @@ from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coeffici
 from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.learned.network import WeightsError, normalise_image, read_weights
+from prismstereo.learned.network import WeightsError, normalise_image, read_weights, write_weights
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.runtime import sample_bilinear
 
@@ -283,12 +283,7 @@ class HybridStereo(nn.Module):
 
     def save(self, path: str | Path, **metadata: Any) -> Path:
         """Write the CNNs' weights with the architecture and ``metadata`` (small, plain values)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        state = {k: v.detach().float().cpu().clone() for k, v in self.weights().items()}
-        torch.save({"format": HYBRID_FORMAT, "architecture": dataclasses.asdict(self.architecture),
-                    "state_dict": state, "metadata": {**self.metadata, **metadata}}, path)
-        return path
+        return write_weights(path, HYBRID_FORMAT, self.architecture, self.weights(), {**self.metadata, **metadata})
 
     def initial(self, image: torch.Tensor) -> RefinementInputs:
         """Steps 1-2: the classical estimate on the 2 x 2-binned grid and the normalised binned capture.
@@ -300,7 +295,7 @@ class HybridStereo(nn.Module):
             RefinementInputs, (B, *, h, w) maps.
         """
         self._check(image)
-        return self.initial_binned(F.avg_pool2d(image.mean(1, keepdim=True), 2))
+        return self.initial_binned(F.avg_pool2d(image.to(self.coefficients.dtype).mean(1, keepdim=True), 2))
 
     def initial_binned(self, grey: torch.Tensor) -> RefinementInputs:
         """:meth:`initial` of the 2 x 2-binned grey capture ``grey`` (B, 1, H/2, W/2) (training keeps captures so).
@@ -403,9 +398,8 @@ class HybridStereo(nn.Module):
         Raises:
             ShapeError: an image that is not (B, 1 or 3, H, W) of the rig's sensor, or not floating point.
         """
-        self._check(image)
         dtype = self.coefficients.dtype
-        inputs = self.initial(image.to(dtype))
+        inputs = self.initial(image)
         s, logit = self.refine(inputs)[-1]
         match = sweep_match(self.coefficients, s)[0] * 2.0 + 0.5  # full-sensor pixels
         size = (self.rig.image_height, self.rig.reference_width)

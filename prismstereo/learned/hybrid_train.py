@@ -18,7 +18,7 @@ The shipped ``weights/hybrid.pt``: the command is in the comment below the impor
 
 from __future__ import annotations
 
-import math
+import dataclasses
 import time
 from pathlib import Path
 
@@ -31,11 +31,11 @@ from prismstereo.epipolar.sweep import sweep_to_depth
 from prismstereo.errors import OptionError
 from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, RefinementInputs
 from prismstereo.learned.hybrid_data import HybridSet, training_rigs, training_sets
-from prismstereo.learned.train import TrainResult
+from prismstereo.learned.train import TrainResult, warmup_cosine
 
 __all__ = ["hybrid_loss", "train_hybrid"]
 
-# The shipped weights/hybrid.pt (7 rig variants x 24 captures, 6000 steps; one torch thread, 19 min after the renders):
+# The shipped weights/hybrid.pt (7 rig variants x 24 captures, 6000 steps, one torch thread; its time: metadata):
 #   OMP_NUM_THREADS=1 .venv/bin/prismstereo train --model hybrid --cache .cache/hybrid \
 #       --out prismstereo/learned/weights/hybrid.pt
 
@@ -154,17 +154,15 @@ def train_hybrid(
         sets = training_sets(captures, seed=seed, cache=cache, models=models, progress=progress)
     stages = nn.ModuleList([models[0].stages, models[0].quarter_stages])
     optimiser = torch.optim.Adam(stages.parameters(), lr=learning_rate)
-    warmup = max(1, min(50, steps // 10))
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimiser, lambda k: min(1.0, (k + 1) / warmup) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * k / steps))))
+    schedule = warmup_cosine(optimiser, steps, max(1, min(50, steps // 10)))
     gen = torch.Generator().manual_seed(seed)
     losses = torch.zeros(steps, dtype=torch.float64)
     first, seconds = 0, 0.0
     checkpoint = out_path.with_suffix(".ckpt")
     out_path.parent.mkdir(parents=True, exist_ok=True)
     if checkpoint.is_file():
-        state = torch.load(checkpoint, weights_only=False)
-        if state["steps"] == steps and state["architecture"] == arch:
+        state = torch.load(checkpoint, weights_only=True)
+        if state["steps"] == steps and state["architecture"] == dataclasses.asdict(arch):
             stages.load_state_dict(state["stages"])
             optimiser.load_state_dict(state["optimiser"])
             schedule.load_state_dict(state["schedule"])
@@ -188,7 +186,7 @@ def train_hybrid(
         losses[step] = loss.item()
         bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
         if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
-            torch.save({"steps": steps, "architecture": arch, "stages": stages.state_dict(),
+            torch.save({"steps": steps, "architecture": dataclasses.asdict(arch), "stages": stages.state_dict(),
                         "optimiser": optimiser.state_dict(), "schedule": schedule.state_dict(),
                         "generator": gen.get_state(), "losses": losses, "step": step + 1,
                         "seconds": seconds + time.perf_counter() - start}, checkpoint)

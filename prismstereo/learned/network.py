@@ -38,7 +38,7 @@ from prismstereo.nn import PrismCostVolume, depth_regression
 from prismstereo.runtime import exporting
 
 __all__ = ["DEFAULT_WEIGHTS", "FORMAT", "HYPOTHESIS_SPACING_PX", "Architecture", "LearnedStereo", "WeightsError",
-           "learned_hypotheses", "load_weights", "read_weights"]
+           "learned_hypotheses", "load_weights", "read_weights", "write_weights"]
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "thesis_setup1.pt"
 # the spacing of neighbouring hypotheses on the sweep at the feature stride (px) that the default count keeps on every
@@ -163,6 +163,26 @@ def load_weights(path: str | Path) -> tuple[Architecture, dict[str, torch.Tensor
         (4, 'thesis_setup1')
     """
     return read_weights(path, FORMAT, Architecture, "LearnedStereo")
+
+
+def write_weights(path: str | Path, fmt: str, architecture: Any, state: dict[str, torch.Tensor],
+                  metadata: dict[str, Any]) -> Path:
+    """Write a weights file that :func:`read_weights` reads: the format tag ``fmt``, the ``architecture`` dataclass's
+    fields, ``state`` (float32 CPU copies) and ``metadata`` (small, plain values); parent folders are created.
+
+    Example:
+        >>> import tempfile
+        >>> with tempfile.TemporaryDirectory() as tmp:
+        ...     path = write_weights(Path(tmp) / "w.pt", FORMAT, Architecture(), {}, {"note": "example"})
+        ...     read_weights(path, FORMAT, Architecture, "LearnedStereo")[2]
+        {'note': 'example'}
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().float().cpu().clone() for k, v in state.items()}
+    torch.save({"format": fmt, "architecture": dataclasses.asdict(architecture), "state_dict": state,
+                "metadata": metadata}, path)
+    return path
 
 
 def read_weights(path: str | Path, fmt: str, architecture: type, model: str) -> tuple[Any, dict[str, torch.Tensor],
@@ -394,13 +414,9 @@ class LearnedStereo(nn.Module):
             ...     load_weights(path)[2]["note"]
             'example'
         """
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        state = {k: v.detach().float().cpu().clone() for k, v in self.state_dict().items()
+        state = {k: v for k, v in self.state_dict().items()
                  if not k.startswith("volume.")}  # the CNNs only: the volume's grid comes from the rig
-        torch.save({"format": FORMAT, "architecture": dataclasses.asdict(self.architecture), "state_dict": state,
-                    "metadata": {**self.metadata, **metadata}}, path)
-        return path
+        return write_weights(path, FORMAT, self.architecture, state, {**self.metadata, **metadata})
 
     def _parts(self, image: torch.Tensor) -> _Parts:
         """Everything up to the final index (training uses this directly)."""

@@ -34,7 +34,7 @@ from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.data import TrainingSet, training_set
 from prismstereo.learned.network import Architecture, LearnedStereo
 
-__all__ = ["TrainResult", "depth_loss", "train"]
+__all__ = ["TrainResult", "depth_loss", "train", "warmup_cosine"]
 
 # The shipped weights/thesis_setup1.pt (80 captures at 512 x 384, 900 steps of 4 captures; one torch thread, as
 # two threads on 2 shared cores compete with any other process for them):
@@ -84,6 +84,19 @@ def _searches(model: LearnedStereo, rig: BiPrismRig, z_range: tuple[float, float
         for zr, n in variants:
             out.append(_Search(model.for_rig(band, zr, num_hypotheses=n, with_match=False), row))
     return out or [_Search(model, 0)]
+
+
+def warmup_cosine(optimiser: torch.optim.Optimizer, steps: int, warmup: int) -> torch.optim.lr_scheduler.LambdaLR:
+    """The trainers' learning rate: a linear warm-up over ``warmup`` steps times a cosine decay over ``steps`` to 5 %
+    of the peak.
+
+    Example:
+        >>> optimiser = torch.optim.Adam([torch.zeros(1, requires_grad=True)], lr=1.0)
+        >>> warmup_cosine(optimiser, 100, 10).get_last_lr()
+        [0.1]
+    """
+    return torch.optim.lr_scheduler.LambdaLR(
+        optimiser, lambda k: min(1.0, (k + 1) / warmup) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * k / steps))))
 
 
 def depth_loss(model: LearnedStereo, image: torch.Tensor, depth: torch.Tensor,
@@ -199,9 +212,7 @@ def train(
                           architecture=arch, with_match=False)
     searches = _searches(model, small, tuple(float(z) for z in z_range_mm), num_hypotheses)
     optimiser = torch.optim.Adam(model.parameters(), lr=learning_rate)
-    warmup = max(1, min(20, steps // 10))
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimiser, lambda k: min(1.0, (k + 1) / warmup) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * k / steps))))
+    schedule = warmup_cosine(optimiser, steps, max(1, min(20, steps // 10)))
     w_ref = small.reference_width
     losses = torch.zeros(steps, dtype=torch.float64)
     model.train()
