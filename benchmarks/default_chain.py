@@ -13,7 +13,10 @@ Chains: ``accurate`` (:class:`~prismstereo.PrismStereo`'s defaults: the pyramid 
 (:class:`~prismstereo.learned.HybridStereo`, the shipped weights, or ``--hybrid-weights FILE``). Per capture and
 chain: ``valid`` (co-visible pixels the chain calls valid, and the share of them off by more than 1 %), ``dense``
 (every co-visible pixel it gives a depth, same), mean relative error of the valid ones, and ``@3 %``: the largest
-share of co-visible pixels a threshold on the confidence keeps with <= 3 % of them off by more than 1 %. Then the
+share of co-visible pixels a threshold on the confidence keeps with <= 3 % of them off by more than 1 %. Then each
+chain's reliability per confidence band (:data:`BANDS`), the photographs and the other captures pooled: the band's
+share of the co-visible pixels with a depth, their share off by more than 1 %, and 1 - their mean confidence (what a
+calibrated confidence predicts for that share). Then the
 speed: each chain's exported graph in onnxruntime (2 intra-op threads) and StereoSGBM (``cv2.setNumThreads(2)``) in
 interleaved rounds (``benchmarks/_timing.py``; the learned graph in 3 rounds of its own with StereoSGBM, since
 among the others it slows every graph timed after it), median ms and the paired ratio; and the peak resident memory of a
@@ -53,6 +56,7 @@ Z_RANGE = (228.0, 1374.0)
 CHAINS = ("accurate", "dense", "learned", "block", "hybrid")
 SLOW = ("learned",)  # timed in rounds of their own (see main)
 PHOTOS = ("Tsukuba 450-900 mm", "Venus 450-900 mm", "Motorcycle 450-900 mm")
+BANDS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.85, 0.95, 1.0)  # confidence bands of the reliability table (the last closed)
 MEMORY = """
 import sys, torch
 from pathlib import Path
@@ -125,6 +129,29 @@ def score(res, gt: torch.Tensor, covisible: torch.Tensor) -> dict[str, float]:
     return out
 
 
+def band_counts(confidence: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
+    """(len(BANDS) - 1, 3) per confidence band: pixels, pixels off by > 1 %, sum of confidence; from (N,) tensors."""
+    band = (torch.bucketize(confidence.double(), torch.tensor(BANDS[1:-1], dtype=torch.float64), right=True))
+    out = torch.zeros(len(BANDS) - 1, 3, dtype=torch.float64)
+    out[:, 0].index_add_(0, band, torch.ones_like(confidence, dtype=torch.float64))
+    out[:, 1].index_add_(0, band, (~right).double())
+    out[:, 2].index_add_(0, band, confidence.double())
+    return out
+
+
+def print_reliability(counts: dict[tuple[str, str], torch.Tensor]) -> None:
+    """The reliability table of every (chain, group) in ``counts`` (:func:`band_counts` summed)."""
+    print("\nreliability per confidence band, co-visible pixels with a depth: share % / bad>1 % / 1 - mean conf %")
+    names = [f"{lo:g}-{hi:g}" for lo, hi in zip(BANDS[:-1], BANDS[1:], strict=True)]
+    print(f"{'chain':9s} {'captures':11s} " + " ".join(f"{n:>19s}" for n in names))
+    for (chain, group), c in counts.items():
+        cells = []
+        for n, bad, conf in c.tolist():
+            share = 100 * n / float(c[:, 0].sum())
+            cells.append(f"{share:5.1f} / {100 * bad / n:5.1f} / {100 - 100 * conf / n:5.1f}" if n else f"{'-':>19s}")
+        print(f"{chain:9s} {group:11s} " + " ".join(f"{x:>19s}" for x in cells))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
@@ -149,6 +176,7 @@ def main() -> None:
     print(f"{'capture':26s} {'chain':9s} {'valid %':>8s} {'bad %':>6s} {'dense %':>8s} {'bad %':>6s} "
           f"{'mean %':>7s} {'@3 %':>6s}")
     photo_share: dict[str, list[float]] = {c: [] for c in chains}
+    counts: dict[tuple[str, str], torch.Tensor] = {}
     for name, (rig, cap) in caps.items():
         w = rig.reference_width
         gt, covisible = cap["depth"][..., :w].double(), cap["covisible"][..., :w]
@@ -159,10 +187,15 @@ def main() -> None:
             with torch.inference_mode():
                 res = models[key](cap["image"][:, :1].float())
             r = score(res, gt, covisible)
+            rel = (res.depth.double() - gt).abs() / gt
+            sel = (res.confidence > 0) & covisible & torch.isfinite(rel)
+            group = (chain, "photographs" if name in PHOTOS else "others")
+            counts[group] = counts.get(group, 0) + band_counts(res.confidence[sel], rel[sel] <= 0.01)
             if name in PHOTOS:
                 photo_share[chain].append(r["@3"])
             print(f"{name:26s} {chain:9s} {r['valid']:8.1f} {r['valid bad']:6.2f} {r['dense']:8.1f} "
                   f"{r['dense bad']:6.2f} {r['mean']:7.3f} {r['@3']:6.1f}")
+    print_reliability(dict(sorted(counts.items())))
     if args.accuracy_only:
         return
     # speed: the exported graphs against StereoSGBM, interleaved

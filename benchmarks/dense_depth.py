@@ -68,6 +68,7 @@ from fit_confidence import procedural_surface  # noqa: E402
 from prismstereo import thesis_setup1  # noqa: E402
 from prismstereo.config import preset  # noqa: E402
 from prismstereo.defaults import default_downsample  # noqa: E402
+from prismstereo.matching.confidence import confidence_threshold  # noqa: E402
 from prismstereo.model import PrismStereo  # noqa: E402
 from prismstereo.synthetic import (  # noqa: E402
     ImageFormation,
@@ -128,17 +129,8 @@ def best_coverage(confidence: torch.Tensor, right: torch.Tensor, covisible: int,
     """(coverage %, its threshold) of the largest set of pixels with confidence >= a threshold that is at most
     ``bad`` wrong, and the coverage % of a perfect ranking (every right pixel, then wrong ones up to ``bad``), from
     (N,) ``confidence`` and bool ``right`` of the pixels with a depth among ``covisible`` pixels."""
-    order = torch.argsort(confidence, descending=True, stable=True)
-    wrong = (~right[order]).double().cumsum(0)
-    count = torch.arange(1, len(order) + 1, dtype=torch.float64)
-    # only cut between distinct confidences: a threshold keeps all pixels at that confidence or none
-    c = confidence[order]
-    cut = torch.ones_like(c, dtype=torch.bool)
-    cut[:-1] = c[1:] < c[:-1]
-    ok = (wrong <= bad * count) & cut
-    k = int(ok.nonzero().max()) + 1 if ok.any() else 0
-    threshold = float(c[k - 1]) if k else float("nan")
-    perfect = min(len(order), float(right.sum()) / (1 - bad))
+    threshold, k = confidence_threshold(confidence, right, bad)
+    perfect = min(len(confidence), float(right.sum()) / (1 - bad))
     return 100 * k / covisible, threshold, 100 * perfect / covisible
 
 

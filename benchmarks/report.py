@@ -77,7 +77,9 @@ BENCHMARKS: dict[str, Benchmark] = {
         "default_chain.py", ("--plot", "docs/frontier.png"), "One dense, exact and fast default: every chain",
         "Photographs as surfaces (Tsukuba, Venus, Motorcycle), textured planes through both setups, weak texture and "
         "defocus, 228-1374 mm: valid and dense coverage with their bad > 1 % shares, the share a confidence threshold "
-        "keeps at <= 3 % bad, and each chain's exported graph against StereoSGBM in the same run.\n\n"
+        "keeps at <= 3 % bad, the reliability of each chain's confidence per band, and each chain's exported graph "
+        "against StereoSGBM in the same run. The hybrid is the default of `prismstereo depth` (captures) and "
+        "`prismstereo export` on these sensors (`prismstereo.defaults.default_model`).\n\n"
         "![time against the photographs' share kept at <= 3 % bad, every chain](frontier.png)"),
     "middlebury": Benchmark(
         "middlebury.py", (), "The rectified matcher on the Middlebury pairs",

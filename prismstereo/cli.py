@@ -98,11 +98,15 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _demo_depth(rig: BiPrismRig, scale: int, out: Path) -> None:
-    """Render a step scene, run the depth model, print its error, write depth, preview, capture, point cloud."""
+    """Render a step scene, run the hybrid and the classical depth model, print their errors, write the depth of
+    the sensor's default (:func:`~prismstereo.defaults.default_model`), its preview, the capture and its point
+    cloud."""
     import numpy as np
 
+    from prismstereo.defaults import default_model
     from prismstereo.depth.points import depth_to_points, write_ply
     from prismstereo.io import write_depth_preview, write_image
+    from prismstereo.learned import HybridStereo
     from prismstereo.model import PrismStereo
     from prismstereo.synthetic import ImageFormation, render, step_scene
 
@@ -111,16 +115,21 @@ def _demo_depth(rig: BiPrismRig, scale: int, out: Path) -> None:
     print(f"Depth from one capture (step scene {near:g}/{far:g} mm, sensor {small.image_width}x{small.image_height}"
           f" = 1/{scale} resolution, noise 1/255)")
     cap = render(small, step_scene(small, near, far), ImageFormation(supersample=2, noise_sigma=1 / 255))
-    model = PrismStereo(small, (400.0, 700.0))
-    with torch.inference_mode():
-        res = model(cap.image)
     w = small.reference_width
     gt, cov = cap.depth[..., :w], cap.covisible[..., :w]
-    ok = res.valid & cov
-    rel = ((res.depth - gt).abs() / gt)[ok]
-    print(f"  {model.num_hypotheses} hypotheses (coarse factor {model.final.factor}); "
-          f"{ok.float().sum() / cov.float().sum():.1%} of co-visible pixels valid; relative depth error mean "
-          f"{rel.mean():.3%}, median {rel.median():.3%}")
+    results = {}
+    default = default_model(small)
+    for name, model in (("hybrid", HybridStereo(small, (400.0, 700.0))), ("classical", PrismStereo(small, (
+            400.0, 700.0)))):
+        with torch.inference_mode():
+            res = results[name] = model.eval()(cap.image)
+        ok = res.valid & cov
+        rel = ((res.depth - gt).abs() / gt)[ok]
+        label = f"{name} (this sensor's default)" if name == default else name
+        print(f"  {label}: {model.summary()}")
+        print(f"    {ok.float().sum() / cov.float().sum():.1%} of co-visible pixels valid; relative depth error mean "
+              f"{rel.mean():.3%}, median {rel.median():.3%}")
+    res = results[default]
     out.mkdir(parents=True, exist_ok=True)
     depth = torch.where(res.valid, res.depth, torch.full_like(res.depth, float("nan")))
     np.save(out / "depth.npy", depth[0, 0].numpy().astype(np.float32))
@@ -128,7 +137,8 @@ def _demo_depth(rig: BiPrismRig, scale: int, out: Path) -> None:
     write_depth_preview(out / "depth_preview.png", depth[0, 0])
     points = depth_to_points(small, depth.double(), res.valid)
     count = write_ply(out / "points.ply", points[0], res.valid[0, 0], colors=cap.image[0, :, :, :w])
-    print(f"  wrote {out}/depth.npy (mm, NaN invalid), depth_preview.png, capture.png, points.ply ({count} points)")
+    print(f"  wrote the default's {out}/depth.npy (mm, NaN invalid), depth_preview.png, capture.png, points.ply "
+          f"({count} points)")
 
 
 SCENES = ("plane", "slanted", "step", "sphere", "checkerboard", "circlegrid", "middlebury")

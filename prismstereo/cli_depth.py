@@ -1,8 +1,9 @@
 """The ``prismstereo depth`` and ``prismstereo export`` subcommands: depth maps (and point clouds) of bi-prism
 captures, and the ONNX export of the same depth model.
 
-Parses nothing itself beyond its own arguments and only calls the library: the model from the flags
-(:class:`~prismstereo.model.PrismStereo` or the learned one, built once), the job's outputs and their checks
+Parses nothing itself beyond its own arguments and only calls the library: the model from the flags (``--model``,
+else by :func:`_model_kind`'s rules: :class:`~prismstereo.learned.HybridStereo` or
+:class:`~prismstereo.model.PrismStereo`; built once), the job's outputs and their checks
 (:func:`prismstereo.jobs.plan`) and the pipelined run over captures, sequences and videos
 (:func:`prismstereo.jobs.run`).
 """
@@ -61,17 +62,48 @@ def _requested_config(args: argparse.Namespace):
     return config
 
 
-def _request(args: argparse.Namespace, config) -> dict[str, object]:
-    """What the flags ask of the model (``config``: :func:`_requested_config`'s, parsed once), before the rig resolves
-    it: the key of its graph in the ONNX cache (with the rig; :func:`prismstereo.export.request_key`)."""
+def _request(args: argparse.Namespace, config, kind: str) -> dict[str, object]:
+    """What the flags ask of the model (``config``: :func:`_requested_config`'s, parsed once; ``kind``:
+    :func:`_model_kind`'s), before the rig resolves it: the key of its graph in the ONNX cache (with the rig;
+    :func:`prismstereo.export.request_key`)."""
     import hashlib
 
-    if args.hybrid or args.learned or args.weights is not None:
-        weights = "default" if args.weights is None else hashlib.sha256(Path(args.weights).read_bytes()).hexdigest()
-        if args.hybrid:
-            return {"hybrid": weights, "z_range_mm": args.z_range}
-        return {"learned": weights, "z_range_mm": args.z_range, "hypotheses": args.hypotheses}
-    return {"config": config.to_dict(), "z_range_mm": args.z_range}
+    if kind == "classical":
+        return {"config": config.to_dict(), "z_range_mm": args.z_range}
+    weights = "default" if args.weights is None else hashlib.sha256(Path(args.weights).read_bytes()).hexdigest()
+    if kind == "hybrid":
+        return {"hybrid": weights, "z_range_mm": args.z_range}
+    return {"learned": weights, "z_range_mm": args.z_range, "hypotheses": args.hypotheses}
+
+
+def _model_kind(args: argparse.Namespace, rig: BiPrismRig, sequences: bool = False) -> str:
+    """Which model the flags ask for: ``--model``, else ``'classical'`` (:class:`~prismstereo.model.PrismStereo`)
+    with ``--preset``, ``--config`` or a search option, ``'hybrid'`` with ``--weights``, ``'classical'`` for a job
+    with a video or sequence under the temporal prior (which needs its full-resolution band), else the rig's
+    default (:func:`~prismstereo.defaults.default_model`).
+
+    Raises:
+        PrismStereoError: options of another model.
+    """
+    from prismstereo.defaults import default_model
+
+    classical = [name for name, value in (("--preset", args.preset), ("--config", args.config),
+                                          ("--downsample", args.downsample), ("--full-band", args.full_band),
+                                          ("--band-edges", args.band_edges)) if value is not None]
+    if args.model != "learned" and args.hypotheses is not None:
+        classical.append("--hypotheses")
+    if args.model in ("learned", "hybrid") and classical:
+        raise PrismStereoError(f"{', '.join(classical)} set the classical model's options, not --model "
+                               f"{args.model}'s")
+    if (args.model == "classical" or classical) and args.weights is not None:
+        raise PrismStereoError("--weights is the hybrid's or the learned model's, not the classical model's")
+    if args.model is not None:
+        return args.model
+    if classical:
+        return "classical"
+    if args.weights is not None:
+        return "hybrid"
+    return "classical" if sequences and args.temporal else default_model(rig)
 
 
 def _search_flags(args: argparse.Namespace) -> dict[str, object]:
@@ -89,47 +121,31 @@ def _z_range(args: argparse.Namespace, rig: BiPrismRig) -> tuple[tuple[float, fl
     return check_z_range(rig, args.z_range), "--z-range"
 
 
-def _learned_model(args: argparse.Namespace, rig: BiPrismRig):
-    """The :class:`~prismstereo.learned.LearnedStereo` of ``--learned`` or the
-    :class:`~prismstereo.learned.HybridStereo` of ``--hybrid`` (shipped weights, or ``--weights FILE``)."""
-    from prismstereo.learned import HybridStereo, LearnedStereo
-
-    flag = "--hybrid" if args.hybrid else "--learned"
-    classical = [name for name, value in (("--preset", args.preset), ("--config", args.config),
-                                          ("--downsample", args.downsample), ("--full-band", args.full_band),
-                                          ("--band-edges", args.band_edges)) if value is not None]
-    if args.hybrid and args.learned:
-        classical.append("--learned")
-    if args.hybrid and args.hypotheses is not None:
-        classical.append("--hypotheses")
-    if classical:
-        raise PrismStereoError(f"{', '.join(classical)} set another model's options, not {flag}'s")
-    if args.hybrid:
-        z_range, how = _z_range(args, rig)
-        model = HybridStereo(rig, tuple(z_range), weights="default" if args.weights is None else args.weights).eval()
-        return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
-    if args.hypotheses is not None and args.hypotheses < 2:
-        raise PrismStereoError(f"--hypotheses must be an int >= 2, got {args.hypotheses}")
+def _build_model(args: argparse.Namespace, rig: BiPrismRig, kind: str):
+    """The model of ``kind`` (:func:`_model_kind`) for ``rig`` from the flags (shared by ``depth`` and ``export``),
+    with a line describing it and its range."""
     z_range, how = _z_range(args, rig)
+    rng = f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how})"
     weights = "default" if args.weights is None else args.weights
-    model = LearnedStereo(rig, tuple(z_range), num_hypotheses=args.hypotheses, weights=weights).eval()
-    return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
+    if kind == "hybrid":
+        from prismstereo.learned import HybridStereo
 
+        model = HybridStereo(rig, tuple(z_range), weights=weights).eval()
+        return model, f"{rng}, {model.summary()}"
+    if kind == "learned":
+        from prismstereo.learned import LearnedStereo
 
-def _build_model(args: argparse.Namespace, rig: BiPrismRig):
-    """The PrismStereo of ``--z-range`` and the config (:func:`_requested_config`; shared by ``depth`` and
-    ``export``), with a line describing its range."""
+        if args.hypotheses is not None and args.hypotheses < 2:
+            raise PrismStereoError(f"--hypotheses must be an int >= 2, got {args.hypotheses}")
+        model = LearnedStereo(rig, tuple(z_range), num_hypotheses=args.hypotheses, weights=weights).eval()
+        return model, f"{rng}, {model.summary()}"
     from prismstereo.model import PrismStereo
 
-    if args.hybrid or args.learned or args.weights is not None:
-        return _learned_model(args, rig)
-    config = _requested_config(args)
-    z_range, how = _z_range(args, rig)
     try:
-        model = PrismStereo(rig, z_range, config).eval()
+        model = PrismStereo(rig, z_range, _requested_config(args)).eval()
     except PrismStereoError as exc:
         raise _flag_error(exc, _search_flags(args)) from exc
-    return model, f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how}), {model.summary()}"
+    return model, f"{rng}, {model.summary()}"
 
 
 def _camera_to_world(path: str) -> torch.Tensor:
@@ -179,17 +195,19 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     runnable = [t for t in tasks if t.error is None and t.first < len(t.outputs)]
     if len(tasks) == 1 and tasks[0].error is not None:
         raise PrismStereoError(tasks[0].error)  # one input: its error is the command's
+    sequences = any(t.sequence for t in runnable)
+    kind = _model_kind(args, rig, sequences)
     key, cached = None, None
-    if args.backend == "onnx" and not any(t.sequence for t in runnable):  # captures: the graph alone will do
+    if args.backend == "onnx" and not sequences:  # captures: the graph alone will do
         from prismstereo.export import OnnxDepth, recall, request_key
 
-        key = request_key(rig, _request(args, config))
+        key = request_key(rig, _request(args, config, kind))
         cached = recall(key)
     if cached is not None:  # exported before for the same request: no torch model to build
         model = OnnxDepth(cached.path, threads=os.cpu_count() or 1, spinning=False)  # as jobs.Runner's sessions
         summary = cached.summary + " (cached graph)"
     else:
-        model, summary = _build_model(args, rig)
+        model, summary = _build_model(args, rig, kind)
     temporal = None
     if any(t.sequence for t in runnable):
         from prismstereo.depth.temporal import TemporalOptions, supports_temporal, temporal_downsample
@@ -240,27 +258,30 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
                              "refined from the edge's inner neighbour (clamp, every band; with --full-band 1 the "
                              "fast full-resolution setting); default: clamp where the calibrated confidence "
                              "judges, reject where thresholds do (a binned level)")
-    parser.add_argument("--learned", action="store_true",
-                        help="the learned model (prismstereo.learned.LearnedStereo) with its shipped weights "
-                             "instead of the classical one (--hypotheses: its D, default: neighbours 0.69 px apart on "
-                             "the sweep at its 1/4 resolution, 48 over 450-1000 mm on thesis_setup1)")
-    parser.add_argument("--hybrid", action="store_true",
-                        help="the hybrid model (prismstereo.learned.HybridStereo: the classical block level refined "
-                             "by a learned 2-D stage, dense) with its shipped weights")
+    parser.add_argument("--model", choices=("hybrid", "classical", "learned"), default=None,
+                        help="the depth model: hybrid (prismstereo.learned.HybridStereo: the exact sweep on 4 x 4 "
+                             "bins refined by learned 2-D stages, a depth and confidence for every pixel), classical "
+                             "(prismstereo.PrismStereo, its settings from --preset / --config and the options above) "
+                             "or learned (prismstereo.learned.LearnedStereo; --hypotheses: its D, default: neighbours "
+                             "0.69 px apart on the sweep at its 1/4 resolution). Default: classical with --preset, "
+                             "--config or a search option, hybrid with --weights, classical for videos and sequences "
+                             "under the temporal prior, else the rig's default (prismstereo.defaults.default_model: "
+                             "hybrid when the reference half is >= 384 px on its shorter side)")
     parser.add_argument("--weights", default=None, metavar="FILE.pt",
-                        help="the learned model with these weights (written by prismstereo train; with --hybrid the "
-                             "hybrid's); implies --learned without --hybrid")
+                        help="the hybrid's or (--model learned) the learned model's weights, written by prismstereo "
+                             "train (default: the shipped ones)")
     parser.add_argument("--preset", choices=("accurate", "fast", "dense", "reference"), default=None,
-                        help="named model settings (prismstereo.config.PRESETS; default accurate); the options "
-                             "above override it")
+                        help="the classical model's named settings (prismstereo.config.PRESETS; accurate is its "
+                             "default); the options above override them")
     parser.add_argument("--config", default=None, metavar="FILE.json",
-                        help="model settings from a StereoConfig JSON file (prismstereo.config); the options above "
-                             "override it")
+                        help="the classical model with settings from a StereoConfig JSON file (prismstereo.config); "
+                             "the options above override it")
     parser.add_argument("--dense", action="store_true",
                         help="a depth for every pixel of the common field of view with its calibrated confidence "
-                             "(the probability of a depth within 1 %%), not only for the valid ones, from the "
-                             "preset's chain; --preset dense is the chain built for it (its coarse level matched by "
-                             "cost-volume filtering: fewer wrong depths on weakly textured photographs)")
+                             "(the probability of a depth within 1 %%), not only for the valid ones; with the "
+                             "classical model, from the preset's chain (--preset dense is the chain built for it: its "
+                             "coarse level matched by cost-volume filtering, fewer wrong depths on weakly textured "
+                             "photographs)")
 
 
 def add_depth_parser(sub: argparse._SubParsersAction) -> None:
@@ -324,7 +345,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".onnx":
         raise PrismStereoError(f"--out must end in .onnx, got {out}")
     rig = load_rig(args.rig)
-    model, summary = _build_model(args, rig)
+    _requested_config(args)  # --preset / --config: checked as for depth
+    model, summary = _build_model(args, rig, _model_kind(args, rig))
     print(summary)
     t0 = time.perf_counter()
     export_onnx(model, out, channels=args.channels, opset=args.opset)

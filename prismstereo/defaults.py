@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import torch
 
@@ -27,6 +27,7 @@ __all__ = [
     "default_coarse_factor",
     "default_downsample",
     "default_hypotheses",
+    "default_model",
     "pyramid_band",
     "pyramid_coarse_factor",
     "resolve_config",
@@ -233,6 +234,22 @@ def default_downsample(rig: BiPrismRig) -> int:
         [2, 1]
     """
     return 2 if min(rig.image_height, rig.reference_width) >= 384 else 1
+
+
+def default_model(rig: BiPrismRig) -> Literal["hybrid", "classical"]:
+    """The depth model a capture of ``rig`` gets by default (``prismstereo depth`` and ``prismstereo export``):
+    ``'hybrid'`` (:class:`~prismstereo.learned.HybridStereo`) where the classical default itself starts from a
+    binned level (:func:`default_downsample` > 1: the reference half at least 384 px on its shorter side, the
+    sensors the hybrid is trained and measured on), else ``'classical'`` (:class:`~prismstereo.model.PrismStereo`).
+    On smaller sensors the hybrid's 4 x 4 blocks are large against the surfaces: its block level fattens a near
+    surface over the far one beside it by more than its refinement reaches, which the classical chain's
+    full-resolution search does not (``docs/design.md``, *The default chain*).
+
+    Example:
+        >>> [default_model(thesis_setup1().downscaled(k)) for k in (1, 2)]
+        ['hybrid', 'classical']
+    """
+    return "hybrid" if default_downsample(rig) > 1 else "classical"
 
 
 def default_coarse_factor(num_hypotheses: int, height: int, width: int) -> int:

@@ -78,8 +78,10 @@ def test_demo(tmp_path, capsys):
     assert len(lines) == 4
     for line in lines:  # the exact round trip is far below a micro-pixel
         assert float(line.split("max error")[1].split("px")[0]) < 1e-6
-    error_line = next(ln for ln in out.splitlines() if "relative depth error mean" in ln)
-    assert float(error_line.split("mean ")[1].split("%")[0]) < 1.0
+    errors = [ln for ln in out.splitlines() if "relative depth error mean" in ln]  # the hybrid, then the classical
+    assert len(errors) == 2 and "hybrid: hybrid: 4x4-binned" in out and "classical (this sensor's default)" in out
+    for line in errors:
+        assert float(line.split("mean ")[1].split("%")[0]) < 1.0
     depth = np.load(tmp_path / "demo" / "depth.npy")
     assert depth.shape == (192, 128) and np.nanmin(depth) > 350 and np.nanmax(depth) < 750
     assert (tmp_path / "demo" / "depth_preview.png").exists() and (tmp_path / "demo" / "capture.png").exists()

@@ -10,6 +10,7 @@ import torch
 
 from prismstereo import thesis_setup1
 from prismstereo.cli import main
+from prismstereo.errors import PrismStereoError
 from prismstereo.io import read_depth, read_depth_png, read_image, write_image
 
 NEAR, FAR = 240.0, 525.0  # mm: the near plane fits the 16-bit PNG's 255.996 mm, the far one does not
@@ -272,6 +273,10 @@ def test_export_writes_a_loadable_model(scene, tmp_path, capsys):
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(dense), "--z-range", "400", "700",
                  "--dense", "--downsample", "2", "--full-band", "1"]) == 0
     assert json.loads(OnnxDepth(dense).metadata["prismstereo.config"])["config"]["validity"]["dense"] is True
+    hybrid = tmp_path / "hybrid.onnx"
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(hybrid), "--z-range", "400", "700",
+                 "--model", "hybrid"]) == 0
+    assert json.loads(OnnxDepth(hybrid).metadata["prismstereo.config"])["model"] == "HybridStereo"
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(tmp_path / "m.txt")]) == 2
     assert "--out must end in .onnx" in capsys.readouterr().err
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(out), "--opset", "12"]) == 2
@@ -288,30 +293,35 @@ def test_console_script_error_has_no_traceback(scene, tmp_path):
 
 @pytest.mark.parametrize("backend", ["torch", "onnx"])
 def test_learned_model_from_the_cli(scene, tmp_path, capsys, backend):
-    """--learned runs the shipped learned model (both backends); --weights takes another file; the classical
+    """--model learned runs the shipped learned model (both backends); --weights takes another file; the classical
     model's options are refused with it."""
     out = tmp_path / "far.npy"
-    assert _run(scene, scene / "far.png", "--out", out, "--learned", "--z-range", 400, 900, "--backend", backend) == 0
+    assert _run(scene, scene / "far.png", "--out", out, "--model", "learned", "--z-range", 400, 900, "--backend",
+                backend) == 0
     assert "learned model: " in capsys.readouterr().out
     depth = np.load(out)
     assert depth.shape == (96, 64) and abs(np.nanmedian(depth) / FAR - 1) < 0.05
-    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--learned", "--preset", "fast") == 2
-    assert "--preset set another model's options, not --learned's" in capsys.readouterr().err
-    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--weights", tmp_path / "none.pt") == 2
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--model", "learned", "--preset", "fast") == 2
+    assert "--preset set the classical model's options, not --model learned's" in capsys.readouterr().err
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--model", "learned", "--weights",
+                tmp_path / "none.pt") == 2
     assert "none.pt" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("backend", ["torch", "onnx"])
 def test_hybrid_model_from_the_cli(scene, tmp_path, capsys, backend):
-    """--hybrid runs the shipped hybrid (both backends, dense); the other models' options are refused with it."""
+    """--model hybrid runs the shipped hybrid (both backends, a depth for every pixel with --dense), --weights takes
+    another hybrid weights file; the classical model's options are refused with it."""
     out = tmp_path / "far.npy"
-    assert _run(scene, scene / "far.png", "--out", out, "--hybrid", "--z-range", 400, 900, "--backend", backend) == 0
+    assert _run(scene, scene / "far.png", "--out", out, "--z-range", 400, 900, "--backend", backend, "--dense",
+                "--model", "hybrid") == 0
     assert "hybrid: 4x4-binned classical level" in capsys.readouterr().out
     depth = np.load(out)
     assert depth.shape == (96, 64) and abs(np.nanmedian(depth) / FAR - 1) < 0.02
-    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--hybrid", "--hypotheses", 10) == 2
-    assert "--hypotheses set another model's options, not --hybrid's" in capsys.readouterr().err
-    if backend == "torch":  # --weights with --hybrid reads a hybrid weights file
+    assert np.isfinite(depth[:, 40:]).all()  # --dense: every pixel that sees through the prism
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--model", "hybrid", "--hypotheses", 10) == 2
+    assert "--hypotheses set the classical model's options, not --model hybrid's" in capsys.readouterr().err
+    if backend == "torch":  # --weights alone: a hybrid weights file
         from prismstereo.learned import HybridStereo
         from prismstereo.learned.hybrid import HybridArchitecture
 
@@ -319,16 +329,47 @@ def test_hybrid_model_from_the_cli(scene, tmp_path, capsys, backend):
         rig = thesis_setup1().downscaled(8)
         weights = HybridStereo(rig, (400.0, 900.0), weights=None, architecture=HybridArchitecture(channels=4)).save(
             tmp_path / "h.pt")
-        assert _run(scene, scene / "far.png", "--out", tmp_path / "w.npy", "--hybrid", "--weights", weights,
+        assert _run(scene, scene / "far.png", "--out", tmp_path / "w.npy", "--weights", weights,
                     "--z-range", 400, 900) == 0
         assert "5 x 4 ch" in capsys.readouterr().out
 
 
 def test_export_learned(scene, tmp_path, capsys):
-    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(tmp_path / "l.onnx"), "--learned",
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(tmp_path / "l.onnx"), "--model", "learned",
                  "--z-range", "400", "900"]) == 0
     from prismstereo.export import OnnxDepth
 
     runner = OnnxDepth(tmp_path / "l.onnx")
     assert '"model": "LearnedStereo"' in runner.metadata["prismstereo.config"]
     assert runner(torch.rand(1, 1, 96, 128)).depth.shape == (1, 1, 96, 64)
+
+
+def test_which_model_the_flags_ask_for():
+    """--model; else the classical model with a preset, a config or a search option, the hybrid with --weights, the
+    classical model for a job with videos or sequences under the temporal prior (the prior needs its full-resolution
+    band), else the rig's default (the hybrid on the sensors it is trained for); options of another model refused."""
+    from prismstereo.cli import build_parser
+    from prismstereo.cli_depth import _model_kind
+
+    large, small = thesis_setup1(), thesis_setup1().downscaled(2)
+
+    def kind(*flags, rig=large, sequences=False):
+        return _model_kind(build_parser().parse_args(["depth", "x.png", "--rig", "r", "--out", "o", *flags]), rig,
+                           sequences)
+
+    assert kind() == "hybrid" and kind(rig=small) == "classical" and kind("--dense") == "hybrid"
+    assert kind("--weights", "w.pt", rig=small) == "hybrid"
+    for flags in (["--preset", "dense"], ["--config", "c.json"], ["--hypotheses", "9"], ["--downsample", "2"],
+                  ["--full-band", "1"], ["--band-edges", "clamp"]):
+        assert kind(*flags) == "classical"
+    assert kind(sequences=True) == "classical" and kind("--no-temporal", sequences=True) == "hybrid"
+    assert kind("--weights", "w.pt", sequences=True) == "hybrid"  # the hybrid's weights: every frame on its own
+    for model in ("hybrid", "classical", "learned"):
+        assert kind("--model", model, rig=small, sequences=True) == model
+    assert kind("--model", "learned", "--hypotheses", "9") == "learned"
+    with pytest.raises(PrismStereoError, match="--preset set the classical model's options, not --model learned's"):
+        kind("--model", "learned", "--preset", "fast")
+    with pytest.raises(PrismStereoError, match="--weights is the hybrid's or the learned model's, not the classical"):
+        kind("--weights", "w.pt", "--downsample", "2")
+    with pytest.raises(PrismStereoError, match="--weights is the hybrid's"):
+        kind("--weights", "w.pt", "--model", "classical")

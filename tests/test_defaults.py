@@ -130,3 +130,12 @@ def test_resolve_errors_name_the_option():
         resolve_config(SMALL, Z, {"coarse_factor": 2})
     with pytest.raises(OptionError, match="confidence_weights 'fitted'"):
         StereoConfig().with_options(confidence_weights="fitted")
+
+
+def test_default_model_follows_the_classical_binning():
+    from prismstereo.defaults import default_downsample, default_model
+
+    for k in (1, 2, 4, 8):
+        rig = thesis_setup1().downscaled(k)
+        assert default_model(rig) == ("hybrid" if default_downsample(rig) > 1 else "classical")
+    assert default_model(thesis_setup1()) == "hybrid" and default_model(thesis_setup2()) == "hybrid"

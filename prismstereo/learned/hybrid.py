@@ -40,6 +40,7 @@ from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.network import WeightsError, normalise_image, read_weights, write_weights
 from prismstereo.matching.aggregate import box_filter
+from prismstereo.matching.band import extend_estimate
 from prismstereo.runtime import sample_bilinear
 
 __all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "HybridArchitecture", "HybridStereo", "RefinementInputs",
@@ -49,6 +50,11 @@ HYBRID_WEIGHTS = Path(__file__).resolve().parent / "weights" / "hybrid.pt"
 HYBRID_FORMAT = "prismstereo.hybrid/1"
 DILATIONS = (1, 2, 4, 8, 1, 1, 1, 1)
 RELIEF_STEPS = 8.0  # the estimate's local relief is given to the CNN in steps, clipped to +- this
+# the classical level leaves a margin uncovered at the sensor's edges and along the common field of view's edge (its
+# windows leave the other half there); its blocks within this many blocks of a covered one start from their covered
+# neighbours' mean s, so the refinement starts near the truth there instead of at s = 0
+FILL_RADIUS = 3
+VALID_CONFIDENCE = 0.5  # the validity threshold of weights without a calibrated one (``valid_confidence``)
 # the classical level: the 'dense' preset's matching (gradient-augmented absolute differences, guided-filter
 # aggregation, a coarse level at factor 2) in block mode, a depth for every covered pixel
 CLASSICAL = {"full_band": 0, "dense": True, "coarse_factor": 2, "cost": "ad_gradient", "aggregation": "guided",
@@ -103,7 +109,8 @@ class RefinementInputs(NamedTuple):
 
     Attributes:
         image: (B, 2, h, W2) the normalised 2 x 2-binned capture (both halves).
-        s: (B, 1, h_k, w_k) sweep coordinate of the classical estimate (0 where it has none).
+        s: (B, 1, h_k, w_k) sweep coordinate of the classical estimate; where it has none, the mean of its covered
+            blocks within :data:`FILL_RADIUS` (:func:`~prismstereo.matching.band.extend_estimate`), else 0.
         confidence: (B, 1, h_k, w_k) its calibrated confidence (0 where it has no depth).
         covered: (B, 1, h_k, w_k) 1 where it has a depth, else 0.
     """
@@ -164,6 +171,11 @@ class HybridStereo(nn.Module):
             RNG; the untrained heads keep the classical estimate) or a weights file path.
         architecture: without weights, the hyper-parameters (default :class:`HybridArchitecture` ()).
 
+    Attributes:
+        valid_confidence: the confidence from which a depth is valid: the threshold calibrated on the training
+            captures (:func:`~prismstereo.learned.hybrid_train.validity_threshold`, in the weights' metadata),
+            else :data:`VALID_CONFIDENCE`.
+
     Raises:
         OptionError: a sensor the block does not divide, or bad options. WeightsError: a weights file that cannot
             be read. RigError: bad rig or range.
@@ -194,6 +206,9 @@ class HybridStereo(nn.Module):
             architecture, state, metadata = load_hybrid_weights(path)
         self.architecture = arch = architecture or HybridArchitecture()
         self.metadata: dict[str, Any] = metadata
+        # the confidence from which a depth is valid: calibrated on the training captures when the weights were
+        # written (prismstereo.learned.hybrid_train.validity_threshold)
+        self.valid_confidence = float(metadata.get("valid_confidence", VALID_CONFIDENCE))
         if rig.image_width % arch.block or rig.image_height % arch.block:
             raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by block {arch.block}")
         k = arch.block
@@ -265,7 +280,7 @@ class HybridStereo(nn.Module):
             digest.update(tensor.detach().float().cpu().numpy().tobytes())
         return {"model": "HybridStereo", "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses,
                 "architecture": dataclasses.asdict(self.architecture), "classical": self.classical.describe(),
-                "weights_sha256": digest.hexdigest()[:16]}
+                "weights_sha256": digest.hexdigest()[:16], "valid_confidence": self.valid_confidence}
 
     def summary(self) -> str:
         """The model in one line.
@@ -309,9 +324,10 @@ class HybridStereo(nn.Module):
         with torch.no_grad():
             level = self.classical.final
             res = level.depth(grey if k == 2 else F.avg_pool2d(grey, k // 2))
-            covered = (res.confidence > 0).to(grey.dtype)
-            s = torch.where(covered > 0, res.index * level.step - 1.0, torch.zeros_like(res.index))
-        return RefinementInputs(normalise_image(grey), s, res.confidence, covered)
+            covered = res.confidence > 0
+            s = torch.where(covered, res.index * level.step - 1.0, torch.zeros_like(res.index))
+            s = extend_estimate(s, covered, FILL_RADIUS).s
+        return RefinementInputs(normalise_image(grey), s, res.confidence, covered.to(grey.dtype))
 
     def _check(self, image: torch.Tensor) -> None:
         check_shape(image, ["B", "C", "H", "W"], "image")
@@ -391,7 +407,8 @@ class HybridStereo(nn.Module):
 
         Returns:
             :class:`~prismstereo.depth.result.DepthResult`: depth (B, 1, H, W_ref) mm on every ray that sees
-            through the prism; valid (B, 1, H, W_ref) bool (confidence >= 0.5); confidence (B, 1, H, W_ref) in
+            through the prism; valid (B, 1, H, W_ref) bool (confidence >= :attr:`valid_confidence`, the weights'
+            calibrated threshold); confidence (B, 1, H, W_ref) in
             [0, 1] (trained as the probability of a depth within 1 % of the truth; 0 exactly where there is no
             depth); index into :attr:`depths`; match (B, 2, H, W_ref), the 2 x 2-binned match interpolated.
 
@@ -410,8 +427,8 @@ class HybridStereo(nn.Module):
         level = self.classical.final
         depth = sweep_to_depth(s, z_range)
         out = image.dtype
-        return DepthResult(depth.to(out), confidence >= 0.5, confidence.to(out), ((s + 1.0) / level.step).to(out),
-                           match.to(out))
+        return DepthResult(depth.to(out), confidence >= self.valid_confidence, confidence.to(out),
+                           ((s + 1.0) / level.step).to(out), match.to(out))
 
 
 def sweep_match(coefficients: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

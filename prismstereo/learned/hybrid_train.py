@@ -3,11 +3,14 @@ captures, on a CPU, resumable.
 
 The classical estimate of every capture is computed once before training (it does not learn), so a step only runs
 the refinement: ``batch_size`` captures of one rig variant, a random crop of the reference half aligned to the
-classical grid (the other half stays whole for the warp), every stage. Loss, in steps of the sweep (<= 1 px at 1/2):
+classical grid, touching the sensor's top or bottom edge in a third of the steps and its left or right edge in a
+third (the other half stays whole for the warp), every stage. Loss, in steps of the sweep (<= 1 px at 1/2):
 smooth L1 of each stage's s (upsampled to 1/2) against the truth on the known blocks (the last stage weighted 1,
 earlier ones 0.5), plus 0.3 times the binary cross-entropy of the last confidence against "depth within 1 %" on every
 block with a true depth (blocks the other half does not see are negatives). Adam, warm-up then cosine learning rate,
-gradients clipped at 1.
+gradients clipped at 1. After training, :func:`validity_threshold` picks the confidence above which a depth is
+valid: the lowest that keeps the training captures' valid depths at most :data:`VALID_BAD` wrong (stored in the
+weights' metadata as ``valid_confidence``).
 
 A checkpoint (``<out>.ckpt``: the CNNs, optimiser, schedule, random states and losses) is written every
 ``checkpoint_every`` steps; a run started again with the same options continues from it, and the result is the
@@ -33,7 +36,9 @@ from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, Refinem
 from prismstereo.learned.hybrid_data import HybridSet, training_rigs, training_sets
 from prismstereo.learned.train import TrainResult, warmup_cosine
 
-__all__ = ["hybrid_loss", "train_hybrid"]
+__all__ = ["VALID_BAD", "hybrid_loss", "train_hybrid", "validity_threshold"]
+
+VALID_BAD = 0.03  # the share of wrong depths the calibrated validity threshold allows on the training captures
 
 # The shipped weights/hybrid.pt (7 rig variants x 24 captures, 6000 steps, one torch thread; its time: metadata):
 #   OMP_NUM_THREADS=1 .venv/bin/prismstereo train --model hybrid --cache .cache/hybrid \
@@ -86,8 +91,9 @@ def _batch(model: HybridStereo, data: HybridSet, pick: torch.Tensor, crop: tuple
     f = model.architecture.block // 2
     hk, wk = data.s.shape[-2:]
     ch, cw = min(crop[0] // f, hk), min(crop[1] // f, wk)
-    r = int(torch.randint(hk - ch + 1, (1,), generator=gen))
-    c = int(torch.randint(wk - cw + 1, (1,), generator=gen))
+    # the sensor's edges (where the classical level leaves a margin) in a third of the crops along each axis
+    r, c = (int(torch.randint(n + 1, (1,), generator=gen)) for n in (hk - ch, wk - cw))
+    r, c = ({0: 0, 1: n}.get(int(torch.randint(6, (1,), generator=gen)), x) for x, n in ((r, hk - ch), (c, wk - cw)))
     inputs = RefinementInputs(data.image[pick], *(t[pick][..., r:r + ch, c:c + cw] for t in (data.s, data.confidence,
                                                                                             data.covered)))
     rows, cols = slice(r * f, (r + ch) * f), slice(c * f, (c + cw) * f)
@@ -191,9 +197,48 @@ def train_hybrid(
                         "generator": gen.get_state(), "losses": losses, "step": step + 1,
                         "seconds": seconds + time.perf_counter() - start}, checkpoint)
     seconds += time.perf_counter() - start
+    valid_confidence = validity_threshold(models, sets)
     curve = [float(chunk.mean()) for chunk in losses.chunk(min(10, steps))]
     path = models[0].save(out_path, steps=steps, seed=seed, batch_size=batch_size, crop=list(crop),
                           captures=[int(d.s.shape[0]) for d in sets], variants=[d.name for d in sets],
-                          final_loss=float(losses[-50:].mean()), loss_curve=curve, seconds=round(seconds, 1))
+                          final_loss=float(losses[-50:].mean()), loss_curve=curve, seconds=round(seconds, 1),
+                          valid_confidence=valid_confidence)
     checkpoint.unlink(missing_ok=True)
     return TrainResult(losses, seconds, path)
+
+
+def validity_threshold(models: list[HybridStereo], sets: list[HybridSet], bad: float = VALID_BAD) -> float:
+    """The validity threshold of trained refinement stages: the lowest confidence that keeps at most a share ``bad``
+    of the depths it keeps wrong, over every capture of ``sets`` (photographs and procedural surfaces, each set
+    refined whole by its own model). A depth is right where its block is known and within 1 % of the truth, wrong
+    elsewhere on the blocks with a true depth: the confidence's training target.
+
+    Args:
+        models: one model per set (of its rig and range), sharing the stages.
+        sets: the training sets.
+        bad: the share of wrong depths allowed.
+
+    Returns:
+        The threshold (1.0 if no threshold keeps the share; the model then calls nothing valid).
+
+    Example:
+        >>> validity_threshold(models, sets)  # doctest: +SKIP
+        0.87
+    """
+    from prismstereo.matching.confidence import confidence_threshold
+
+    confidence, right = [], []
+    with torch.no_grad():
+        for model, data in zip(models, sets, strict=True):
+            z_range = torch.tensor(model.z_range, dtype=data.s.dtype)
+            for pick in torch.arange(data.s.shape[0]).split(4):
+                inputs = RefinementInputs(*(t[pick] for t in (data.image, data.s, data.confidence, data.covered)))
+                s, logit = model.refine(inputs)[-1]
+                truth = torch.where(data.known[pick], data.truth[pick], torch.zeros_like(s))
+                depth, true_depth = sweep_to_depth(s, z_range), sweep_to_depth(truth, z_range)
+                ok = data.known[pick] & ((depth - true_depth).abs() < 0.01 * true_depth)
+                rays = data.rays[pick]
+                confidence.append(torch.sigmoid(logit)[rays])
+                right.append(ok[rays])
+    threshold = confidence_threshold(torch.cat(confidence), torch.cat(right), bad).value
+    return 1.0 if threshold != threshold else round(threshold, 4)

@@ -24,6 +24,7 @@ among estimates that jump, right ones on a surface whose estimates change smooth
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -41,7 +42,9 @@ __all__ = [
     "SMOOTHED_FEATURES",
     "SMOOTHED_WEIGHTS",
     "ConfidenceModel",
+    "Threshold",
     "confidence_features",
+    "confidence_threshold",
     "fit_confidence",
     "local_spread",
     "smoothed_features",
@@ -303,3 +306,58 @@ def _logistic(design: torch.Tensor, y: torch.Tensor, max_iter: int) -> torch.Ten
     with torch.enable_grad():
         opt.step(closure)
     return w.detach()
+
+
+class Threshold(NamedTuple):
+    """The result of :func:`confidence_threshold`.
+
+    Attributes:
+        value: the lowest confidence that is kept (NaN when nothing can be kept).
+        kept: how many pixels a threshold at ``value`` keeps.
+    """
+
+    value: float
+    kept: int
+
+
+def confidence_threshold(confidence: torch.Tensor, right: torch.Tensor, bad: float) -> Threshold:
+    """The threshold on a confidence that keeps the most pixels with at most a share ``bad`` of them wrong: the
+    largest set {confidence >= c} whose share of wrong pixels is <= ``bad`` (a threshold keeps all the pixels at a
+    confidence or none of them).
+
+    Args:
+        confidence: (N,) confidences of pixels with a depth.
+        right: (N,) bool, whether each depth is right (e.g. within 1 % of the truth).
+        bad: the largest share of wrong pixels kept, in [0, 1).
+
+    Returns:
+        Threshold(value, kept).
+
+    Raises:
+        ShapeError: tensors that are not (N,) of one length, or ``right`` not bool. OptionError: ``bad`` outside
+            [0, 1).
+
+    Example:
+        >>> c = torch.tensor([0.9, 0.8, 0.7, 0.6]); ok = torch.tensor([True, True, False, True])
+        >>> confidence_threshold(c, ok, 0.3)  # 0.6 keeps all four, one of them wrong (25 %)
+        Threshold(value=0.6000000238418579, kept=4)
+        >>> confidence_threshold(c, ok, 0.2).kept  # at 0.7 a third is wrong: only the first two
+        2
+    """
+    check_shape(confidence, ["N"], "confidence")
+    if right.shape != confidence.shape or right.dtype != torch.bool:
+        raise ShapeError(f"right must be a bool tensor of confidence's shape {tuple(confidence.shape)}, got "
+                         f"{right.dtype} {tuple(right.shape)}")
+    if not 0.0 <= bad < 1.0:
+        raise OptionError(f"bad must be in [0, 1), got {bad!r}")
+    order = torch.argsort(confidence, descending=True, stable=True)
+    c = confidence[order]
+    wrong = (~right[order]).double().cumsum(0)
+    count = torch.arange(1, len(order) + 1, dtype=torch.float64)
+    cut = torch.ones_like(c, dtype=torch.bool)  # only between distinct confidences
+    cut[:-1] = c[1:] < c[:-1]
+    ok = (wrong <= bad * count) & cut
+    if not ok.any():
+        return Threshold(float("nan"), 0)
+    k = int(ok.nonzero().max()) + 1
+    return Threshold(float(c[k - 1]), k)

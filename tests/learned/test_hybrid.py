@@ -12,9 +12,16 @@ from prismstereo.depth.level import upsample
 from prismstereo.epipolar.sweep import evaluate_sweep, fit_sweep, sweep_coefficients
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.learned import HYBRID_WEIGHTS, HybridArchitecture, HybridStereo, WeightsError
-from prismstereo.learned.hybrid import RefinementInputs, load_hybrid_weights, sweep_match
+from prismstereo.learned.hybrid import (
+    FILL_RADIUS,
+    VALID_CONFIDENCE,
+    RefinementInputs,
+    load_hybrid_weights,
+    sweep_match,
+    truth_sweep,
+)
 from prismstereo.learned.hybrid_data import hybrid_set, photo_scene, photographs, training_rigs
-from prismstereo.learned.hybrid_train import hybrid_loss, train_hybrid
+from prismstereo.learned.hybrid_train import hybrid_loss, train_hybrid, validity_threshold
 from prismstereo.model import DepthResult
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 
@@ -82,6 +89,23 @@ def test_untrained_stage_keeps_the_classical_estimate(untrained, plane):
     assert float(sel.sum()) > 0.8 * float(seen.sum()) and float(rel.median()) < 2e-3
 
 
+@torch.no_grad()
+def test_uncovered_blocks_start_from_their_covered_neighbours(untrained, plane):
+    # the classical level leaves a margin at the sensor's edges; those blocks start near the truth, not at s = 0
+    inputs = untrained.initial(plane.image)
+    w = untrained.rig.reference_width
+    truth = truth_sweep(torch.nn.functional.avg_pool2d(plane.depth[..., :w].double(), 4), untrained.z_range)
+    seen = torch.nn.functional.avg_pool2d(plane.covisible[..., :w].double(), 4) > 0.99
+    covered = inputs.covered > 0
+    filled = seen & ~covered
+    assert filled.any()
+    error = (inputs.s - truth).abs() / untrained.quarter_step
+    assert float(error[filled].median()) < 2.0 and float(error[covered & seen].median()) < 0.5
+    # beyond FILL_RADIUS blocks of any covered one, nothing to start from: s stays 0
+    far = torch.nn.functional.max_pool2d(covered.double(), 2 * FILL_RADIUS + 1, 1, FILL_RADIUS) == 0
+    assert torch.equal(inputs.s[far], torch.zeros_like(inputs.s[far]))
+
+
 def test_sweep_match_is_the_sweep_and_its_slope():
     half = thesis_setup1().binned(2)
     uv = torch.rand(4, 6, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * torch.tensor(
@@ -128,6 +152,13 @@ def test_weights_round_trip_and_errors(tmp_path, rig, untrained):
     path = model.save(tmp_path / "w.pt", note="test")
     again = HybridStereo(rig, Z, weights=path)
     assert again.architecture == arch and again.metadata["note"] == "test"
+    assert model.valid_confidence == again.valid_confidence == VALID_CONFIDENCE  # no calibrated threshold
+    strict = HybridStereo(rig, Z, weights=model.save(tmp_path / "strict.pt", valid_confidence=0.9))
+    assert strict.valid_confidence == 0.9 and strict.describe()["valid_confidence"] == 0.9
+    image = torch.rand(1, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        out = strict(image)
+    assert torch.equal(out.valid, out.confidence >= 0.9)
     assert all(torch.equal(a, b) for a, b in zip(model.stages.state_dict().values(),
                                                  again.stages.state_dict().values(), strict=True))
     assert again.describe()["weights_sha256"] == model.describe()["weights_sha256"]
@@ -145,6 +176,7 @@ def test_weights_round_trip_and_errors(tmp_path, rig, untrained):
 def test_shipped_weights_load_and_keep_a_textured_plane(rig, plane):
     arch, state, meta = load_hybrid_weights(HYBRID_WEIGHTS)
     assert HYBRID_WEIGHTS.stat().st_size < 200_000 and meta["steps"] >= 1 and "variants" in meta
+    assert 0.5 <= meta["valid_confidence"] < 1.0  # calibrated on the training captures
     model = HybridStereo(rig, Z).eval()
     with torch.inference_mode():
         out, classical = model(plane.image), model.classical(plane.image)
@@ -225,8 +257,12 @@ def test_loss_and_training_resume_from_a_checkpoint(tmp_path, data, small, monke
     resumed = train_hybrid(tmp_path / "resumed.pt", **options)
     assert not (tmp_path / "resumed.ckpt").exists()
     assert torch.equal(whole.losses, resumed.losses)
-    a, b = load_hybrid_weights(whole.path)[1], load_hybrid_weights(resumed.path)[1]
+    (_, a, meta_a), (_, b, meta_b) = load_hybrid_weights(whole.path), load_hybrid_weights(resumed.path)
     assert all(torch.equal(a[k], b[k]) for k in a)
+    # the validity threshold, calibrated on the training captures after training
+    trained = HybridStereo(small.rig, Z, weights=whole.path)
+    assert meta_a["valid_confidence"] == meta_b["valid_confidence"] == validity_threshold([trained], [data], 0.03)
+    assert 0.0 <= validity_threshold([trained], [data], 0.5) <= meta_a["valid_confidence"] <= 1.0
     with pytest.raises(OptionError, match="steps must be an int >= 1"):
         train_hybrid(tmp_path / "x.pt", **{**options, "steps": 0})
 

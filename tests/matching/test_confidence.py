@@ -10,6 +10,7 @@ from prismstereo.matching.confidence import (
     SMOOTHED_WEIGHTS,
     ConfidenceModel,
     confidence_features,
+    confidence_threshold,
     fit_confidence,
     local_spread,
     smoothed_features,
@@ -235,3 +236,24 @@ def test_local_spread_exported_graph_matches_eager(tmp_path):
     eager = local_spread(x, mask, 15)
     torch.testing.assert_close(torch.from_numpy(out), eager)
     torch.testing.assert_close(local_spread(x.clone().requires_grad_(), mask, 15).detach(), eager)
+
+
+def test_confidence_threshold_keeps_the_most_within_the_bad_share():
+    g = torch.Generator().manual_seed(0)
+    c = torch.rand(2000, generator=g)
+    right = torch.rand(2000, generator=g) < c  # a calibrated confidence: P(right) = c
+    for bad in (0.02, 0.1, 0.3):
+        value, kept = confidence_threshold(c, right, bad)
+        sel = c >= value
+        assert int(sel.sum()) == kept and float((~right[sel]).double().mean()) <= bad
+        lower = c >= float(c[c < value].max())  # one more confidence level breaks the share
+        assert float((~right[lower]).double().mean()) > bad
+        assert abs(value - (1 - 2 * bad)) < 0.1  # above t the wrong share is the mean of 1 - c, (1 - t) / 2
+    ties = torch.tensor([0.5, 0.5, 0.9])
+    assert confidence_threshold(ties, torch.tensor([True, False, True]), 0.3).kept == 1  # both 0.5s or neither
+    none = confidence_threshold(torch.tensor([0.9]), torch.tensor([False]), 0.1)
+    assert none.kept == 0 and none.value != none.value
+    with pytest.raises(ShapeError, match="right must be a bool tensor"):
+        confidence_threshold(c, right.float(), 0.1)
+    with pytest.raises(OptionError, match=r"bad must be in \[0, 1\)"):
+        confidence_threshold(c, right, 1.0)
