@@ -243,7 +243,7 @@ def default_model(rig: BiPrismRig) -> Literal["hybrid", "classical"]:
     sensors the hybrid is trained and measured on), else ``'classical'`` (:class:`~prismstereo.model.PrismStereo`).
     On smaller sensors the hybrid's 4 x 4 blocks are large against the surfaces: its block level fattens a near
     surface over the far one beside it by more than its refinement reaches, which the classical chain's
-    full-resolution search does not (``docs/design.md``, *The default chain*).
+    full-resolution search does not (``docs/design.md``, *Around the chain*).
 
     Example:
         >>> [default_model(thesis_setup1().downscaled(k)) for k in (1, 2)]
