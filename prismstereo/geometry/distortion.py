@@ -108,12 +108,10 @@ def distortion_jacobian(xy: torch.Tensor, coefficients: torch.Tensor) -> Distort
 def _newton(xy: torch.Tensor, target: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
     """One Newton step of distort(xy) = target, the 2 x 2 solve written out (ONNX friendly)."""
     r = _distort(xy, coefficients) - target
-    with torch.no_grad():
-        j = _jacobian(xy, coefficients)
+    with torch.no_grad():  # on detached inputs: forward-mode autograd ignores no_grad
+        j = _jacobian(xy.detach(), coefficients.detach())
         det = j.xx * j.yy - j.xy * j.yx
         det = torch.where(det.abs() > 1e-30, det, torch.full_like(det, 1e-30))
-        j = DistortionJacobian(*(e.detach() for e in j))
-        det = det.detach()
     step = torch.stack([j.yy * r[..., 0] - j.xy * r[..., 1], -j.yx * r[..., 0] + j.xx * r[..., 1]], dim=-1)
     return xy - step / det.unsqueeze(-1)
 

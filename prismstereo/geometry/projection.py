@@ -68,13 +68,17 @@ def _newton_step(
     returned step's gradient is the implicit-function gradient -J^-1 dr/dtheta."""
     r, rays = _residual(p, points, uv, half, extended)
     with torch.no_grad():
+        # detached inputs: no_grad stops reverse-mode autograd only, and under forward mode (the calibration's
+        # Jacobian) these residuals would otherwise carry tangents that the step discards
+        p0 = p._replace(**{k: v.detach() for k, v in p._asdict().items() if isinstance(v, torch.Tensor)})
+        points0, uv0 = points.detach(), uv.detach()
         r0 = r.detach()
-        du = torch.zeros_like(uv)
+        du = torch.zeros_like(uv0)
         du[..., 0] = h
-        ru, _ = _residual(p, points, uv + du, half, extended)
-        dv = torch.zeros_like(uv)
+        ru, _ = _residual(p0, points0, uv0 + du, half, extended)
+        dv = torch.zeros_like(uv0)
         dv[..., 1] = h
-        rv, _ = _residual(p, points, uv + dv, half, extended)
+        rv, _ = _residual(p0, points0, uv0 + dv, half, extended)
         a, c = (ru[..., 0] - r0[..., 0]) / h, (ru[..., 1] - r0[..., 1]) / h
         b, d = (rv[..., 0] - r0[..., 0]) / h, (rv[..., 1] - r0[..., 1]) / h
         det = a * d - b * c
