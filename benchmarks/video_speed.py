@@ -31,7 +31,9 @@ static scene.
    median time per frame on the same frames in the same run; also the CLI's own figures: its end-to-end rate
    (``run``'s wall, without start-up), the median depth computation per frame (the graph and the stream's work on
    it) and the key frames. ``--captures M`` single captures (the sequence's first M frames as 8-bit PNGs) with
-   ``--workers 1`` and ``--workers 2``: (wall on M - wall on 2) / (M - 2) per capture, and the CLI's rate.
+   ``--workers 1`` and ``--workers 2``: (wall on M - wall on 2) / (M - 2) per capture, and the CLI's rate. Each
+   run with the model the CLI picks (the classical one under the temporal prior, else the sensor's default, the
+   hybrid), and ``--no-temporal --model classical`` beside it.
 
 Run: .venv/bin/python benchmarks/video_speed.py [--frames 20] [--static 30] [--sizes 1024 640] [--cli 120]
      [--captures 16]
@@ -217,6 +219,11 @@ def _pingpong(count: int, frames: int) -> list[int]:
     return [k % period if k % period < count else period - k % period for k in range(frames)]
 
 
+def _model_name(text: str) -> str:
+    """The model a ``prismstereo depth`` run printed it used: 'hybrid' or 'classical'."""
+    return "hybrid" if "hybrid: " in text else "classical"
+
+
 def end_to_end(frames: int, captures: int, tmp: Path) -> None:
     """Section 3 of the module docstring."""
     rig = sensor(1024)
@@ -248,12 +255,14 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
     print(f"\nend to end, prismstereo depth in a subprocess, {frames}-frame FFV1 video (back and forth over the "
           f"moving sequence) and {captures} PNG captures at 1024 x 768; StereoSGBM {sgbm_frame:.1f} ms per frame "
           "(median, same frames)")
-    print(f"{'run':40s} {'ms per frame':>12s} {'x SGBM':>7s} {'CLI ms/frame':>12s} {'depth median':>12s} "
-          f"{'key frames':>10s}")
+    print(f"{'run':48s} {'ms per frame':>12s} {'x SGBM':>7s} {'CLI ms/frame':>12s} {'depth median':>12s} "
+          f"{'key frames':>10s} model")
     runs = {f"video --backend {b}{' --no-temporal' if not t else ''}": [str(video), "--backend", b] +
             ([] if t else ["--no-temporal"]) for b in ("onnx", "torch") for t in (True, False)}
+    runs["video --backend onnx --no-temporal --model classical"] = [str(video), "--backend", "onnx",
+                                                                    "--no-temporal", "--model", "classical"]
     for name, extra in runs.items():
-        best, rates, medians, keys = float("inf"), [], [], "-"
+        best, rates, medians, keys, model = float("inf"), [], [], "-", "-"
         _cli_seconds([*extra, *common, "--out", str(tmp / "warm"), "--stop", "1"])  # exports into the cache
         for repeat in range(2):
             out = tmp / f"out{repeat}"
@@ -264,7 +273,9 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
             medians.append(float(re.search(r"([\d.]+) ms per frame \(median", text).group(1)))
             found = re.search(r"(\d+) key frames", text)
             keys = found.group(1) if found else "-"
-        print(f"{name:40s} {best:12.1f} {best / sgbm_frame:7.2f} {min(rates):12.1f} {min(medians):12.1f} {keys:>10s}")
+            model = _model_name(text)
+        print(f"{name:48s} {best:12.1f} {best / sgbm_frame:7.2f} {min(rates):12.1f} {min(medians):12.1f} {keys:>10s} "
+              f"{model}")
     images = [str(tmp / f"capture{k:02d}.png") for k in range(captures)]
     _cli_seconds([images[0], "--backend", "onnx", *common, "--out", str(tmp / "warm.npy")])
     for workers in (1, 2):
@@ -275,8 +286,8 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
             whole, text = _cli_seconds([*images, *flags, "--out", str(tmp / f"c{repeat}a")])
             best = min(best, 1000 * (whole - head) / (captures - 2))
             rates.append(1000 / float(re.search(r"([\d.]+) depth maps/s end to end", text).group(1)))
-        print(f"{f'{captures} captures --backend onnx --workers {workers}':40s} {best:12.1f} "
-              f"{best / sgbm_frame:7.2f} {min(rates):12.1f} {'':>12s} {'-':>10s}")
+        print(f"{f'{captures} captures --backend onnx --workers {workers}':48s} {best:12.1f} "
+              f"{best / sgbm_frame:7.2f} {min(rates):12.1f} {'':>12s} {'-':>10s} {_model_name(text)}")
 
 
 def main() -> None:

@@ -119,8 +119,8 @@ def _demo_depth(rig: BiPrismRig, scale: int, out: Path) -> None:
     gt, cov = cap.depth[..., :w], cap.covisible[..., :w]
     results = {}
     default = default_model(small)
-    for name, model in (("hybrid", HybridStereo(small, (400.0, 700.0))), ("classical", PrismStereo(small, (
-            400.0, 700.0)))):
+    z_range = (400.0, 700.0)
+    for name, model in (("hybrid", HybridStereo(small, z_range)), ("classical", PrismStereo(small, z_range))):
         with torch.inference_mode():
             res = results[name] = model.eval()(cap.image)
         ok = res.valid & cov

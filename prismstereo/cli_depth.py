@@ -209,7 +209,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     else:
         model, summary = _build_model(args, rig, kind)
     temporal = None
-    if any(t.sequence for t in runnable):
+    if sequences:
         from prismstereo.depth.temporal import TemporalOptions, supports_temporal, temporal_downsample
 
         if args.temporal and supports_temporal(model):
