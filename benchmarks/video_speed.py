@@ -10,11 +10,13 @@ static scene.
      moves 60 mm over the sequence);
    * ``cut``: the moving plane for the first half, then a cut to another texture on a plane at 800 -> 780 mm.
 
-   Every frame goes through three ``DepthStream`` s of the default ``PrismStereo`` over 228-1374 mm, exported once
+   Every frame goes through the ``DepthStream`` s of the default ``PrismStereo`` over 228-1374 mm, exported once
    (onnxruntime, 2 intra-op threads): per frame, with the temporal prior (its own temporal graph,
    ``TemporalOptions()``, whose band runs on the 2 x 2-binned frame for the 1024 x 768 pyramid and at full
    resolution for the one-level 640 x 480 model; key frames by its rules) and with the band at the other of the
-   two resolutions (``temporal k=1`` / ``k=2``), and through OpenCV's ``StereoSGBM`` (numDisparities covering
+   two resolutions (``temporal k=1`` / ``k=2``), where the hybrid is the sensor's default (1024 x 768) also with
+   its key frames tracked by that temporal graph (``hybrid keys``: what ``prismstereo depth`` runs), and through
+   OpenCV's ``StereoSGBM`` (numDisparities covering
    the range's correspondence spread, blockSize 5, else defaults) and ``StereoBM`` (same) on the two 8-bit halves,
    one method after the other per frame, 0.1 s apart (``cv2.setNumThreads(2)``). Printed per method: median and
    95th-percentile ms per frame, frames/s, the median over frames of the same-frame ratio to SGBM, the mean
@@ -32,8 +34,8 @@ static scene.
    (``run``'s wall, without start-up), the median depth computation per frame (the graph and the stream's work on
    it) and the key frames. ``--captures M`` single captures (the sequence's first M frames as 8-bit PNGs) with
    ``--workers 1`` and ``--workers 2``: (wall on M - wall on 2) / (M - 2) per capture, and the CLI's rate. Each
-   run with the model the CLI picks (the classical one under the temporal prior, else the sensor's default, the
-   hybrid), and ``--no-temporal --model classical`` beside it.
+   run with the model the CLI picks (the sensor's default, the hybrid; under the temporal prior its key frames,
+   tracked by the classical model's band), and ``--model classical`` with and without the prior beside it.
 
 Run: .venv/bin/python benchmarks/video_speed.py [--frames 20] [--static 30] [--sizes 1024 640] [--cli 120]
      [--captures 16]
@@ -58,8 +60,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from onnx_speed import opencv_depth, opencv_halves, pixel_sweep, score, spread_report  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
+from prismstereo.defaults import default_model  # noqa: E402
 from prismstereo.depth.temporal import TemporalOptions, temporal_downsample  # noqa: E402
 from prismstereo.export import export_onnx  # noqa: E402
+from prismstereo.learned import HybridStereo  # noqa: E402
 from prismstereo.model import PrismStereo  # noqa: E402
 from prismstereo.stream import DepthStream  # noqa: E402
 from prismstereo.synthetic import (  # noqa: E402
@@ -120,6 +124,9 @@ def streams(rig, tmp: Path, name: str) -> tuple[PrismStereo, dict[str, DepthStre
                                temporal=TemporalOptions() if k == default else TemporalOptions(downsample=k))
         label = "temporal ONNX" if k == default else f"temporal k={k} ONNX"
         runs[label] = DepthStream(graph, temporal_graph=temporal, threads=2)
+        if k == default and default_model(rig) == "hybrid":  # the CLI's default: the hybrid's key frames
+            hybrid = export_onnx(HybridStereo(rig, Z_RANGE).eval(), tmp / f"{name}_{rig.image_width}_hybrid.onnx")
+            runs["hybrid keys ONNX"] = DepthStream(hybrid, temporal_graph=temporal, threads=2)
     return model, runs
 
 
@@ -220,7 +227,9 @@ def _pingpong(count: int, frames: int) -> list[int]:
 
 
 def _model_name(text: str) -> str:
-    """The model a ``prismstereo depth`` run printed it used: 'hybrid' or 'classical'."""
+    """The model a ``prismstereo depth`` run printed it used."""
+    if "tracked between key frames by the classical model" in text:
+        return "hybrid key frames, classical band"
     return "hybrid" if "hybrid: " in text else "classical"
 
 
@@ -259,8 +268,8 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
           f"{'key frames':>10s} model")
     runs = {f"video --backend {b}{' --no-temporal' if not t else ''}": [str(video), "--backend", b] +
             ([] if t else ["--no-temporal"]) for b in ("onnx", "torch") for t in (True, False)}
-    runs["video --backend onnx --no-temporal --model classical"] = [str(video), "--backend", "onnx",
-                                                                    "--no-temporal", "--model", "classical"]
+    for extra in (["--model", "classical"], ["--no-temporal", "--model", "classical"]):
+        runs[" ".join(["video --backend onnx", *extra])] = [str(video), "--backend", "onnx", *extra]
     for name, extra in runs.items():
         best, rates, medians, keys, model = float("inf"), [], [], "-", "-"
         _cli_seconds([*extra, *common, "--out", str(tmp / "warm"), "--stop", "1"])  # exports into the cache

@@ -76,11 +76,10 @@ def _request(args: argparse.Namespace, config, kind: str) -> dict[str, object]:
     return {"learned": weights, "z_range_mm": args.z_range, "hypotheses": args.hypotheses}
 
 
-def _model_kind(args: argparse.Namespace, rig: BiPrismRig, sequences: bool = False) -> str:
+def _model_kind(args: argparse.Namespace, rig: BiPrismRig) -> str:
     """Which model the flags ask for: ``--model``, else ``'classical'`` (:class:`~prismstereo.model.PrismStereo`)
-    with ``--preset``, ``--config`` or a search option, ``'hybrid'`` with ``--weights``, ``'classical'`` for a job
-    with a video or sequence under the temporal prior (which needs its full-resolution band), else the rig's
-    default (:func:`~prismstereo.defaults.default_model`).
+    with ``--preset``, ``--config`` or a search option, ``'hybrid'`` with ``--weights``, else the rig's default
+    (:func:`~prismstereo.defaults.default_model`).
 
     Raises:
         PrismStereoError: options of another model.
@@ -101,9 +100,7 @@ def _model_kind(args: argparse.Namespace, rig: BiPrismRig, sequences: bool = Fal
         return args.model
     if classical:
         return "classical"
-    if args.weights is not None:
-        return "hybrid"
-    return "classical" if sequences and args.temporal else default_model(rig)
+    return "hybrid" if args.weights is not None else default_model(rig)
 
 
 def _search_flags(args: argparse.Namespace) -> dict[str, object]:
@@ -196,7 +193,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     if len(tasks) == 1 and tasks[0].error is not None:
         raise PrismStereoError(tasks[0].error)  # one input: its error is the command's
     sequences = any(t.sequence for t in runnable)
-    kind = _model_kind(args, rig, sequences)
+    kind = _model_kind(args, rig)
     key, cached = None, None
     if args.backend == "onnx" and not sequences:  # captures: the graph alone will do
         from prismstereo.export import OnnxDepth, recall, request_key
@@ -208,17 +205,24 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         summary = cached.summary + " (cached graph)"
     else:
         model, summary = _build_model(args, rig, kind)
-    temporal = None
-    if sequences:
+    temporal, tracker = None, None
+    if sequences and args.temporal:
         from prismstereo.depth.temporal import TemporalOptions, supports_temporal, temporal_downsample
 
-        if args.temporal and supports_temporal(model):
+        if supports_temporal(model):
+            tracker = model
+        elif kind == "hybrid":  # key frames by the hybrid, tracked by the classical model's band if it has one
+            classical = _build_model(args, rig, "classical")[0]
+            if supports_temporal(classical):
+                tracker = classical
+                summary += f"; tracked between key frames by the classical model ({tracker.summary()})"
+        if tracker is not None:
             temporal = TemporalOptions()
-            k = temporal_downsample(model, temporal)
+            k = temporal_downsample(tracker, temporal)
             binned = f" on the {k}x{k}-binned frame" if k > 1 else ""
             summary += (f", temporal prior on sequences (a band +-{temporal.band}{binned} around the previous depth "
                         "between key frames)")
-        elif args.temporal:
+        else:
             summary += ", every frame on its own (this model has no full-resolution band for the temporal prior)"
     outputs = sum(len(t.outputs) - t.first for t in runnable)
     workers = f", {args.workers} worker processes" if args.workers > 1 else ""
@@ -226,7 +230,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         workers = f", on Ray ({args.ray})"
     print(f"{summary}, backend {args.backend}{workers}; {outputs} depth maps to write from {len(runnable)} of "
           f"{len(tasks)} inputs")
-    runner = Runner(model, backend=args.backend, options=options, temporal=temporal)
+    runner = Runner(model, backend=args.backend, options=options, temporal=temporal,
+                    tracker=None if tracker is model else tracker)
     result = run(tasks, runner, workers=args.workers, batch_size=args.batch_size, ray=args.ray)
     print(result.describe())
     if key is not None and cached is None:
@@ -264,9 +269,10 @@ def _add_resolution_arguments(parser: argparse.ArgumentParser) -> None:
                              "(prismstereo.PrismStereo, its settings from --preset / --config and the options above) "
                              "or learned (prismstereo.learned.LearnedStereo; --hypotheses: its D, default: neighbours "
                              "0.69 px apart on the sweep at its 1/4 resolution). Default: classical with --preset, "
-                             "--config or a search option, hybrid with --weights, classical for videos and sequences "
-                             "under the temporal prior, else the rig's default (prismstereo.defaults.default_model: "
-                             "hybrid when the reference half is >= 384 px on its shorter side)")
+                             "--config or a search option, hybrid with --weights, else the rig's default "
+                             "(prismstereo.defaults.default_model: hybrid when the reference half is >= 384 px on "
+                             "its shorter side). On videos and sequences under the temporal prior the hybrid "
+                             "computes the key frames and the classical model's band tracks between them")
     parser.add_argument("--weights", default=None, metavar="FILE.pt",
                         help="the hybrid's or (--model learned) the learned model's weights, written by prismstereo "
                              "train (default: the shipped ones)")

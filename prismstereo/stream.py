@@ -84,9 +84,14 @@ class DepthStream:
         temporal: False (default: every frame on its own), True (the temporal prior with default
             :class:`~prismstereo.depth.temporal.TemporalOptions`, or a temporal graph's options) or the options.
             A torch model needs a full-resolution band (:func:`~prismstereo.depth.temporal.supports_temporal`).
-        temporal_graph: ONNX streams with the temporal prior: the temporal graph of the same model
-            (:func:`~prismstereo.export.export_onnx` with ``temporal=``; a path or an ``OnnxDepth``); implies
+        temporal_graph: ONNX streams with the temporal prior: a temporal graph
+            (:func:`~prismstereo.export.export_onnx` with ``temporal=``; a path or an ``OnnxDepth``) of the same
+            sensor, from ``model`` or from the classical model that tracks for it (see ``tracker``); implies
             ``temporal`` (its options, unless ``temporal`` gives others for the key-frame rules).
+        tracker: torch streams with the temporal prior: the :class:`~prismstereo.model.PrismStereo` whose band
+            tracks between key frames (default ``model`` itself). Key frames by a model without a band, such as
+            :class:`~prismstereo.learned.HybridStereo`, tracked by the classical band: the key frames cost what
+            that model costs.
         threads: onnxruntime intra-op threads (ONNX graphs only).
         spinning: onnxruntime thread spinning (ONNX graphs only; see :class:`~prismstereo.export.OnnxDepth`).
 
@@ -111,8 +116,8 @@ class DepthStream:
     """
 
     def __init__(self, model: nn.Module | str | Path | OnnxDepth, *, temporal: bool | TemporalOptions = False,
-                 temporal_graph: str | Path | OnnxDepth | None = None, threads: int = 2,
-                 spinning: bool = True) -> None:
+                 temporal_graph: str | Path | OnnxDepth | None = None, tracker: nn.Module | None = None,
+                 threads: int = 2, spinning: bool = True) -> None:
         self._lock = threading.Lock()
         self.frames = self.keyframes = 0
         self.times_ms: list[float] = []
@@ -139,8 +144,15 @@ class DepthStream:
         self._tracker = None
         if self.backend == "torch" and temporal_graph is not None:
             raise OptionError("temporal_graph is the ONNX temporal graph: a torch stream builds its own")
+        if tracker is not None and (self.backend != "torch" or temporal is False):
+            raise OptionError("tracker is a torch stream's with the temporal prior (an ONNX stream takes its "
+                              "temporal_graph)")
+        rig = getattr(tracker, "rig", None)
+        if tracker is not None and (rig is None or (rig.image_height, rig.image_width) != (self.height, self.width)):
+            raise OptionError(f"the tracker must be a model of the stream's {self.width}x{self.height} sensor")
         if self.backend == "torch" and temporal is not False:
-            self._tracker = TemporalDepth(model, temporal if isinstance(temporal, TemporalOptions) else None).eval()
+            self._tracker = TemporalDepth(tracker if tracker is not None else model,
+                                          temporal if isinstance(temporal, TemporalOptions) else None).eval()
             self.temporal: TemporalOptions | None = self._tracker.options
         elif self.backend == "onnx" and (temporal is not False or temporal_graph is not None):
             if temporal_graph is None:

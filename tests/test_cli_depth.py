@@ -345,27 +345,23 @@ def test_export_learned(scene, tmp_path, capsys):
 
 
 def test_which_model_the_flags_ask_for():
-    """--model; else the classical model with a preset, a config or a search option, the hybrid with --weights, the
-    classical model for a job with videos or sequences under the temporal prior (the prior needs its full-resolution
-    band), else the rig's default (the hybrid on the sensors it is trained for); options of another model refused."""
+    """--model; else the classical model with a preset, a config or a search option, the hybrid with --weights,
+    else the rig's default (the hybrid on the sensors it is trained for); options of another model refused."""
     from prismstereo.cli import build_parser
     from prismstereo.cli_depth import _model_kind
 
     large, small = thesis_setup1(), thesis_setup1().downscaled(2)
 
-    def kind(*flags, rig=large, sequences=False):
-        return _model_kind(build_parser().parse_args(["depth", "x.png", "--rig", "r", "--out", "o", *flags]), rig,
-                           sequences)
+    def kind(*flags, rig=large):
+        return _model_kind(build_parser().parse_args(["depth", "x.png", "--rig", "r", "--out", "o", *flags]), rig)
 
     assert kind() == "hybrid" and kind(rig=small) == "classical" and kind("--dense") == "hybrid"
     assert kind("--weights", "w.pt", rig=small) == "hybrid"
     for flags in (["--preset", "dense"], ["--config", "c.json"], ["--hypotheses", "9"], ["--downsample", "2"],
                   ["--full-band", "1"], ["--band-edges", "clamp"]):
         assert kind(*flags) == "classical"
-    assert kind(sequences=True) == "classical" and kind("--no-temporal", sequences=True) == "hybrid"
-    assert kind("--weights", "w.pt", sequences=True) == "hybrid"  # the hybrid's weights: every frame on its own
     for model in ("hybrid", "classical", "learned"):
-        assert kind("--model", model, rig=small, sequences=True) == model
+        assert kind("--model", model, rig=small) == model
     assert kind("--model", "learned", "--hypotheses", "9") == "learned"
     with pytest.raises(PrismStereoError, match="--preset set the classical model's options, not --model learned's"):
         kind("--model", "learned", "--preset", "fast")

@@ -10,7 +10,7 @@ import torch
 
 from prismstereo import thesis_setup1
 from prismstereo.cli import main
-from prismstereo.errors import OptionError, ShapeError
+from prismstereo.errors import OptionError, PrismStereoError, ShapeError
 from prismstereo.io import read_depth, write_image
 from prismstereo.stream import DepthStream
 from prismstereo.video import VideoError, is_sequence_source, read_frames, sequence_length
@@ -124,6 +124,41 @@ def test_temporal_streams_of_both_backends_agree(clip, tmp_path):
         DepthStream(per_frame, temporal_graph=per_frame)
     with pytest.raises(OptionError, match="a torch stream builds its own"):
         DepthStream(model, temporal_graph=per_frame)
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_hybrid_key_frames_tracked_by_the_classical_band(clip, tmp_path, backend):
+    """A stream (through the jobs' Runner, as the CLI builds it) whose key frames are the hybrid's and whose tracked
+    frames are the classical model's temporal band: a key frame is the hybrid's result, tracked frames follow the
+    plane, and a tracker is refused where it cannot serve."""
+    from prismstereo.depth.temporal import TemporalOptions
+    from prismstereo.jobs import Runner
+    from prismstereo.learned import HybridStereo
+    from prismstereo.model import PrismStereo
+
+    rig = thesis_setup1().downscaled(8)
+    hybrid = HybridStereo(rig, (400.0, 700.0)).eval()
+    classical = PrismStereo(rig, (400.0, 700.0), {"coarse_factor": 2})
+    options = TemporalOptions(band=2)
+    stream = Runner(hybrid, backend=backend, temporal=options, tracker=classical)._stream()
+    frames = [f.image for f in read_frames(clip / "frames")]
+    tracked = 0
+    for k, (frame, z) in enumerate(zip(frames, DEPTHS, strict=True)):
+        res = stream.push(frame)
+        if k == 0:
+            assert res.keyframe
+            with torch.no_grad():
+                first = hybrid(frame[None])
+            torch.testing.assert_close(res.depth, first.depth, rtol=1e-4, atol=1e-3)
+        tracked += not res.keyframe
+        assert abs(float(res.depth[res.valid].median()) / z - 1) < 0.01
+    assert tracked >= 1 and stream.keyframes >= 1
+    with pytest.raises(OptionError, match="tracker is a torch stream's with the temporal prior"):
+        DepthStream(hybrid, tracker=classical)
+    with pytest.raises(OptionError, match="the tracker must be a model of the stream's 128x96 sensor"):
+        DepthStream(hybrid, temporal=options, tracker=PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)))
+    with pytest.raises(PrismStereoError, match="a tracker tracks sequences under the temporal prior"):
+        Runner(hybrid, tracker=classical)
 
 
 def test_stream_is_thread_safe_and_checks_its_input():

@@ -132,6 +132,9 @@ class Runner:
             :func:`~prismstereo.export.onnx_session`).
         options: how results are written (default :class:`WriteOptions`).
         temporal: sequences: the temporal prior's options, or None (every frame on its own).
+        tracker: sequences under the temporal prior: the :class:`~prismstereo.model.PrismStereo` whose band tracks
+            between key frames (default ``model``; key frames by a model without a band, such as
+            :class:`~prismstereo.learned.HybridStereo`, tracked by the classical band).
         threads: torch / onnxruntime threads (default: every core).
 
     Attributes:
@@ -145,7 +148,8 @@ class Runner:
     """
 
     def __init__(self, model: nn.Module | OnnxDepth, *, backend: Backend = "torch",
-                 options: WriteOptions | None = None, temporal: Any = None, threads: int | None = None) -> None:
+                 options: WriteOptions | None = None, temporal: Any = None, tracker: nn.Module | None = None,
+                 threads: int | None = None) -> None:
         from prismstereo.export import OnnxDepth
 
         check_option(backend, BACKENDS, "backend")
@@ -154,7 +158,10 @@ class Runner:
         if self.graph is not None and (backend != "onnx" or temporal is not None):
             raise PrismStereoError("an exported graph runs with backend 'onnx' and without the temporal prior (a "
                                    "sequence's temporal graph is exported from the model)")
+        if tracker is not None and (self.graph is not None or temporal is None):
+            raise PrismStereoError("a tracker tracks sequences under the temporal prior for a torch model")
         self.model = None if self.graph is not None else model.eval()
+        self.tracker = None if tracker is None else tracker.eval()
         self.rig = (self.graph or self.model).rig
         described = self.graph.z_range if self.graph is not None else self.model.describe()["z_range_mm"]
         self.z_range = tuple(float(z) for z in described)
@@ -173,8 +180,10 @@ class Runner:
         if self.backend == "onnx" and self.model is not None:
             from prismstereo.export import cache_path, export_cached
 
-            for temporal in ([None] if self.temporal is None else [None, self.temporal]):
-                export_cached(self.model, cache_path(self.model, temporal=temporal), temporal=temporal)
+            export_cached(self.model, cache_path(self.model))
+            if self.temporal is not None:
+                tracker = self.tracker or self.model
+                export_cached(tracker, cache_path(tracker, temporal=self.temporal), temporal=self.temporal)
 
     def for_worker(self, threads: int) -> None:
         """Make this (forked or unpickled) runner a worker process's: its threads, no progress callback, and its
@@ -196,13 +205,15 @@ class Runner:
         return state
 
     def _session(self, temporal: Any = None):
+        """The per-frame graph, or with ``temporal`` the tracker's temporal graph, in onnxruntime."""
         if self._graph_path is not None:
             if self.graph is None:  # unpickled
                 self.for_worker(self.threads)
             return self.graph
         from prismstereo.export import onnx_session
 
-        return onnx_session(self.model, channels=1, threads=self.threads, temporal=temporal, spinning=False)
+        model = self.model if temporal is None else self.tracker or self.model
+        return onnx_session(model, channels=1, threads=self.threads, temporal=temporal, spinning=False)
 
     def depth(self, batch: torch.Tensor):
         """The model's (or graph's) result for a grey batch (B, 1, H, W): ``depth``, ``valid``, ``confidence``,
@@ -225,7 +236,7 @@ class Runner:
         if self.backend == "onnx":
             tracker = None if self.temporal is None else self._session(self.temporal)
             return DepthStream(self._session(), temporal_graph=tracker, threads=self.threads)
-        return DepthStream(self.model, temporal=self.temporal or False)
+        return DepthStream(self.model, temporal=self.temporal or False, tracker=self.tracker)
 
     # ----------------------------------------------------------------------------- writing
     def _write(self, files: Outputs, depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor,
