@@ -153,6 +153,13 @@ def test_hybrid_key_frames_tracked_by_the_classical_band(clip, tmp_path, backend
         tracked += not res.keyframe
         assert abs(float(res.depth[res.valid].median()) / z - 1) < 0.01
     assert tracked >= 1 and stream.keyframes >= 1
+    if backend == "onnx":  # what worker processes find in the cache: the hybrid's graph, the tracker's temporal one
+        from prismstereo.export import cache_path
+
+        runner = Runner(hybrid, backend=backend, temporal=options, tracker=classical)
+        runner.prepare()
+        assert cache_path(hybrid).is_file() and cache_path(classical, temporal=options).is_file()
+        assert not cache_path(hybrid, temporal=options).exists()
     with pytest.raises(OptionError, match="tracker is a torch stream's with the temporal prior"):
         DepthStream(hybrid, tracker=classical)
     with pytest.raises(OptionError, match="the tracker must be a model of the stream's 128x96 sensor"):
