@@ -125,8 +125,8 @@ def _demo_depth(rig: BiPrismRig, scale: int, out: Path) -> None:
             res = results[name] = model.eval()(cap.image)
         ok = res.valid & cov
         rel = ((res.depth - gt).abs() / gt)[ok]
-        label = f"{name} (this sensor's default)" if name == default else name
-        print(f"  {label}: {model.summary()}")
+        line = model.summary() if name == "hybrid" else f"classical: {model.summary()}"  # the hybrid's names itself
+        print(f"  {line}{' (the default on this sensor)' if name == default else ''}")
         print(f"    {ok.float().sum() / cov.float().sum():.1%} of co-visible pixels valid; relative depth error mean "
               f"{rel.mean():.3%}, median {rel.median():.3%}")
     res = results[default]
