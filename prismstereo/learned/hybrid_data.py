@@ -12,7 +12,7 @@ thesis' two setups at their default and narrower ranges, and setup 1 with anothe
 barrel distortion.
 
 Rendering dominates; :func:`render_set` keeps each rig's binned captures and truth in a ``.pt`` file when given a
-cache folder, and :func:`hybrid_set` adds the classical estimate (seconds), so that the classical level can change
+cache folder, and :func:`hybrid_set` adds the classical estimate, so that the classical level can change
 without rendering again.
 """
 
@@ -249,7 +249,7 @@ def hybrid_set(name: str, rig: BiPrismRig, z_range_mm: tuple[float, float], coun
                model: HybridStereo | None = None, cache: str | Path | None = None,
                progress: bool = False) -> HybridSet:
     """:func:`render_set`'s captures with the classical estimate of ``model`` (a :class:`HybridStereo` of that rig and
-    range; built when None), computed here (a few seconds), so that the classical level can change without
+    range; built when None), computed here, so that the classical level can change without
     rendering again.
 
     Raises:

@@ -339,7 +339,7 @@ def confidence_threshold(confidence: torch.Tensor, right: torch.Tensor, bad: flo
 
     Example:
         >>> c = torch.tensor([0.9, 0.8, 0.7, 0.6]); ok = torch.tensor([True, True, False, True])
-        >>> confidence_threshold(c, ok, 0.3)  # 0.6 keeps all four, one of them wrong (25 %)
+        >>> confidence_threshold(c, ok, 0.3)  # 0.6 keeps all four, one of them wrong
         Threshold(value=0.6000000238418579, kept=4)
         >>> confidence_threshold(c, ok, 0.2).kept  # at 0.7 a third is wrong: only the first two
         2
