@@ -113,9 +113,9 @@ def build(chain: str, rig, hybrid_weights: str) -> torch.nn.Module:
     return hybrid.classical if chain == "block" else hybrid
 
 
-def score(res, gt: torch.Tensor, covisible: torch.Tensor) -> dict[str, float]:
-    """valid / dense coverage and bad shares, mean error, and the @3 % share (module docstring)."""
-    rel = (res.depth.double() - gt).abs() / gt
+def score(res, rel: torch.Tensor, covisible: torch.Tensor) -> dict[str, float]:
+    """valid / dense coverage and bad shares, mean error, and the @3 % share (module docstring), from the result and
+    its relative error ``rel``."""
     total = int(covisible.sum())
     out = {}
     for key, has in (("valid", res.valid), ("dense", res.confidence > 0)):
@@ -186,8 +186,8 @@ def main() -> None:
                 models[key] = build(chain, rig, args.hybrid_weights)
             with torch.inference_mode():
                 res = models[key](cap["image"][:, :1].float())
-            r = score(res, gt, covisible)
             rel = (res.depth.double() - gt).abs() / gt
+            r = score(res, rel, covisible)
             sel = (res.confidence > 0) & covisible & torch.isfinite(rel)
             group = (chain, "photographs" if name in PHOTOS else "others")
             counts[group] = counts.get(group, 0) + band_counts(res.confidence[sel], rel[sel] <= 0.01)

@@ -86,11 +86,9 @@ def _model_kind(args: argparse.Namespace, rig: BiPrismRig) -> str:
     """
     from prismstereo.defaults import default_model
 
-    classical = [name for name, value in (("--preset", args.preset), ("--config", args.config),
-                                          ("--downsample", args.downsample), ("--full-band", args.full_band),
-                                          ("--band-edges", args.band_edges)) if value is not None]
-    if args.model != "learned" and args.hypotheses is not None:
-        classical.append("--hypotheses")
+    classical = [name for name, value in (("--preset", args.preset), ("--config", args.config)) if value is not None]
+    # the search options' flags (--hypotheses is also the learned model's D)
+    classical += [_FLAGS[k] for k in _search_flags(args) if not (k == "num_hypotheses" and args.model == "learned")]
     if args.model in ("learned", "hybrid") and classical:
         raise PrismStereoError(f"{', '.join(classical)} set the classical model's options, not --model "
                                f"{args.model}'s")
@@ -118,9 +116,10 @@ def _z_range(args: argparse.Namespace, rig: BiPrismRig) -> tuple[tuple[float, fl
     return check_z_range(rig, args.z_range), "--z-range"
 
 
-def _build_model(args: argparse.Namespace, rig: BiPrismRig, kind: str):
-    """The model of ``kind`` (:func:`_model_kind`) for ``rig`` from the flags (shared by ``depth`` and ``export``),
-    with a line describing it and its range."""
+def _build_model(args: argparse.Namespace, rig: BiPrismRig, kind: str, config):
+    """The model of ``kind`` (:func:`_model_kind`) for ``rig`` from the flags and ``config`` (the classical model's:
+    :func:`_requested_config`'s, parsed once; shared by ``depth`` and ``export``), with a line describing it and its
+    range."""
     z_range, how = _z_range(args, rig)
     rng = f"depth range {z_range[0]:.1f}-{z_range[1]:.1f} mm ({how})"
     weights = "default" if args.weights is None else args.weights
@@ -139,7 +138,7 @@ def _build_model(args: argparse.Namespace, rig: BiPrismRig, kind: str):
     from prismstereo.model import PrismStereo
 
     try:
-        model = PrismStereo(rig, z_range, _requested_config(args)).eval()
+        model = PrismStereo(rig, z_range, config).eval()
     except PrismStereoError as exc:
         raise _flag_error(exc, _search_flags(args)) from exc
     return model, f"{rng}, {model.summary()}"
@@ -204,7 +203,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         model = OnnxDepth(cached.path, threads=os.cpu_count() or 1, spinning=False)  # as jobs.Runner's sessions
         summary = cached.summary + " (cached graph)"
     else:
-        model, summary = _build_model(args, rig, kind)
+        model, summary = _build_model(args, rig, kind, config)
     temporal, tracker = None, None
     if sequences and args.temporal:
         from prismstereo.depth.temporal import TemporalOptions, supports_temporal, temporal_downsample
@@ -212,7 +211,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         if supports_temporal(model):
             tracker = model
         elif kind == "hybrid":  # key frames by the hybrid, tracked by the classical model's band if it has one
-            classical = _build_model(args, rig, "classical")[0]
+            classical = _build_model(args, rig, "classical", config)[0]
             if supports_temporal(classical):
                 tracker = classical
                 summary += f"; tracked between key frames by the classical model ({tracker.summary()})"
@@ -351,8 +350,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".onnx":
         raise PrismStereoError(f"--out must end in .onnx, got {out}")
     rig = load_rig(args.rig)
-    _requested_config(args)  # --preset / --config: checked as for depth
-    model, summary = _build_model(args, rig, _model_kind(args, rig))
+    config = _requested_config(args)  # --preset / --config: checked as for depth
+    model, summary = _build_model(args, rig, _model_kind(args, rig), config)
     print(summary)
     t0 = time.perf_counter()
     export_onnx(model, out, channels=args.channels, opset=args.opset)

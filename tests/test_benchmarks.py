@@ -102,7 +102,8 @@ def test_default_chain_score_counts_valid_and_dense_pixels():
     confidence = torch.tensor([[[[0.9, 0.8, 0.7, 0.3, 0.2], [0.9, 0.9, 0.9, 0.9, 0.0]]]])
     covisible = torch.ones(1, 1, 2, 5, dtype=torch.bool)
     covisible[0, 0, 1, 3] = False
-    r = score(DepthResult(depth, valid, confidence, depth, depth), truth, covisible)
+    rel = (depth.double() - truth).abs() / truth
+    r = score(DepthResult(depth, valid, confidence, depth, depth), rel, covisible)
     assert r["valid"] == pytest.approx(100 * 7 / 9) and r["valid bad"] == pytest.approx(100 / 7)  # 510 is 2 % off
     assert r["dense"] == pytest.approx(100 * 8 / 9) and r["dense bad"] == pytest.approx(100 * 2 / 8)
     # the most confident first: four 500s (0.9), 501 (0.8), then 510 (0.7: 1 of 6 wrong > 3 %): 5 of 9 kept

@@ -68,7 +68,6 @@ def hybrid_loss(model: HybridStereo, inputs: RefinementInputs, truth: torch.Tens
         >>> hybrid_loss(model, inputs, torch.zeros(1, 1, h, w), ones, ones).shape
         torch.Size([])
     """
-    z_range = torch.tensor(model.z_range, dtype=inputs.s.dtype)
     target = torch.where(known, truth, torch.zeros_like(truth))
     count = known.sum().clamp_min(1)
     outputs = model.refine(inputs, window, size)
@@ -79,10 +78,16 @@ def hybrid_loss(model: HybridStereo, inputs: RefinementInputs, truth: torch.Tens
         loss = loss + weight * (error * known).sum() / count
     s, logit = outputs[-1]
     with torch.no_grad():
-        true_depth = sweep_to_depth(target, z_range)
-        correct = known & ((sweep_to_depth(s, z_range) - true_depth).abs() < 0.01 * true_depth)
+        correct = _correct(model, s, truth, known)
     bce = F.binary_cross_entropy_with_logits(logit, correct.to(logit.dtype), reduction="none")
     return loss + 0.3 * (bce * rays).sum() / rays.sum().clamp_min(1)
+
+
+def _correct(model: HybridStereo, s: torch.Tensor, truth: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
+    """The confidence's target: (B, 1, h, w) bool, known blocks whose depth from ``s`` is within 1 % of the truth's."""
+    z_range = torch.tensor(model.z_range, dtype=s.dtype)
+    true_depth = sweep_to_depth(torch.where(known, truth, torch.zeros_like(truth)), z_range)
+    return known & ((sweep_to_depth(s, z_range) - true_depth).abs() < 0.01 * true_depth)
 
 
 def _batch(model: HybridStereo, data: HybridSet, pick: torch.Tensor, crop: tuple[int, int], gen: torch.Generator):
@@ -230,15 +235,11 @@ def validity_threshold(models: list[HybridStereo], sets: list[HybridSet], bad: f
     confidence, right = [], []
     with torch.no_grad():
         for model, data in zip(models, sets, strict=True):
-            z_range = torch.tensor(model.z_range, dtype=data.s.dtype)
             for pick in torch.arange(data.s.shape[0]).split(4):
                 inputs = RefinementInputs(*(t[pick] for t in (data.image, data.s, data.confidence, data.covered)))
                 s, logit = model.refine(inputs)[-1]
-                truth = torch.where(data.known[pick], data.truth[pick], torch.zeros_like(s))
-                depth, true_depth = sweep_to_depth(s, z_range), sweep_to_depth(truth, z_range)
-                ok = data.known[pick] & ((depth - true_depth).abs() < 0.01 * true_depth)
                 rays = data.rays[pick]
                 confidence.append(torch.sigmoid(logit)[rays])
-                right.append(ok[rays])
+                right.append(_correct(model, s, data.truth[pick], data.known[pick])[rays])
     threshold = confidence_threshold(torch.cat(confidence), torch.cat(right), bad).value
     return 1.0 if threshold != threshold else round(threshold, 4)
