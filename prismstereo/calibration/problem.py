@@ -64,6 +64,9 @@ class RigProblem:
         self.tolerance = tol
         self.prior_weight = 1.0 / tol[self.index]  # 0 where there is no prior
         self._warm: torch.Tensor | None = None
+        # the last projections and their x: Levenberg-Marquardt asks for the Jacobian at the x whose residuals it
+        # has just computed (the accepted step), and the Jacobian starts from those projections
+        self._last: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None
         # observations that take part; solve_rig_problem drops the ones the start cannot project (a fixed mask:
         # rows that dropped out during the fit would lower the cost without fitting anything)
         self.active = torch.ones(observed.shape[0], dtype=torch.bool)
@@ -93,11 +96,15 @@ class RigProblem:
                             iterations)
 
     def projections(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(M, 2) predicted pixels at x and (M,) their validity (no autograd)."""
+        """(M, 2) predicted pixels at x and (M,) their validity (no autograd; those of the last x are kept)."""
+        last = self._last
+        if last is not None and last[3] is self.base and last[0].shape == x.shape and torch.equal(last[0], x):
+            return last[1], last[2]
         with torch.no_grad():
             uv, valid = self._predict(x[: self.num_rig], self.blocks(x), self._warm, 5)
             # unconverged rows restart from the virtual-pinhole guess next time (solve_projection's NaN start)
             self._warm = torch.where(valid.unsqueeze(-1), uv.detach(), torch.full_like(uv, float("nan")))
+        self._last = (x.detach().clone(), uv, valid, self.base)  # (a new base, e.g. selfcal's priors: recomputed)
         return uv, valid
 
     def residuals(self, x: torch.Tensor) -> torch.Tensor:
