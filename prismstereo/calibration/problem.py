@@ -122,7 +122,7 @@ class RigProblem:
         warm, _ = self.projections(x)
 
         def f(z: torch.Tensor) -> torch.Tensor:
-            return self._predict(z[:p], blocks + z[p:], warm, 1)[0]
+            return self._predict(z[:p], blocks + z[p:], warm, 0)[0]  # warm: converged at x
 
         z = torch.cat([x[:p], torch.zeros(b, dtype=x.dtype)])
         j = jacfwd(f)(z).reshape(-1, p + b)  # (2M, P + b)

@@ -61,6 +61,10 @@ def _residual(
     return r, rays
 
 
+def _detached(p: RigParameters) -> RigParameters:
+    return p._replace(**{k: v.detach() for k, v in p._asdict().items() if isinstance(v, torch.Tensor)})
+
+
 def _newton_step(
     p: RigParameters, points: torch.Tensor, uv: torch.Tensor, half: str, extended: bool, h: float, max_step: float
 ) -> tuple[torch.Tensor, torch.Tensor, RayBundle]:
@@ -70,8 +74,7 @@ def _newton_step(
     with torch.no_grad():
         # detached inputs: no_grad stops reverse-mode autograd only, and under forward mode (the calibration's
         # Jacobian) these residuals would otherwise carry tangents that the step discards
-        p0 = p._replace(**{k: v.detach() for k, v in p._asdict().items() if isinstance(v, torch.Tensor)})
-        points0, uv0 = points.detach(), uv.detach()
+        p0, points0, uv0 = _detached(p), points.detach(), uv.detach()
         r0 = r.detach()
         du = torch.zeros_like(uv0)
         du[..., 0] = h
@@ -124,6 +127,8 @@ def project_points(
         (torch.Size([1, 2]), tensor([True]))
     """
     check_floating(points, "points")
+    if not isinstance(iterations, int) or iterations < 1:
+        raise RigError(f"iterations must be a positive int, got {iterations!r}")
     p = as_parameters(rig, points)
     uv, converged = solve_projection(p, points, half, iterations, initial_uv)
     on_sensor = (
@@ -145,6 +150,8 @@ def solve_projection(
     Newton solve converged, even if the position lies off the sensor. With ``extended`` the face is its
     infinite plane (no apex, edge or other-face checks): the analytic continuation used to fit smooth
     sweep curves (:mod:`prismstereo.epipolar.sweep`) through depths where the real ray does not exist.
+    ``iterations`` may be 0 here: only the final, differentiable step, from ``initial_uv`` already converged for
+    these points (the calibration's Jacobian at the pixels it has just projected).
 
     Example:
         >>> solve_projection(thesis_setup1(), torch.tensor([[10.0, 5.0, 600.0]]), "right").valid
@@ -153,8 +160,8 @@ def solve_projection(
     check_shape(points, ["*", 3], "points")
     check_floating(points, "points")
     check_option(half, _HALVES, "half")
-    if not isinstance(iterations, int) or iterations < 1:
-        raise RigError(f"iterations must be a positive int, got {iterations!r}")
+    if not isinstance(iterations, int) or iterations < 0:
+        raise RigError(f"iterations must be an int >= 0, got {iterations!r}")
     p = as_parameters(rig, points)
     f64 = points.dtype == torch.float64
     h = 1e-4 if f64 else 2e-2
@@ -163,12 +170,14 @@ def solve_projection(
     if initial_uv is not None:
         check_shape(initial_uv, ["*", 2], "initial_uv")
     with torch.no_grad():
-        uv = _initial_guess(p, points.detach(), half, extended)
+        # detached rig and points: forward-mode autograd (the calibration's Jacobian) ignores no_grad
+        p0, points0 = _detached(p), points.detach()
+        uv = _initial_guess(p0, points0, half, extended)
         if initial_uv is not None:
             start = initial_uv.detach().to(points).expand_as(uv)
             uv = torch.where(torch.isnan(start), uv, start)
         for _ in range(iterations):
-            uv, _, _ = _newton_step(p, points, uv, half, extended, h, max_step)
+            uv, _, _ = _newton_step(p0, points0, uv, half, extended, h, max_step)
             uv = torch.stack([uv[..., 0].clamp(-p.width, 2.0 * p.width),
                               uv[..., 1].clamp(-p.height, 2.0 * p.height)], dim=-1)
     uv, last, rays = _newton_step(p, points, uv.detach(), half, extended, h, max_step)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from prismstereo.errors import OptionError, PrismStereoError, RigError, ShapeError
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
 from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
-from prismstereo.geometry.projection import project_points
+from prismstereo.geometry.projection import project_points, solve_projection
 from tests.conftest import ROUND_TRIP_TOL, random_pixels
 from tests.geometry.test_optics import misaligned_rig, params_fn
 
@@ -116,6 +116,22 @@ def test_gradcheck_project_wrt_rig(make):
     for half in ("left", "right"):
         fn, inputs = params_fn(rig, lambda p, h=half: project_points(p, pts, h).uv)
         assert torch.autograd.gradcheck(fn, inputs)
+
+
+def test_solve_projection_final_step_alone_from_converged_pixels():
+    # iterations=0: the differentiable step only, from pixels converged for these points (the calibration's
+    # Jacobian): the same pixels and the same implicit-function gradient as the full solve
+    rig = misaligned_rig()
+    pts = torch.tensor([[10.0, 5.0, 600.0], [-40.0, -20.0, 900.0]], dtype=F64, requires_grad=True)
+    full = solve_projection(rig, pts, "right")
+    alone = solve_projection(rig, pts, "right", iterations=0, initial_uv=full.uv.detach())
+    torch.testing.assert_close(alone.uv, full.uv, rtol=0.0, atol=1e-9)
+    assert torch.equal(alone.valid, full.valid) and full.valid[0]
+    g_full, = torch.autograd.grad(full.uv.sum(), pts)
+    g_alone, = torch.autograd.grad(alone.uv.sum(), pts)
+    torch.testing.assert_close(g_alone, g_full, rtol=1e-6, atol=1e-9)
+    with pytest.raises(RigError, match="iterations must be an int >= 0"):
+        solve_projection(rig, pts, "right", iterations=-1)
 
 
 def test_gradcheck_project_wrt_points():
