@@ -23,7 +23,7 @@ import kornia
 import torch
 from tqdm.auto import tqdm
 
-from prismstereo.geometry.optics import pixel_directions, trace_pixels
+from prismstereo.geometry.optics import RayBundle, pixel_directions, trace_pixels
 from prismstereo.geometry.projection import project_points
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.synthetic.lens import (
@@ -44,6 +44,7 @@ __all__ = ["Capture", "ImageFormation", "blur_circle_px", "fresnel_transmittance
 
 F64 = torch.float64
 _CHUNK = 1 << 19
+_CACHE_RAYS = 1 << 21  # rays (75 bytes each) a batch of scenes keeps, to trace them once
 
 
 class Capture(NamedTuple):
@@ -158,7 +159,21 @@ def render_radiance(
         torch.Size([1, 48, 64])
     """
     scene.validate(rig)
-    s = supersample
+    return _radiance(rig, scene, supersample, channels, fresnel, None)
+
+
+def _traced(rig: BiPrismRig, uv: torch.Tensor, cache: dict | None, key: tuple) -> RayBundle:
+    """``trace_pixels(rig, uv)``, kept in ``cache`` under ``key`` (the rays of a render's pixels do not depend on
+    the scene: a batch of scenes traces them once)."""
+    if cache is None:
+        return trace_pixels(rig, uv)
+    if key not in cache:
+        cache[key] = trace_pixels(rig, uv)
+    return cache[key]
+
+
+def _radiance(rig: BiPrismRig, scene: Scene, s: int, channels: int, fresnel: bool, cache: dict | None) -> torch.Tensor:
+    """:func:`render_radiance` with the traced rays from and into ``cache`` (None: traced here)."""
     offsets = (torch.arange(s, dtype=F64) + 0.5) / s - 0.5
     sub = torch.stack(torch.meshgrid(offsets, offsets, indexing="xy"), dim=-1).reshape(-1, 2)  # (s*s, 2)
     pixels = _pixel_grid(rig)
@@ -166,7 +181,7 @@ def render_radiance(
     per_chunk = max(1, _CHUNK // (s * s))
     for start in range(0, pixels.shape[0], per_chunk):
         uv = (pixels[start:start + per_chunk, None, :] + sub[None]).reshape(-1, 2)
-        rays = trace_pixels(rig, uv)
+        rays = _traced(rig, uv, cache, ("samples", s, start))
         hit, index = scene.intersect(rays.origins, rays.directions)
         values = scene.shade(hit, index, channels)
         if fresnel:
@@ -176,9 +191,11 @@ def render_radiance(
     return total.T.reshape(channels, rig.image_height, rig.image_width)
 
 
-def _ground_truth(rig: BiPrismRig, scene: Scene, lens: bool = False) -> tuple[torch.Tensor, ...]:
+def _ground_truth(rig: BiPrismRig, scene: Scene, lens: bool = False,
+                  cache: dict | None = None) -> tuple[torch.Tensor, ...]:
     """Centre-ray ground truth: points (N, 3), valid, left, covisible (N,), match (N, 2) and, with ``lens``, the
-    apparent depth (N,) the lens sees (NaN where invalid; all NaN without ``lens``)."""
+    apparent depth (N,) the lens sees (NaN where invalid; all NaN without ``lens``); the centre rays from and into
+    ``cache``."""
     pixels = _pixel_grid(rig)
     n = pixels.shape[0]
     points = torch.full((n, 3), float("nan"), dtype=F64)
@@ -189,7 +206,7 @@ def _ground_truth(rig: BiPrismRig, scene: Scene, lens: bool = False) -> tuple[to
     match = torch.full((n, 2), float("nan"), dtype=F64)
     for start in range(0, n, _CHUNK):
         sl = slice(start, start + _CHUNK)
-        rays = trace_pixels(rig, pixels[sl])
+        rays = _traced(rig, pixels[sl], cache, ("centres", start))
         hit, _ = scene.intersect(rays.origins, rays.directions)
         ok = rays.valid & torch.isfinite(hit.t)
         points[sl][ok] = hit.points[ok]
@@ -278,9 +295,12 @@ def render(
     gen = torch.Generator().manual_seed(formation.seed)
     h, w = rig.image_height, rig.image_width
     out: list[list[torch.Tensor]] = [[] for _ in Capture._fields]
+    # a batch traces its rays once, where they fit in _CACHE_RAYS
+    cache = {} if len(scenes) > 1 and h * w * (formation.supersample ** 2 + 1) <= _CACHE_RAYS else None
     for scene in tqdm(scenes, desc="render", disable=not progress):
-        radiance = render_radiance(rig, scene, formation.supersample, formation.channels, fresnel=formation.fresnel)
-        points, valid, left, covisible, match, apparent = _ground_truth(rig, scene, formation.f_number is not None)
+        radiance = _radiance(rig, scene, formation.supersample, formation.channels, formation.fresnel, cache)
+        points, valid, left, covisible, match, apparent = _ground_truth(rig, scene, formation.f_number is not None,
+                                                                        cache)
         lens_depth = None
         if formation.f_number is not None:
             lens_depth = fill_nearest(apparent.view(h, w), valid.view(h, w), formation.focus_mm)
