@@ -137,10 +137,10 @@ def save_capture(capture, index: int, image_path: str | Path, bits: int = 8, met
     return npz_path
 
 
-def _depth_array(depth: torch.Tensor, valid: torch.Tensor | None) -> np.ndarray:
-    """(H, W) float64 numpy depth with NaN where invalid or non-finite."""
+def _depth_array(depth: torch.Tensor, valid: torch.Tensor | None, dtype: torch.dtype = torch.float64) -> np.ndarray:
+    """(H, W) numpy depth of ``dtype`` with NaN where invalid or non-finite."""
     check_shape(depth, ["H", "W"], "depth")
-    d = depth.detach().to(torch.float64)
+    d = depth.detach().to(dtype)
     if valid is not None:
         check_shape(valid, list(depth.shape), "valid")
         d = torch.where(valid.to(torch.bool), d, torch.full_like(d, float("nan")))
@@ -202,7 +202,7 @@ def write_depth_npy(path: str | Path, depth: torch.Tensor, valid: torch.Tensor |
     Example:
         >>> write_depth_npy("depth.npy", torch.full((96, 64), 500.0))  # doctest: +SKIP
     """
-    data = _depth_array(depth, valid).astype(np.float32)
+    data = _depth_array(depth, valid, torch.float32)
     path = Path(path)
     try:
         with replacing(path) as partial:
@@ -465,7 +465,7 @@ def write_depth(
         write_depth_npy(path, depth, valid)
         return DepthFile(path, fmt, None, None, 0)
     if fmt == "tiff":
-        _imwrite(path, _depth_array(depth, valid).astype(np.float32))
+        _imwrite(path, _depth_array(depth, valid, torch.float32))
         return DepthFile(path, fmt, None, None, 0)
     scale = depth_png_scale(depth, valid) if png_scale is None else float(png_scale)
     levels, clipped = _png_levels(depth, valid, scale)

@@ -7,13 +7,14 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from kornia.color import rgb_to_grayscale
 
 from prismstereo import thesis_setup1
 from prismstereo.cli import main
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError
 from prismstereo.io import read_depth, write_image
 from prismstereo.stream import DepthStream
-from prismstereo.video import VideoError, is_sequence_source, read_frames, sequence_length
+from prismstereo.video import VideoError, frame_to_tensor, is_sequence_source, read_frames, sequence_length
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -59,6 +60,23 @@ def test_read_frames_of_videos_directories_and_globs(clip):
     assert all(torch.equal(a.image, b.image) for a, b in zip(files, same, strict=True))
     # MJPG is lossy: the video's frames are close to the PNGs, not equal
     assert float((video[1].image.mean(0) - list(read_frames(clip / "frames"))[2].image[0]).abs().mean()) < 0.03
+    # grey frames: what the stream converts colour frames to, bit for bit
+    grey = list(read_frames(clip / "clip.avi", every=2, grey=True))
+    assert [f.index for f in grey] == [0, 2, 4] and grey[0].image.shape == (1, 96, 128)
+    assert all(torch.equal(g.image, rgb_to_grayscale(f.image)) for g, f in zip(grey, video, strict=True))
+    png = list(read_frames(clip / "frames", stop=1))[0].image
+    assert png.shape[0] == 1 and torch.equal(list(read_frames(clip / "frames", stop=1, grey=True))[0].image, png)
+
+
+def test_frame_to_tensor_reference_values():
+    bgr = np.array([[[0, 128, 255], [10, 20, 30]]], dtype=np.uint8)  # (1, 2, 3) BGR
+    rgb = frame_to_tensor(bgr)
+    assert rgb.shape == (3, 1, 2) and rgb.is_contiguous() and rgb.dtype == torch.float32
+    torch.testing.assert_close(rgb[:, 0, 0], torch.tensor([255.0, 128.0, 0.0]) / 255.0, rtol=0.0, atol=0.0)
+    torch.testing.assert_close(rgb[:, 0, 1], torch.tensor([30.0, 20.0, 10.0]) / 255.0, rtol=0.0, atol=0.0)
+    assert frame_to_tensor(bgr[..., 0]).shape == (1, 1, 2)
+    with pytest.raises(ShapeError, match="uint8"):
+        frame_to_tensor(bgr.astype(np.float32))
 
 
 def test_read_frames_errors(clip, tmp_path):
@@ -73,6 +91,8 @@ def test_read_frames_errors(clip, tmp_path):
         list(read_frames(clip / "frames", every=0))
     with pytest.raises(VideoError, match="stop must be an int > start"):
         list(read_frames(clip / "frames", start=3, stop=2))
+    with pytest.raises(VideoError, match="grey must be a bool"):
+        list(read_frames(clip / "frames", grey="yes"))
     (tmp_path / "seq").mkdir()
     (tmp_path / "seq" / "a.png").write_bytes(b"broken")
     with pytest.raises(VideoError, match="cannot read frame 0"):

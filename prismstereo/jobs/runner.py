@@ -408,7 +408,9 @@ class Runner:
                 raise
             return True
 
-        frames = read_frames(task.source, every=sel.every, start=sel.start + task.first * sel.every, stop=sel.stop)
+        # grey frames from the reader thread, unless the point cloud takes the frames' colours
+        frames = read_frames(task.source, every=sel.every, start=sel.start + task.first * sel.every, stop=sel.stop,
+                             grey=not opts.ply)
         try:
             for files, frame in zip(task.outputs[task.first:], _prefetch(frames, depth=4), strict=False):
                 res = stream.push(frame.image)
