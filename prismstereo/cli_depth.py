@@ -194,18 +194,26 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     sequences = any(t.sequence for t in runnable)
     kind = _model_kind(args, rig)
     key, cached = None, None
-    if args.backend == "onnx" and not sequences:  # captures: the graph alone will do
+    tracked = sequences and args.temporal
+    if args.backend == "onnx":  # the graphs alone will do
         from prismstereo.export import OnnxDepth, recall, request_key
 
-        key = request_key(rig, _request(args, config, kind))
+        # sequences under the temporal prior: the per-frame graph and the temporal graph of its tracker
+        key = request_key(rig, {**_request(args, config, kind), **({"temporal": True} if tracked else {})})
         cached = recall(key)
+        if cached is not None and tracked and cached.temporal is None:
+            cached = None  # (the model has no band to track with: built, to say so)
+    temporal, tracker = None, None
     if cached is not None:  # exported before for the same request: no torch model to build
-        model = OnnxDepth(cached.path, threads=os.cpu_count() or 1, spinning=False)  # as jobs.Runner's sessions
-        summary = cached.summary + " (cached graph)"
+        threads = os.cpu_count() or 1  # as jobs.Runner's sessions
+        model = OnnxDepth(cached.path, threads=threads, spinning=False)
+        if tracked:
+            tracker = OnnxDepth(cached.temporal, threads=threads, spinning=False)
+            temporal = tracker.temporal
+        summary = cached.summary + " (cached graphs)" if tracked else cached.summary + " (cached graph)"
     else:
         model, summary = _build_model(args, rig, kind, config)
-    temporal, tracker = None, None
-    if sequences and args.temporal:
+    if tracked and cached is None:
         from prismstereo.depth.temporal import TemporalOptions, supports_temporal, temporal_downsample
 
         if supports_temporal(model):
@@ -237,8 +245,9 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         from prismstereo.export import cache_path, remember
 
         graph = cache_path(model)
-        if graph.is_file():
-            remember(key, graph, summary)
+        band = None if tracker is None else cache_path(tracker, temporal=temporal)
+        if graph.is_file() and (not tracked or (band is not None and band.is_file())):
+            remember(key, graph, summary, temporal=band)
     if len(tasks) == 1 and result.failed:
         raise PrismStereoError(result.failed[0].error)
     for failure in result.failed:

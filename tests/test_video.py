@@ -180,6 +180,21 @@ def test_hybrid_key_frames_tracked_by_the_classical_band(clip, tmp_path, backend
         runner.prepare()
         assert cache_path(hybrid).is_file() and cache_path(classical, temporal=options).is_file()
         assert not cache_path(hybrid, temporal=options).exists()
+        # the same stream from the two exported graphs alone (the CLI's cached run: no torch model)
+        from prismstereo.export import OnnxDepth
+
+        graph, band = OnnxDepth(cache_path(hybrid)), OnnxDepth(cache_path(classical, temporal=options))
+        again = Runner(graph, backend="onnx", temporal=options, tracker=band)._stream()
+        stream = Runner(hybrid, backend=backend, temporal=options, tracker=classical)._stream()
+        for frame in frames:
+            a, b = stream.push(frame), again.push(frame)
+            assert a.keyframe == b.keyframe and torch.equal(a.valid, b.valid) and torch.equal(a.depth, b.depth)
+        with pytest.raises(PrismStereoError, match="under the temporal prior with an exported temporal graph"):
+            Runner(graph, backend="onnx", temporal=options)
+        with pytest.raises(PrismStereoError, match="an exported tracker is the temporal graph of an exported model"):
+            Runner(hybrid, backend="onnx", temporal=options, tracker=band)
+        with pytest.raises(PrismStereoError, match="an exported tracker is the temporal graph of an exported model"):
+            Runner(graph, backend="onnx", temporal=options, tracker=graph)
     with pytest.raises(OptionError, match="tracker is a torch stream's with the temporal prior"):
         DepthStream(hybrid, tracker=classical)
     with pytest.raises(OptionError, match="the tracker must be a model of the stream's 128x96 sensor"):
@@ -292,6 +307,32 @@ def test_depth_cli_uses_the_temporal_prior_on_videos_unless_told(clip, tmp_path,
     for k, z in enumerate(DEPTHS):
         depth = read_depth(tmp_path / "a" / f"clip_{k:06d}.npy").numpy()
         assert abs(np.nanmedian(depth) / z - 1) < 0.02
+
+
+def test_depth_cli_runs_cached_graphs_of_a_video_without_a_torch_model(clip, tmp_path, monkeypatch, capsys):
+    """A video's second ONNX run of the same request loads the per-frame and temporal graphs from the cache (no
+    torch model built) and writes what the first run wrote; without the temporal prior it needs only the first."""
+    monkeypatch.setenv("PRISMSTEREO_CACHE", str(tmp_path / "cache"))
+    common = ["--rig", clip / "small.json", "--z-range", 400, 700, "--downsample", 2, "--full-band", 2,
+              "--backend", "onnx"]
+    assert _depth(clip / "clip.avi", "--out", tmp_path / "a", *common) == 0
+    assert "(cached graph" not in capsys.readouterr().out
+    from prismstereo.model import PrismStereo
+
+    monkeypatch.setattr(PrismStereo, "__init__", lambda *a, **k: pytest.fail("a model was built"))
+    assert _depth(clip / "clip.avi", "--out", tmp_path / "b", *common) == 0
+    text = capsys.readouterr().out
+    assert "(cached graphs), backend onnx" in text and re.search(r"\b[1-3] key frames", text), text
+    for k in range(len(DEPTHS)):
+        name = f"clip_{k:06d}.npy"
+        np.testing.assert_array_equal(np.load(tmp_path / "a" / name), np.load(tmp_path / "b" / name))
+    monkeypatch.undo()  # a request without the temporal prior is another request: built once, then cached
+    monkeypatch.setenv("PRISMSTEREO_CACHE", str(tmp_path / "cache"))
+    for run in "cd":
+        assert _depth(clip / "clip.avi", "--out", tmp_path / run, *common, "--no-temporal") == 0
+        assert ("(cached graph), backend onnx" in capsys.readouterr().out) == (run == "d")
+    np.testing.assert_array_equal(np.load(tmp_path / "c" / "clip_000003.npy"),
+                                  np.load(tmp_path / "d" / "clip_000003.npy"))
 
 
 def test_depth_cli_on_a_directory_and_its_errors(clip, tmp_path, capsys):

@@ -110,10 +110,12 @@ def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OP
 
 
 class CachedGraph(NamedTuple):
-    """A cached graph found by its request: its file and the summary of the model that exported it."""
+    """A cached graph found by its request: its file, the summary of the model that exported it and, for sequences
+    under the temporal prior, the file of the temporal graph that tracks between its key frames (else None)."""
 
     path: Path
     summary: str
+    temporal: Path | None = None
 
 
 def request_key(rig: BiPrismRig, request: dict[str, Any], *, channels: int = 1, opset: int = DEFAULT_OPSET) -> str:
@@ -137,21 +139,26 @@ def _index(key: str, cache_dir: str | Path | None) -> Path:
     return directory / "requests" / f"{key}.json"
 
 
-def remember(key: str, graph: str | Path, summary: str, *, cache_dir: str | Path | None = None) -> Path:
-    """Record that the request ``key`` (:func:`request_key`) is served by the cached ``graph``, with the model's
-    ``summary`` line; returns the index file.
+def remember(key: str, graph: str | Path, summary: str, *, temporal: str | Path | None = None,
+             cache_dir: str | Path | None = None) -> Path:
+    """Record that the request ``key`` (:func:`request_key`) is served by the cached ``graph`` (and for sequences
+    the cached ``temporal`` graph beside it), with the model's ``summary`` line; returns the index file.
 
     Example:
         >>> remember("0123456789abcdef", "graph.onnx", "a model", cache_dir="cache")  # doctest: +SKIP
     """
     path = _index(key, cache_dir)
     with replacing(path) as partial:
-        partial.write_text(json.dumps({"graph": Path(graph).name, "summary": summary}) + "\n")
+        entry = {"graph": Path(graph).name, "summary": summary}
+        if temporal is not None:
+            entry["temporal"] = Path(temporal).name
+        partial.write_text(json.dumps(entry) + "\n")
     return path
 
 
 def recall(key: str, *, cache_dir: str | Path | None = None) -> CachedGraph | None:
-    """The cached graph of the request ``key``, or None if it was never remembered or its graph is gone.
+    """The cached graph of the request ``key``, or None if it was never remembered or its graph (or temporal graph)
+    is gone.
 
     Example:
         >>> recall("no such request", cache_dir="/nonexistent") is None
@@ -162,6 +169,9 @@ def recall(key: str, *, cache_dir: str | Path | None = None) -> CachedGraph | No
         entry = json.loads(path.read_text())
         graph = path.parent.parent / entry["graph"]
         summary = str(entry["summary"])
-    except (OSError, ValueError, KeyError, TypeError):
+        temporal = None if entry.get("temporal") is None else path.parent.parent / entry["temporal"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
-    return CachedGraph(graph, summary) if graph.is_file() else None
+    if not graph.is_file() or (temporal is not None and not temporal.is_file()):
+        return None
+    return CachedGraph(graph, summary, temporal)

@@ -127,14 +127,16 @@ class Runner:
 
     Args:
         model: a :class:`~prismstereo.model.PrismStereo` or :class:`~prismstereo.learned.LearnedStereo`, or an
-            exported graph (:class:`~prismstereo.export.OnnxDepth`, backend 'onnx': no torch model is built).
+            exported graph (:class:`~prismstereo.export.OnnxDepth`, backend 'onnx': no torch model is built; for
+            sequences under the temporal prior with an exported temporal graph as ``tracker``).
         backend: 'torch' (the module) or 'onnx' (its exported graph in onnxruntime, exported once into the cache,
             :func:`~prismstereo.export.onnx_session`).
         options: how results are written (default :class:`WriteOptions`).
         temporal: sequences: the temporal prior's options, or None (every frame on its own).
         tracker: sequences under the temporal prior: the :class:`~prismstereo.model.PrismStereo` whose band tracks
             between key frames (default ``model``; key frames by a model without a band, such as
-            :class:`~prismstereo.learned.HybridStereo`, tracked by the classical band).
+            :class:`~prismstereo.learned.HybridStereo`, tracked by the classical band), or with an exported
+            ``model`` that band's exported temporal graph (an :class:`~prismstereo.export.OnnxDepth`).
         threads: torch / onnxruntime threads (default: every core).
 
     Attributes:
@@ -155,13 +157,18 @@ class Runner:
         check_option(backend, BACKENDS, "backend")
         self.graph = model if isinstance(model, OnnxDepth) else None
         self._graph_path = None if self.graph is None else self.graph.path
-        if self.graph is not None and (backend != "onnx" or temporal is not None):
-            raise PrismStereoError("an exported graph runs with backend 'onnx' and without the temporal prior (a "
-                                   "sequence's temporal graph is exported from the model)")
-        if tracker is not None and (self.graph is not None or temporal is None):
-            raise PrismStereoError("a tracker tracks sequences under the temporal prior for a torch model")
+        exported = isinstance(tracker, OnnxDepth)
+        if self.graph is not None and (backend != "onnx" or (temporal is not None and not exported)):
+            raise PrismStereoError("an exported graph runs with backend 'onnx', and under the temporal prior with an "
+                                   "exported temporal graph as its tracker")
+        if tracker is not None and temporal is None:
+            raise PrismStereoError("a tracker tracks sequences under the temporal prior")
+        if exported and (self.graph is None or tracker.temporal is None):
+            raise PrismStereoError("an exported tracker is the temporal graph of an exported model's sequences")
         self.model = None if self.graph is not None else model.eval()
-        self.tracker = None if tracker is None else tracker.eval()
+        self.tracker = None if tracker is None or exported else tracker.eval()
+        self.tracker_graph = tracker if exported else None
+        self._tracker_path = tracker.path if exported else None
         self.rig = (self.graph or self.model).rig
         described = self.graph.z_range if self.graph is not None else self.model.describe()["z_range_mm"]
         self.z_range = tuple(float(z) for z in described)
@@ -197,11 +204,13 @@ class Runner:
         self.threads, self.progress = threads, None
         if self._graph_path is not None:
             self.graph = OnnxDepth(self._graph_path, threads=threads, spinning=False)
+        if self._tracker_path is not None:
+            self.tracker_graph = OnnxDepth(self._tracker_path, threads=threads, spinning=False)
 
     def __getstate__(self) -> dict[str, Any]:
-        """Pickled for a spawned worker or a Ray actor: the model (or the graph's path), not a session or callback."""
+        """Pickled for a spawned worker or a Ray actor: the model (or the graphs' paths), not a session or callback."""
         state = dict(self.__dict__)
-        state["graph"], state["progress"] = None, None
+        state["graph"], state["tracker_graph"], state["progress"] = None, None, None
         return state
 
     def _session(self, temporal: Any = None):
@@ -209,7 +218,7 @@ class Runner:
         if self._graph_path is not None:
             if self.graph is None:  # unpickled
                 self.for_worker(self.threads)
-            return self.graph
+            return self.graph if temporal is None else self.tracker_graph
         from prismstereo.export import onnx_session
 
         model = self.model if temporal is None else self.tracker or self.model

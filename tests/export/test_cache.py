@@ -17,7 +17,14 @@ def test_request_key_remember_and_recall(tmp_path):
     graph.write_bytes(b"graph")
     index = remember(key, graph, "a model", cache_dir=tmp_path / "onnx")
     assert index.parent.name == "requests" and not list(index.parent.glob(".*partial*"))
-    assert recall(key, cache_dir=tmp_path / "onnx") == (graph, "a model")
+    assert recall(key, cache_dir=tmp_path / "onnx") == (graph, "a model", None)
+    # a sequence's request: the per-frame graph and the temporal graph that tracks between its key frames
+    tracker = graph.with_name("4567.onnx")
+    tracker.write_bytes(b"temporal graph")
+    remember("seq", graph, "a model, tracked", temporal=tracker, cache_dir=tmp_path / "onnx")
+    assert recall("seq", cache_dir=tmp_path / "onnx") == (graph, "a model, tracked", tracker)
+    tracker.unlink()  # either graph gone: not served
+    assert recall("seq", cache_dir=tmp_path / "onnx") is None
     graph.unlink()  # a graph removed from the cache: the request is not served
     assert recall(key, cache_dir=tmp_path / "onnx") is None
     index.write_text("{not json")
