@@ -30,7 +30,9 @@ static scene.
    moving sequence's 30 (so the motion stays smooth), through ``prismstereo depth VIDEO --out DIR`` in a subprocess
    as a user runs it (temporal and ``--no-temporal``, onnx and torch backends): the wall time on all frames minus
    that on the first 3 (``--stop 3``), per remaining frame, best of two (start-up cancels), beside StereoSGBM's
-   median time per frame on the same frames in the same run; also the CLI's own figures: its end-to-end rate
+   median time per frame on the same frames in the same run, and the time OpenCV takes to decode the video alone
+   (FFV1 is a costly codec; the CLI decodes on a reader thread beside the graph); also the CLI's own figures: its
+   end-to-end rate
    (``run``'s wall, without start-up), the median depth computation per frame (the graph and the stream's work on
    it) and the key frames. ``--captures M`` single captures (the sequence's first M frames as 8-bit PNGs) with
    ``--workers 1`` and ``--workers 2``: (wall on M - wall on 2) / (M - 2) per capture, and the CLI's rate. Each
@@ -260,10 +262,16 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
         sgbm.compute(left, right)
         sgbm_ms.append(1000 * (time.perf_counter() - start))
     sgbm_frame = statistics.median(sgbm_ms)
+    decoding = cv2.VideoCapture(str(video))
+    start, decoded = time.perf_counter(), 0
+    while decoding.read()[0]:
+        decoded += 1
+    decode_ms = 1000 * (time.perf_counter() - start) / max(decoded, 1)
     common = ["--rig", str(tmp / "rig.json"), "--z-range", str(Z_RANGE[0]), str(Z_RANGE[1])]
     print(f"\nend to end, prismstereo depth in a subprocess, {frames}-frame FFV1 video (back and forth over the "
           f"moving sequence) and {captures} PNG captures at 1024 x 768; StereoSGBM {sgbm_frame:.1f} ms per frame "
-          "(median, same frames)")
+          f"(median, same frames); decoding the video alone (OpenCV, on the CLI's reader thread) {decode_ms:.1f} ms "
+          "per frame")
     print(f"{'run':48s} {'ms per frame':>12s} {'x SGBM':>7s} {'CLI ms/frame':>12s} {'depth median':>12s} "
           f"{'key frames':>10s} model")
     runs = {f"video --backend {b}{' --no-temporal' if not t else ''}": [str(video), "--backend", b] +
