@@ -31,13 +31,13 @@ static scene.
    as a user runs it (temporal and ``--no-temporal``, onnx and torch backends): the wall time on all frames minus
    that on the first 3 (``--stop 3``), per remaining frame, best of two (start-up cancels), beside StereoSGBM's
    median time per frame on the same frames in the same run, and the time OpenCV takes to decode the video alone
-   (FFV1 is a costly codec; the CLI decodes on a reader thread beside the graph); also the CLI's own figures: its
-   end-to-end rate
-   (``run``'s wall, without start-up), the median depth computation per frame (the graph and the stream's work on
-   it) and the key frames. ``--captures M`` single captures (the sequence's first M frames as 8-bit PNGs) with
-   ``--workers 1`` and ``--workers 2``: (wall on M - wall on 2) / (M - 2) per capture, and the CLI's rate. Each
-   run with the model the CLI picks (the sensor's default, the hybrid; under the temporal prior its key frames,
-   tracked by the classical model's band), and ``--model classical`` with and without the prior beside it.
+   (FFV1 is a costly codec; the CLI decodes on a reader thread beside the graph). Also the CLI's own figures: its
+   end-to-end rate (``run``'s wall, without start-up), the median depth computation per frame (the graph and the
+   stream's work on it) and the key frames; and the per-frame graphs alone as the CLI opens them (the
+   ``--no-temporal`` rows' budget). ``--captures M`` single captures (the sequence's first M frames as 8-bit PNGs)
+   with ``--workers 1`` and ``--workers 2``: (wall on M - wall on 2) / (M - 2) per capture, and the CLI's rate.
+   Each run with the model the CLI picks (the sensor's default, the hybrid; under the temporal prior its key
+   frames, tracked by the classical model's band), and ``--model classical`` with and without the prior beside it.
 
 Run: .venv/bin/python benchmarks/video_speed.py [--frames 20] [--static 30] [--sizes 1024 640] [--cli 120]
      [--captures 16]
@@ -64,7 +64,7 @@ from onnx_speed import opencv_depth, opencv_halves, pixel_sweep, score, spread_r
 from prismstereo import thesis_setup1  # noqa: E402
 from prismstereo.defaults import default_model  # noqa: E402
 from prismstereo.depth.temporal import TemporalOptions, temporal_downsample  # noqa: E402
-from prismstereo.export import export_onnx  # noqa: E402
+from prismstereo.export import export_onnx, onnx_session  # noqa: E402
 from prismstereo.learned import HybridStereo  # noqa: E402
 from prismstereo.model import PrismStereo  # noqa: E402
 from prismstereo.stream import DepthStream  # noqa: E402
@@ -293,6 +293,18 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
             model = _model_name(text)
         print(f"{name:48s} {best:12.1f} {best / sgbm_frame:7.2f} {min(rates):12.1f} {min(medians):12.1f} {keys:>10s} "
               f"{model}")
+    alone = []  # the per-frame graphs without the CLI around them, for the --no-temporal rows
+    for name, model in (("hybrid", HybridStereo(rig, Z_RANGE)), ("classical", PrismStereo(rig, Z_RANGE))):
+        session = onnx_session(model.eval(), threads=2, spinning=False)  # as the CLI's runner opens it
+        session(caps.image[:1])
+        times = []
+        for k in order[:30]:
+            start = time.perf_counter()
+            session(caps.image[k:k + 1])
+            times.append(1000 * (time.perf_counter() - start))
+        alone.append(f"{name} {statistics.median(times):.1f} ms")
+    print("per-frame graphs alone, as the CLI runs them (onnxruntime, 2 threads, not spinning; median of 30 frames): "
+          + ", ".join(alone))
     images = [str(tmp / f"capture{k:02d}.png") for k in range(captures)]
     _cli_seconds([images[0], "--backend", "onnx", *common, "--out", str(tmp / "warm.npy")])
     for workers in (1, 2):
