@@ -167,7 +167,7 @@ def frame_to_tensor(bgr: np.ndarray) -> torch.Tensor:
         raise ShapeError(f"a decoded frame must be OpenCV's uint8 (H, W) or (H, W, 3) BGR, got {got}")
     if bgr.ndim == 2:
         return torch.from_numpy(bgr.astype(np.float32) / np.float32(255.0))[None]
-    # channel order and layout on the bytes, then one conversion to float (a third of the work of converting first)
+    # channel order and layout on the bytes (a quarter of the memory of floats), then one conversion to float
     planes = torch.from_numpy(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)).permute(2, 0, 1).contiguous()
     return planes.to(torch.float32).div_(255.0)
 
