@@ -200,9 +200,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
 
         # sequences under the temporal prior: the per-frame graph and the temporal graph of its tracker
         key = request_key(rig, {**_request(args, config, kind), **({"temporal": True} if tracked else {})})
-        cached = recall(key)
-        if cached is not None and tracked and cached.temporal is None:
-            cached = None  # (the model has no band to track with: built, to say so)
+        cached = recall(key)  # (a tracked request is remembered only with its temporal graph)
     temporal, tracker = None, None
     if cached is not None:  # exported before for the same request: no torch model to build
         threads = os.cpu_count() or 1  # as jobs.Runner's sessions
@@ -210,7 +208,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         if tracked:
             tracker = OnnxDepth(cached.temporal, threads=threads, spinning=False)
             temporal = tracker.temporal
-        summary = cached.summary + " (cached graphs)" if tracked else cached.summary + " (cached graph)"
+        summary = cached.summary + (" (cached graphs)" if tracked else " (cached graph)")
     else:
         model, summary = _build_model(args, rig, kind, config)
     if tracked and cached is None:

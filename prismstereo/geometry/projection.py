@@ -61,10 +61,6 @@ def _residual(
     return r, rays
 
 
-def _detached(p: RigParameters) -> RigParameters:
-    return p._replace(**{k: v.detach() for k, v in p._asdict().items() if isinstance(v, torch.Tensor)})
-
-
 def _newton_step(
     p: RigParameters, points: torch.Tensor, uv: torch.Tensor, half: str, extended: bool, h: float, max_step: float
 ) -> tuple[torch.Tensor, torch.Tensor, RayBundle]:
@@ -74,7 +70,7 @@ def _newton_step(
     with torch.no_grad():
         # detached inputs: no_grad stops reverse-mode autograd only, and under forward mode (the calibration's
         # Jacobian) these residuals would otherwise carry tangents that the step discards
-        p0, points0, uv0 = _detached(p), points.detach(), uv.detach()
+        p0, points0, uv0 = p.detach(), points.detach(), uv.detach()
         r0 = r.detach()
         du = torch.zeros_like(uv0)
         du[..., 0] = h
@@ -171,7 +167,7 @@ def solve_projection(
         check_shape(initial_uv, ["*", 2], "initial_uv")
     with torch.no_grad():
         # detached rig and points: forward-mode autograd (the calibration's Jacobian) ignores no_grad
-        p0, points0 = _detached(p), points.detach()
+        p0, points0 = p.detach(), points.detach()
         uv = _initial_guess(p0, points0, half, extended)
         if initial_uv is not None:
             start = initial_uv.detach().to(points).expand_as(uv)

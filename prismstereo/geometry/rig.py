@@ -85,6 +85,17 @@ class RigParameters(NamedTuple):
     width: int
     height: int
 
+    def detach(self) -> RigParameters:
+        """The same parameters with every tensor detached (no autograd, reverse or forward mode: ``no_grad`` alone
+        does not stop forward-mode tangents).
+
+        Example:
+            >>> p = thesis_setup1().parameters(); p = p._replace(f=p.f.clone().requires_grad_())
+            >>> p.f.requires_grad, p.detach().f.requires_grad
+            (True, False)
+        """
+        return self._replace(**{k: v.detach() for k, v in self._asdict().items() if isinstance(v, torch.Tensor)})
+
     @property
     def reference_width(self) -> int:
         """W_ref, the columns left of the apex column (see :attr:`BiPrismRig.reference_width`); not differentiable.

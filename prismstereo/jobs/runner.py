@@ -150,8 +150,8 @@ class Runner:
     """
 
     def __init__(self, model: nn.Module | OnnxDepth, *, backend: Backend = "torch",
-                 options: WriteOptions | None = None, temporal: Any = None, tracker: nn.Module | None = None,
-                 threads: int | None = None) -> None:
+                 options: WriteOptions | None = None, temporal: Any = None,
+                 tracker: nn.Module | OnnxDepth | None = None, threads: int | None = None) -> None:
         from prismstereo.export import OnnxDepth
 
         check_option(backend, BACKENDS, "backend")

@@ -65,10 +65,6 @@ def _binned_parameters(p: RigParameters, scale: int) -> RigParameters:
                       width=p.width // scale, height=p.height // scale)
 
 
-def _detached(p: RigParameters) -> RigParameters:
-    return p._replace(**{k: v.detach() for k, v in p._asdict().items() if isinstance(v, torch.Tensor)})
-
-
 def _binned_size(rig: BiPrismRig | RigParameters, scale: int) -> tuple[int, int, int]:
     """(h, W_b, w_ref) of the rig seen through ``scale`` x ``scale`` binning; checks that both halves exist."""
     if isinstance(rig, BiPrismRig):
@@ -105,7 +101,7 @@ def _build(rig: BiPrismRig | RigParameters, z_range_mm: tuple[float, float] | to
     centres = block_centres(h, w_ref, scale, like)
     coefficients = sweep_coefficients(fit, centres).permute(2, 0, 1, 3)
     with torch.no_grad():
-        frozen = rig if isinstance(rig, BiPrismRig) else _detached(rig)
+        frozen = rig if isinstance(rig, BiPrismRig) else rig.detach()
         rays = trace_pixels(frozen, centres.detach())
         u_o = torch.arange(w_ref * scale, width * scale, dtype=like.dtype, device=like.device)
         v = torch.arange(h * scale, dtype=like.dtype, device=like.device)
@@ -247,7 +243,7 @@ class PrismCostVolume(nn.Module):
         self.rig = rig
         self.rig_gradients = isinstance(rig, RigParameters) and any(
             v.requires_grad for v in rig if isinstance(v, torch.Tensor))
-        frozen = _detached(rig) if isinstance(rig, RigParameters) else rig
+        frozen = rig.detach() if isinstance(rig, RigParameters) else rig
         built = _build(frozen, self.z_range_mm, num_hypotheses, scale)
         self.height, self.width, self.reference_width = _binned_size(frozen, scale)
         dtype = torch.get_default_dtype()
