@@ -38,6 +38,7 @@ from torch import nn
 
 from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 from prismstereo.errors import OptionError, ShapeError
+from prismstereo.io import to_grey
 from prismstereo.threads import torch_threads
 from prismstereo.video import frame_to_tensor
 
@@ -190,9 +191,7 @@ class DepthStream:
         if image.shape[1] != self.channels:
             if self.channels != 1 or image.shape[1] != 3:
                 raise ShapeError(f"frame has {image.shape[1]} channels, the model takes {self.channels}")
-            from kornia.color import rgb_to_grayscale
-
-            image = rgb_to_grayscale(image)
+            image = to_grey(image)
         return image
 
     def push(self, frame: torch.Tensor | np.ndarray) -> StreamResult:

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from prismstereo.errors import PrismStereoError, ShapeError
-from prismstereo.io import ImageIOError, read_image
+from prismstereo.io import ImageIOError, read_image, to_grey
 
 __all__ = ["VideoError", "Frame", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES", "is_sequence_source", "is_video_file",
            "sequence_name", "sequence_files", "sequence_length", "check_selection", "frame_to_tensor", "read_frames"]
@@ -172,16 +172,6 @@ def frame_to_tensor(bgr: np.ndarray) -> torch.Tensor:
     return planes.to(torch.float32).div_(255.0)
 
 
-def _grey(image: torch.Tensor) -> torch.Tensor:
-    """(1, H, W) grey of a (C, H, W) image: itself, or :func:`kornia.color.rgb_to_grayscale` of RGB (as
-    :class:`~prismstereo.stream.DepthStream` converts colour frames)."""
-    if image.shape[0] == 1:
-        return image
-    from kornia.color import rgb_to_grayscale
-
-    return rgb_to_grayscale(image)
-
-
 def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int | None = None,
                 grey: bool = False) -> Iterator[Frame]:
     """The frames ``start``, ``start + every``, ... (< ``stop``) of a video file, directory or glob of images.
@@ -223,7 +213,7 @@ def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int
                     if not ok or bgr is None:
                         raise VideoError(f"cannot decode frame {index} of {path}")
                     image = frame_to_tensor(bgr)
-                    yield Frame(index, _grey(image) if grey else image, path.stem)
+                    yield Frame(index, to_grey(image) if grey else image, path.stem)
                 index += 1
             if index == 0:
                 raise VideoError(f"no frames could be read from {path}")
@@ -238,4 +228,4 @@ def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int
             image = read_image(file)
         except ImageIOError as exc:
             raise VideoError(f"cannot read frame {index}: {exc}") from exc
-        yield Frame(index, _grey(image) if grey else image, file.name)
+        yield Frame(index, to_grey(image) if grey else image, file.name)

@@ -116,7 +116,7 @@ class DepthPredictor:
         self.runner = runner
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        import kornia
+        from prismstereo.io import to_grey
 
         images = np.stack(list(batch["image"])) if batch["image"].dtype == object else batch["image"]
         if images.ndim == 3:
@@ -125,8 +125,7 @@ class DepthPredictor:
         x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).to(torch.float32) / scale
         if x.shape[1] == 4:
             x = x[:, :3]
-        if x.shape[1] == 3:
-            x = kornia.color.rgb_to_grayscale(x)
+        x = to_grey(x)
         rig = self.runner.rig
         if tuple(x.shape[-2:]) != (rig.image_height, rig.image_width):
             raise PrismStereoError(f"images are {x.shape[-1]}x{x.shape[-2]} px but the rig's sensor is "

@@ -301,9 +301,7 @@ class Runner:
     # ----------------------------------------------------------------------------- captures
     def _read(self, path: str) -> tuple[torch.Tensor, torch.Tensor] | str:
         """A capture of the rig's size, grey (1, H, W) and as read (C, H, W), or why not."""
-        import kornia
-
-        from prismstereo.io import read_image
+        from prismstereo.io import read_image, to_grey
 
         try:
             image = read_image(path)
@@ -313,7 +311,7 @@ class Runner:
         h, w = image.shape[-2:]
         if (w, h) != (rig.image_width, rig.image_height):
             return f"image {path} is {w}x{h} px but the rig's sensor is {rig.image_width}x{rig.image_height} px"
-        return (image if image.shape[0] == 1 else kornia.color.rgb_to_grayscale(image)), image
+        return to_grey(image), image
 
     def run_captures(self, tasks: Sequence[Task], batch_size: int = 1) -> Iterator[TaskReport]:
         """Depth of single captures, ``batch_size`` at a time: the next batch is read while this one runs and the
