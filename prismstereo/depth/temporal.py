@@ -286,6 +286,7 @@ def _binned_prior(s: torch.Tensor, placed: torch.Tensor, k: int, h: int, w: int)
     """(B, 1, H, W_ref) sweep coordinates and usable-prior mask binned by k x k to the binned level's (B, 1, h, w):
     the mean over each block's usable pixels, usable where at least half of them are."""
     weight = placed.to(s.dtype)
-    share = F.avg_pool2d(weight, k)[..., :h, :w]
-    mean = F.avg_pool2d(s * weight, k)[..., :h, :w] / share.clamp_min(1e-6)
+    # ceil_mode: a reference half whose width k does not divide (512 / 3) has a last binned column of fewer pixels
+    share = F.avg_pool2d(weight, k, ceil_mode=True)[..., :h, :w]
+    mean = F.avg_pool2d(s * weight, k, ceil_mode=True)[..., :h, :w] / share.clamp_min(1e-6)
     return mean.clamp(-1.0, 1.0), share >= 0.5

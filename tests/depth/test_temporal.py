@@ -189,6 +189,24 @@ def test_binned_band_interpolates_valid_neighbours_only(model):
     assert not bool(res.valid[..., 64].any()) and float(res.confidence[..., 64].abs().max()) == 0.0
 
 
+def test_binning_that_does_not_divide_the_reference_half(model):
+    """``downsample=3`` on a 128 px reference half: the binned level's reference half is 43 px wide (its split
+    rounds up), one more block than 128 // 3; the prior's last block holds the last 2 columns and the band follows
+    the plane there too."""
+    tracker = TemporalDepth(model, TemporalOptions(downsample=3))
+    assert tracker.level.rig.reference_width == 43 and model.rig.reference_width == 128
+    rig = model.rig
+    image = render(rig, fronto_parallel_plane(rig, 550.0, seed=1), ImageFormation(supersample=1, seed=2)).image
+    with torch.no_grad():
+        prior = model(image)
+        res = tracker(image, prior.depth, prior.valid, prior.confidence)
+    assert res.depth.shape == (1, 1, 192, 128)
+    last = res.valid[..., -2:] & prior.valid[..., -2:]
+    assert float(last.float().mean()) > 0.9
+    torch.testing.assert_close(res.depth[..., -2:][last], torch.full_like(res.depth[..., -2:][last], 550.0),
+                               rtol=0.01, atol=0.0)
+
+
 def test_binned_band_of_a_dense_model_keeps_its_covered_pixels():
     """A dense model's binned band: back at full resolution every block with a depth (confidence > 0) keeps one and
     its confidence, interpolated from the covered binned pixels (valid or not); ``valid`` stays the valid blocks."""

@@ -221,11 +221,11 @@ def test_session_cache(exported, model, tmp_path, monkeypatch):
     assert first.path.read_bytes()[:64] == exported.read_bytes()[:64]  # same model, same export
 
 
-@pytest.mark.parametrize("downsample", [1, 2])
+@pytest.mark.parametrize("downsample", [1, 2, 3])
 def test_temporal_graph_matches_torch_and_checks_its_prior(model, captures, exported, tmp_path, downsample):
     """The temporal graph (image and the previous frame's outputs in, the same outputs out) against
-    TemporalDepth in torch, with the band at full resolution and on the 2 x 2-binned capture; the runners refuse a
-    prior they do not take and want one they do."""
+    TemporalDepth in torch, with the band at full resolution and on the 2 x 2- and 3 x 3-binned capture; the runners
+    refuse a prior they do not take and want one they do."""
     from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 
     options = TemporalOptions(band=2, downsample=downsample)
