@@ -14,8 +14,9 @@ static scene.
    (onnxruntime, 2 intra-op threads): per frame, with the temporal prior (its own temporal graph,
    ``TemporalOptions()``, whose band runs on the 2 x 2-binned frame for the 1024 x 768 pyramid and at full
    resolution for the one-level 640 x 480 model; key frames by its rules) and with the band at the other of the
-   two resolutions (``temporal k=1`` / ``k=2``), where the hybrid is the sensor's default (1024 x 768) also with
-   its key frames tracked by that temporal graph (``hybrid keys``: what ``prismstereo depth`` runs), and through
+   two resolutions (``temporal k=1`` / ``k=2``) and, for the pyramid, on the 3 x 3-binned frame (``temporal k=3``:
+   ``--temporal-binning 3``), where the hybrid is the sensor's default (1024 x 768) also with its key frames
+   tracked by the binned temporal graphs (``hybrid keys``: what ``prismstereo depth`` runs), and through
    OpenCV's ``StereoSGBM`` (numDisparities covering
    the range's correspondence spread, blockSize 5, else defaults) and ``StereoBM`` (same) on the two 8-bit halves,
    one method after the other per frame, 0.1 s apart (``cv2.setNumThreads(2)``). Printed per method: median and
@@ -38,7 +39,8 @@ static scene.
    budget). ``--captures M`` single captures (the sequence's first M frames as 8-bit PNGs) with ``--workers 1``
    and ``--workers 2``: (least wall on M - least wall on 2) / (M - 2) per capture, and the CLI's rate. Each run
    with the model the CLI picks (the sensor's default, the hybrid; under the temporal prior its key frames, tracked
-   by the classical model's band), and ``--model classical`` with and without the prior beside it.
+   by the classical model's band), with ``--temporal-binning 3``, and ``--model classical`` with and without the
+   prior beside it.
 
 Run: .venv/bin/python benchmarks/video_speed.py [--frames 20] [--static 30] [--sizes 1024 640] [--cli 120]
      [--captures 16]
@@ -121,15 +123,19 @@ def streams(rig, tmp: Path, name: str) -> tuple[PrismStereo, dict[str, DepthStre
     graph = export_onnx(model, tmp / f"{name}_{rig.image_width}.onnx")
     default = temporal_downsample(model)
     runs = {"per-frame ONNX": DepthStream(graph, threads=2)}
-    other = 1 if default > 1 else 2  # the full-resolution band for a binned default, the binned one otherwise
-    for k in (default, other):
+    # the full-resolution band for a binned default, and the coarser binning of --temporal-binning 3; the binned
+    # band otherwise
+    others = (1, 3) if default > 1 else (2,)
+    hybrid = None
+    if default_model(rig) == "hybrid":  # the CLI's default: the hybrid's key frames
+        hybrid = export_onnx(HybridStereo(rig, Z_RANGE).eval(), tmp / f"{name}_{rig.image_width}_hybrid.onnx")
+    for k in (default, *others):
         temporal = export_onnx(model, tmp / f"{name}_{rig.image_width}_temporal_{k}.onnx",
                                temporal=TemporalOptions() if k == default else TemporalOptions(downsample=k))
-        label = "temporal ONNX" if k == default else f"temporal k={k} ONNX"
-        runs[label] = DepthStream(graph, temporal_graph=temporal, threads=2)
-        if k == default and default_model(rig) == "hybrid":  # the CLI's default: the hybrid's key frames
-            hybrid = export_onnx(HybridStereo(rig, Z_RANGE).eval(), tmp / f"{name}_{rig.image_width}_hybrid.onnx")
-            runs["hybrid keys ONNX"] = DepthStream(hybrid, temporal_graph=temporal, threads=2)
+        label = "" if k == default else f" k={k}"
+        runs[f"temporal{label} ONNX"] = DepthStream(graph, temporal_graph=temporal, threads=2)
+        if hybrid is not None and k != 1:
+            runs[f"hybrid keys{label} ONNX"] = DepthStream(hybrid, temporal_graph=temporal, threads=2)
     return model, runs
 
 
@@ -139,7 +145,7 @@ def moving(rig, frames: int, model: PrismStereo, runs: dict[str, DepthStream]) -
     nd = disparities(sweep)
     print(f"\n{rig.image_width} x {rig.image_height}, {frames} frames per sequence, range {Z_RANGE[0]:g}-"
           f"{Z_RANGE[1]:g} mm, model: {model.summary()}; OpenCV numDisparities {nd}")
-    print(f"{'sequence':9s}{'method':18s} {'median ms':>9s} {'p95 ms':>7s} {'frames/s':>8s} {'x SGBM':>7s} "
+    print(f"{'sequence':9s}{'method':22s} {'median ms':>9s} {'p95 ms':>7s} {'frames/s':>8s} {'x SGBM':>7s} "
           f"{'mean err %':>10s} {'coverage %':>10s} {'key frames':>10s}")
     for sequence, scenes in sequences(rig, frames).items():
         caps = render(rig, scenes, ImageFormation(supersample=2, noise_sigma=1 / 255, seed=3))
@@ -179,7 +185,7 @@ def moving(rig, frames: int, model: PrismStereo, runs: dict[str, DepthStream]) -
             mean = statistics.mean(e[0] for e in errors[name])
             cover = statistics.mean(e[1] for e in errors[name])
             key = f"{keys[name]:10d}" if name in keys else f"{'':10s}"
-            print(f"{sequence:9s}{name:18s} {statistics.median(t):9.1f} {percentile(t, 95):7.1f} "
+            print(f"{sequence:9s}{name:22s} {statistics.median(t):9.1f} {percentile(t, 95):7.1f} "
                   f"{1e3 / statistics.median(t):8.1f} {ratio:7.2f} {mean:10.3f} {cover:10.1f} {key}")
 
 
@@ -209,7 +215,7 @@ def flicker(rig, frames: int, runs: dict[str, DepthStream]) -> None:
         stack, ok = torch.stack(depth[name]), torch.stack(valid[name]).all(0) & covisible
         std = stack.std(0)[ok]
         rel = (std / stack.mean(0)[ok]) * 100
-        print(f"{name:18s} median std over frames {float(std.median()):.3f} mm ({float(rel.median()):.4f} %), "
+        print(f"{name:22s} median std over frames {float(std.median()):.3f} mm ({float(rel.median()):.4f} %), "
               f"95th percentile {float(std.quantile(0.95)):.3f} mm, on {100 * float(ok.sum() / covisible.sum()):.1f} % "
               "of the co-visible pixels (valid in every frame)")
 
@@ -277,7 +283,7 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
           f"{'key frames':>10s} model")
     runs = {f"video --backend {b}{' --no-temporal' if not t else ''}": [str(video), "--backend", b] +
             ([] if t else ["--no-temporal"]) for b in ("onnx", "torch") for t in (True, False)}
-    for extra in (["--model", "classical"], ["--no-temporal", "--model", "classical"]):
+    for extra in (["--temporal-binning", "3"], ["--model", "classical"], ["--no-temporal", "--model", "classical"]):
         runs[" ".join(["video --backend onnx", *extra])] = [str(video), "--backend", "onnx", *extra]
     for name, extra in runs.items():
         heads, wholes, rates, medians, keys, model = [], [], [], [], "-", "-"

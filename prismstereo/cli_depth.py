@@ -176,9 +176,12 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     config = _requested_config(args)  # --preset / --config: fails early, and sets args.dense for the outputs
     if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
         raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
-    for flag, value in (("--batch-size", args.batch_size), ("--workers", args.workers)):
-        if value < 1:
+    for flag, value in (("--batch-size", args.batch_size), ("--workers", args.workers),
+                        ("--temporal-binning", args.temporal_binning)):
+        if value is not None and value < 1:
             raise PrismStereoError(f"{flag} must be >= 1, got {value}")
+    if args.temporal_binning is not None and not args.temporal:
+        raise PrismStereoError("--temporal-binning places the temporal prior's band: not with --no-temporal")
     if args.ray is not None and args.workers > 1:
         raise PrismStereoError("--ray and --workers exclude each other (Ray places the workers)")
     pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
@@ -199,7 +202,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         from prismstereo.export import OnnxDepth, recall, request_key
 
         # sequences under the temporal prior: the per-frame graph and the temporal graph of its tracker
-        key = request_key(rig, {**_request(args, config, kind), **({"temporal": True} if tracked else {})})
+        temporal_request = {"temporal": {"downsample": args.temporal_binning}} if tracked else {}
+        key = request_key(rig, {**_request(args, config, kind), **temporal_request})
         cached = recall(key)  # (a tracked request is remembered only with its temporal graph)
     temporal, tracker = None, None
     if cached is not None:  # exported before for the same request: no torch model to build
@@ -222,11 +226,13 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                 tracker = classical
                 summary += f"; tracked between key frames by the classical model ({tracker.summary()})"
         if tracker is not None:
-            temporal = TemporalOptions()
+            temporal = TemporalOptions(downsample=args.temporal_binning)
             k = temporal_downsample(tracker, temporal)
             binned = f" on the {k}x{k}-binned frame" if k > 1 else ""
             summary += (f", temporal prior on sequences (a band +-{temporal.band}{binned} around the previous depth "
                         "between key frames)")
+        elif args.temporal_binning is not None:
+            raise PrismStereoError("--temporal-binning: this model has no full-resolution band for the temporal prior")
         else:
             summary += ", every frame on its own (this model has no full-resolution band for the temporal prior)"
     outputs = sum(len(t.outputs) - t.first for t in runnable)
@@ -341,6 +347,10 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--no-temporal", dest="temporal", action="store_false",
                        help="video / sequence: every frame on its own (default: the temporal prior, a narrow band "
                             "around the previous frame's depth between key frames; prismstereo.depth.temporal)")
+    depth.add_argument("--temporal-binning", type=int, default=None, metavar="K",
+                       help="video / sequence: the temporal prior's band on the K x K-binned frame (default: 2 for a "
+                            "pyramid, 1 for a one-level model; a coarser binning tracks faster and less accurately: "
+                            "docs/benchmarks.md, Video)")
     depth.add_argument("--ply", action="store_true",
                        help="also write <stem>.ply point clouds (camera frame, mm, coloured by the reference half, "
                             "with each point's confidence as a 'confidence' property)")

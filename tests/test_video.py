@@ -330,6 +330,17 @@ def test_depth_cli_runs_cached_graphs_of_a_video_without_a_torch_model(clip, tmp
     monkeypatch.setenv("PRISMSTEREO_CACHE", str(tmp_path / "cache"))
     assert _depth(clip / "clip.avi", "--out", tmp_path / "c", *common, "--no-temporal") == 0
     assert "(cached graph" not in capsys.readouterr().out
+    for repeat in range(2):  # so is another binning of the band; then it is served from the cache in turn
+        assert _depth(clip / "clip.avi", "--out", tmp_path / f"d{repeat}", *common, "--temporal-binning", 1) == 0
+        text = capsys.readouterr().out
+        assert ("(cached graphs)" in text) == (repeat == 1), text
+        assert "a band +-1 around the previous depth" in text, text  # the full-resolution band, not a binned one
+    from prismstereo.depth.temporal import TemporalOptions
+    from prismstereo.export import OnnxDepth, cache_path
+    from prismstereo.geometry.presets import load_rig
+
+    model = PrismStereo(load_rig(clip / "small.json"), (400.0, 700.0), {"downsample": 2, "full_band": 2})
+    assert OnnxDepth(cache_path(model, temporal=TemporalOptions(downsample=1))).temporal.downsample == 1
 
 
 def test_depth_cli_on_a_directory_and_its_errors(clip, tmp_path, capsys):
@@ -346,6 +357,13 @@ def test_depth_cli_on_a_directory_and_its_errors(clip, tmp_path, capsys):
         ([clip / "frames", "--out", tmp_path / "o", "--every", 0], "every must be an int >= 1"),
         ([clip / "frames" / "f000.png", "--out", tmp_path / "o", "--every", 2], "need a video, a directory"),
         ([clip / "clip.avi", "--out", tmp_path / "o", "--start", 50], "--start 50 selects no frame"),
+        ([clip / "clip.avi", "--out", tmp_path / "o", "--temporal-binning", 0], "--temporal-binning must be >= 1"),
+        ([clip / "clip.avi", "--out", tmp_path / "o", "--temporal-binning", 2, "--no-temporal"],
+         "--temporal-binning places the temporal prior's band: not with --no-temporal"),
+        ([clip / "clip.avi", "--out", tmp_path / "o", "--temporal-binning", 2], "this model has no full-resolution "
+         "band for the temporal prior"),  # the small rig's default: one level
+        ([clip / "clip.avi", "--out", tmp_path / "o", "--temporal-binning", 64, "--downsample", 2, "--full-band", 2],
+         "downsample 64 leaves no level"),
         ([tmp_path / "copy", "--out", tmp_path / "copy", "--format", "png"], None),
     ]
     import shutil
