@@ -62,8 +62,10 @@ BENCHMARKS: dict[str, Benchmark] = {
         "entering the view, a cut) at 1024 x 768 and 640 x 480, and the per-pixel depth flicker of a static plane "
         "over 30 noisy frames. `temporal ONNX` is the default temporal graph (`TemporalOptions()`: the band on the "
         "2 x 2-binned frame for the 1024 x 768 pyramid, at full resolution for the one-level 640 x 480 model), "
-        "`temporal k=...` the band at the other resolution. What the numbers mean: usage.md, *Video and streams*. "
-        "First, `prismstereo depth` end to end on a video and on 16 captures (1 and 2 worker processes)."),
+        "`temporal k=...` the band at the other resolution and, at 1024 x 768, on the 3 x 3-binned frame "
+        "(`--temporal-binning 3`); `hybrid keys` the hybrid's key frames tracked by those bands (what `prismstereo "
+        "depth` runs). What the numbers mean: usage.md, *Video and streams*. First, `prismstereo depth` end to end "
+        "on a video and on 16 captures (1 and 2 worker processes)."),
     "keyframe_interval": Benchmark(
         "keyframe_interval.py", (), "Video: the key-frame interval of the temporal prior",
         "A 120-frame smooth sequence (back and forth over the moving plane) through the temporal ONNX stream with "
