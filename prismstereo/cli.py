@@ -105,9 +105,10 @@ def _demo_depth(rig: BiPrismRig, scale: int, out: Path) -> None:
 
     from prismstereo.defaults import default_model
     from prismstereo.depth.points import depth_to_points, write_ply
-    from prismstereo.io import write_depth_preview, write_image
+    from prismstereo.io import write_image
     from prismstereo.learned import HybridStereo
     from prismstereo.model import PrismStereo
+    from prismstereo.preview import write_depth_preview
     from prismstereo.synthetic import ImageFormation, render, step_scene
 
     small = rig.downscaled(scale)

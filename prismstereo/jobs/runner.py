@@ -252,7 +252,8 @@ class Runner:
                points: torch.Tensor | None, colors: torch.Tensor) -> str:
         """Write one result (depth (H, W_ref), its companions); returns the note for its line."""
         from prismstereo.depth import write_ply
-        from prismstereo.io import write_depth, write_depth_preview
+        from prismstereo.io import write_depth
+        from prismstereo.preview import write_depth_preview
 
         opts = self.options
         written = write_depth(files.depth, depth, valid, png_scale=opts.png_scale)
@@ -407,7 +408,7 @@ class Runner:
             try:
                 self._write(files, depth, valid, conf, points, colors)
                 if opts.preview_video is not None:
-                    from prismstereo.io import depth_preview
+                    from prismstereo.preview import depth_preview
 
                     add_preview(depth_preview(depth, valid, limits_mm=self.z_range))
             except BaseException:
