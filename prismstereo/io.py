@@ -91,7 +91,8 @@ def to_grey(image: torch.Tensor) -> torch.Tensor:
 
     The one conversion of colour captures and frames (the CLI's jobs, :class:`~prismstereo.stream.DepthStream`,
     :func:`~prismstereo.video.read_frames` with ``grey=True``, Ray's ``DepthPredictor``), so that a frame converted
-    on a reader thread is bit for bit the frame the stream would have converted.
+    on a reader thread is bit for bit the frame the stream would have converted. (A video's decoded 8-bit frames
+    take :func:`~prismstereo.video.frame_to_grey`: the same weights in one pass, equal to float rounding.)
 
     Args:
         image: (*, C, H, W) with C = 1 or 3 (RGB), floating point.

@@ -40,7 +40,7 @@ from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.io import to_grey
 from prismstereo.threads import torch_threads
-from prismstereo.video import frame_to_tensor
+from prismstereo.video import frame_to_grey, frame_to_tensor
 
 if TYPE_CHECKING:
     from prismstereo.export import OnnxDepth
@@ -177,7 +177,7 @@ class DepthStream:
 
     def _prepare(self, frame: torch.Tensor | np.ndarray) -> torch.Tensor:
         if isinstance(frame, np.ndarray):  # OpenCV's decoded frame: uint8 (H, W) or (H, W, 3) BGR
-            frame = frame_to_tensor(frame)
+            frame = frame_to_grey(frame) if self.channels == 1 else frame_to_tensor(frame)
         if not isinstance(frame, torch.Tensor) or frame.dim() not in (3, 4) or (frame.dim() == 4 and
                                                                                  frame.shape[0] != 1):
             got = tuple(frame.shape) if isinstance(frame, torch.Tensor) else type(frame).__name__

@@ -12,9 +12,16 @@ from kornia.color import rgb_to_grayscale
 from prismstereo import thesis_setup1
 from prismstereo.cli import main
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError
-from prismstereo.io import read_depth, write_image
+from prismstereo.io import read_depth, to_grey, write_image
 from prismstereo.stream import DepthStream
-from prismstereo.video import VideoError, frame_to_tensor, is_sequence_source, read_frames, sequence_length
+from prismstereo.video import (
+    VideoError,
+    frame_to_grey,
+    frame_to_tensor,
+    is_sequence_source,
+    read_frames,
+    sequence_length,
+)
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -60,10 +67,18 @@ def test_read_frames_of_videos_directories_and_globs(clip):
     assert all(torch.equal(a.image, b.image) for a, b in zip(files, same, strict=True))
     # MJPG is lossy: the video's frames are close to the PNGs, not equal
     assert float((video[1].image.mean(0) - list(read_frames(clip / "frames"))[2].image[0]).abs().mean()) < 0.03
-    # grey frames: what the stream converts colour frames to, bit for bit
+    # grey frames: what the stream converts decoded colour frames to (frame_to_grey), bit for bit; kornia's
+    # BT.601 grey of the colour frames to float rounding
     grey = list(read_frames(clip / "clip.avi", every=2, grey=True))
     assert [f.index for f in grey] == [0, 2, 4] and grey[0].image.shape == (1, 96, 128)
-    assert all(torch.equal(g.image, rgb_to_grayscale(f.image)) for g, f in zip(grey, video, strict=True))
+    for g, f in zip(grey, video, strict=True):
+        torch.testing.assert_close(g.image, rgb_to_grayscale(f.image), rtol=0.0, atol=2e-7)
+    capture = cv2.VideoCapture(str(clip / "clip.avi"))
+    try:
+        decoded = capture.read()[1]
+    finally:
+        capture.release()
+    assert torch.equal(grey[0].image, frame_to_grey(decoded))
     png = list(read_frames(clip / "frames", stop=1))[0].image
     assert png.shape[0] == 1 and torch.equal(list(read_frames(clip / "frames", stop=1, grey=True))[0].image, png)
 
@@ -77,6 +92,21 @@ def test_frame_to_tensor_reference_values():
     assert frame_to_tensor(bgr[..., 0]).shape == (1, 1, 2)
     with pytest.raises(ShapeError, match="uint8"):
         frame_to_tensor(bgr.astype(np.float32))
+
+
+def test_frame_to_grey_is_the_bt601_grey_of_the_frame():
+    bgr = np.array([[[0, 128, 255], [10, 20, 30], [255, 255, 255]]], dtype=np.uint8)  # (1, 3, 3) BGR
+    grey = frame_to_grey(bgr)
+    assert grey.shape == (1, 1, 3) and grey.dtype == torch.float32
+    expected = torch.tensor([0.299 * 255 + 0.587 * 128, 0.299 * 30 + 0.587 * 20 + 0.114 * 10, 255.0]) / 255.0
+    torch.testing.assert_close(grey[0, 0], expected, rtol=0.0, atol=2e-7)
+    frame = np.random.default_rng(0).integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    torch.testing.assert_close(frame_to_grey(frame), to_grey(frame_to_tensor(frame)), rtol=0.0, atol=2e-7)
+    assert torch.equal(frame_to_grey(frame[..., 1]), frame_to_tensor(frame[..., 1]))  # grey stays as it is
+    with pytest.raises(ShapeError, match="uint8"):
+        frame_to_grey(frame.astype(np.float32))
+    with pytest.raises(ShapeError, match="BGR"):
+        frame_to_grey(frame[..., :2])
 
 
 def test_read_frames_errors(clip, tmp_path):
@@ -242,13 +272,13 @@ def test_onnx_stream_does_its_tensor_work_on_one_torch_thread(export_once, monke
     streams = {"onnx": DepthStream(export_once(model)), "onnx 2": DepthStream(export_once(model)),
                "torch": DepthStream(model)}
     seen: dict[str, set[int]] = {name: set() for name in streams}
-    convert = stream_module.frame_to_tensor
+    convert = stream_module.frame_to_grey
 
     def spy(frame):  # the stream's conversion of an OpenCV frame, on the pushing thread
         seen[threading.current_thread().name].add(torch.get_num_threads())
         return convert(frame)
 
-    monkeypatch.setattr(stream_module, "frame_to_tensor", spy)
+    monkeypatch.setattr(stream_module, "frame_to_grey", spy)
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
