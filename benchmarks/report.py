@@ -68,8 +68,9 @@ BENCHMARKS: dict[str, Benchmark] = {
         "on a video and on 16 captures (1 and 2 worker processes)."),
     "keyframe_interval": Benchmark(
         "keyframe_interval.py", (), "Video: the key-frame interval of the temporal prior",
-        "A 120-frame smooth sequence (back and forth over the moving plane) through the temporal ONNX stream with "
-        "key frames at least every 10, 30 and 60 frames: time per frame, depth error and coverage."),
+        "A 240-frame smooth sequence (back and forth over the moving plane) through the temporal ONNX stream as "
+        "`prismstereo depth` runs it (the hybrid's key frames, the classical band between them) with key frames at "
+        "least every 30, 60 and 120 frames: time per frame, depth error and coverage."),
     "hybrid_budget": Benchmark(
         "hybrid_budget.py", (), "The time budget of a hybrid chain (block mode + a learned refinement stage)",
         "Untrained candidate refinement stages (warp + dilated 3 x 3 CNN) at 1/2 and full resolution beside the "

@@ -24,7 +24,7 @@ from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.presets import load_rig
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.io import DEPTH_FILE_FORMATS
-from prismstereo.jobs import BACKENDS
+from prismstereo.jobs import BACKENDS, session_threads
 
 __all__ = ["add_depth_parser", "add_export_parser"]
 
@@ -208,9 +208,9 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     temporal, tracker = None, None
     if cached is not None:  # exported before for the same request: no torch model to build
         threads = os.cpu_count() or 1  # as jobs.Runner's sessions
-        model = OnnxDepth(cached.path, threads=threads, spinning=False)
+        model = OnnxDepth(cached.path, threads=session_threads(threads), spinning=False)
         if tracked:
-            tracker = OnnxDepth(cached.temporal, threads=threads, spinning=False)
+            tracker = OnnxDepth(cached.temporal, threads=session_threads(threads, temporal=True), spinning=False)
             temporal = tracker.temporal
         summary = cached.summary + (" (cached graphs)" if tracked else " (cached graph)")
     else:

@@ -341,18 +341,36 @@ def test_depth_cli_uses_the_temporal_prior_on_videos_unless_told(clip, tmp_path,
 
 def test_depth_cli_runs_cached_graphs_of_a_video_without_a_torch_model(clip, tmp_path, monkeypatch, capsys):
     """A video's second ONNX run of the same request loads the per-frame and temporal graphs from the cache (no
-    torch model built) and writes what the first run wrote."""
+    torch model built) and writes what the first run wrote. Either way the temporal graph's session has one
+    intra-op thread, the per-frame graph's every core (jobs.session_threads)."""
+    import os
+
+    from prismstereo.export import OnnxDepth
+    from prismstereo.jobs import session_threads
+
+    opened: list[tuple[bool, int]] = []
+    original = OnnxDepth.__init__
+
+    def spy(self, path, **kwargs):
+        original(self, path, **kwargs)
+        opened.append((self.temporal is not None, self.session.get_session_options().intra_op_num_threads))
+
+    monkeypatch.setattr(OnnxDepth, "__init__", spy)
     monkeypatch.setenv("PRISMSTEREO_CACHE", str(tmp_path / "cache"))
     common = ["--rig", clip / "small.json", "--z-range", 400, 700, "--downsample", 2, "--full-band", 2,
               "--backend", "onnx"]
     assert _depth(clip / "clip.avi", "--out", tmp_path / "a", *common) == 0
     assert "(cached graph" not in capsys.readouterr().out
+    cores = os.cpu_count() or 1
+    assert sorted(set(opened)) == [(False, cores), (True, 1)] and session_threads(cores, temporal=True) == 1
     from prismstereo.model import PrismStereo
 
+    opened.clear()
     monkeypatch.setattr(PrismStereo, "__init__", lambda *a, **k: pytest.fail("a model was built"))
     assert _depth(clip / "clip.avi", "--out", tmp_path / "b", *common) == 0
     text = capsys.readouterr().out
     assert "(cached graphs), backend onnx" in text and re.search(r"\b[1-3] key frames", text), text
+    assert sorted(set(opened)) == [(False, cores), (True, 1)]
     for k in range(len(DEPTHS)):
         name = f"clip_{k:06d}.npy"
         np.testing.assert_array_equal(np.load(tmp_path / "a" / name), np.load(tmp_path / "b" / name))

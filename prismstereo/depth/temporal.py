@@ -87,7 +87,7 @@ class TemporalOptions:
     band_edges: BandEdges = "clamp"
     reach: int = 4
     min_prior_confidence: float = 0.5
-    keyframe_interval: int = 30
+    keyframe_interval: int = 60
     cut_threshold: float = 0.05
     max_invalid_growth: float = 0.02
     min_valid_ratio: float = 0.95

@@ -25,7 +25,7 @@ from prismstereo.threads import torch_threads
 if TYPE_CHECKING:
     from prismstereo.export import OnnxDepth
 
-__all__ = ["BACKENDS", "Runner", "TaskReport"]
+__all__ = ["BACKENDS", "Runner", "TaskReport", "session_threads"]
 
 BACKENDS = ("torch", "onnx")
 Backend = Literal["torch", "onnx"]
@@ -118,6 +118,19 @@ class _Writer:
 _FAILURES = (PrismStereoError, OSError)  # what fails one input (unreadable, wrong size, disk full), not the job
 
 
+def session_threads(threads: int, temporal: bool = False) -> int:
+    """The onnxruntime intra-op threads of a job's session: ``threads`` for the per-frame graph, one for the
+    temporal graph (the band between key frames). The band's graph is hundreds of small operations on the binned
+    frame that a second thread does not speed up, while waking it for each costs CPU time that the reader's
+    decoding and the writer need on the other core (``docs/design.md``, implementation choices).
+
+    Example:
+        >>> session_threads(2), session_threads(2, temporal=True)
+        (2, 1)
+    """
+    return 1 if temporal else threads
+
+
 class Runner:
     """One process's model and writers: depth of captures in batches, and of sequences frame after frame.
 
@@ -205,7 +218,8 @@ class Runner:
         if self._graph_path is not None:
             self.graph = OnnxDepth(self._graph_path, threads=threads, spinning=False)
         if self._tracker_path is not None:
-            self.tracker_graph = OnnxDepth(self._tracker_path, threads=threads, spinning=False)
+            self.tracker_graph = OnnxDepth(self._tracker_path, threads=session_threads(threads, temporal=True),
+                                           spinning=False)
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickled for a spawned worker or a Ray actor: the model (or the graphs' paths), not a session or callback."""
@@ -222,7 +236,8 @@ class Runner:
         from prismstereo.export import onnx_session
 
         model = self.model if temporal is None else self.tracker or self.model
-        return onnx_session(model, channels=1, threads=self.threads, temporal=temporal, spinning=False)
+        return onnx_session(model, channels=1, threads=session_threads(self.threads, temporal is not None),
+                            temporal=temporal, spinning=False)
 
     def depth(self, batch: torch.Tensor):
         """The model's (or graph's) result for a grey batch (B, 1, H, W): ``depth``, ``valid``, ``confidence``,
