@@ -106,10 +106,12 @@ def sequence_files(source: str | Path) -> list[Path]:
     return files
 
 
-def _open(path: Path) -> cv2.VideoCapture:
+def _open(path: Path, threads: int | None = None) -> cv2.VideoCapture:
     if not path.is_file():
         raise VideoError(f"video not found: {path}")
-    capture = cv2.VideoCapture(str(path))
+    # the decoder's threads are set as the capture opens (setting them afterwards has no effect)
+    capture = cv2.VideoCapture(str(path)) if threads is None else cv2.VideoCapture(
+        str(path), cv2.CAP_ANY, [cv2.CAP_PROP_N_THREADS, threads])
     if not capture.isOpened():
         raise VideoError(f"OpenCV cannot open the video {path}")
     return capture
@@ -204,7 +206,7 @@ def frame_to_grey(frame: np.ndarray) -> torch.Tensor:
 
 
 def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int | None = None,
-                grey: bool = False) -> Iterator[Frame]:
+                grey: bool = False, decode_threads: int | None = None) -> Iterator[Frame]:
     """The frames ``start``, ``start + every``, ... (< ``stop``) of a video file, directory or glob of images.
 
     Args:
@@ -215,6 +217,9 @@ def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int
         grey: frames as (1, H, W) grey, on the thread that reads them: what a one-channel model takes (a video's
             decoded frames by :func:`frame_to_grey`, images by :func:`~prismstereo.io.to_grey`: bit for bit what
             :class:`~prismstereo.stream.DepthStream` makes of the decoded frame or the image).
+        decode_threads: a video file's decoding threads (>= 1; None: OpenCV's default, about one per core). Where
+            the depth graph runs beside the reader on the same cores (``prismstereo depth``), the decoder's extra
+            threads preempt the graph's.
 
     Yields:
         Frame(index, image (C, H, W) float32 in [0, 1], name).
@@ -229,11 +234,14 @@ def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int
     check_selection(every, start, stop)
     if not isinstance(grey, bool):
         raise VideoError(f"grey must be a bool, got {grey!r}")
+    if decode_threads is not None and (isinstance(decode_threads, bool) or not isinstance(decode_threads, int)
+                                       or decode_threads < 1):
+        raise VideoError(f"decode_threads must be an int >= 1 or None, got {decode_threads!r}")
     text = str(source)
     wanted = (lambda i: i >= start and (i - start) % every == 0)
     if is_video_file(text):
         path = Path(text)
-        capture = _open(path)
+        capture = _open(path, decode_threads)
         try:
             index = 0
             while stop is None or index < stop:

@@ -123,10 +123,20 @@ def test_read_frames_errors(clip, tmp_path):
         list(read_frames(clip / "frames", start=3, stop=2))
     with pytest.raises(VideoError, match="grey must be a bool"):
         list(read_frames(clip / "frames", grey="yes"))
+    for threads in (0, 1.0, True):
+        with pytest.raises(VideoError, match="decode_threads must be an int >= 1 or None"):
+            list(read_frames(clip / "clip.avi", decode_threads=threads))
     (tmp_path / "seq").mkdir()
     (tmp_path / "seq" / "a.png").write_bytes(b"broken")
     with pytest.raises(VideoError, match="cannot read frame 0"):
         list(read_frames(tmp_path / "seq"))
+
+
+def test_read_frames_on_one_decoding_thread_decodes_the_same_frames(clip):
+    one = list(read_frames(clip / "clip.avi", decode_threads=1))
+    default = list(read_frames(clip / "clip.avi"))
+    assert len(one) == len(default) == 5
+    assert all(torch.equal(a.image, b.image) for a, b in zip(one, default, strict=True))
 
 
 def test_stream_torch_and_onnx_agree_and_number_frames(clip, export_once):
@@ -302,13 +312,26 @@ def test_onnx_stream_does_its_tensor_work_on_one_torch_thread(export_once, monke
 
 
 @pytest.mark.parametrize("backend", ["torch", "onnx"])
-def test_depth_cli_on_a_video_writes_numbered_frames(clip, tmp_path, capsys, backend):
+def test_depth_cli_on_a_video_writes_numbered_frames(clip, tmp_path, capsys, monkeypatch, backend):
+    import os
+
+    import prismstereo.video
+
+    asked = []
+    original = prismstereo.video.read_frames
+
+    def spy(*args, **kwargs):
+        asked.append(kwargs.get("decode_threads"))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(prismstereo.video, "read_frames", spy)
     out = tmp_path / "out"
     assert _depth(clip / "clip.avi", "--rig", clip / "small.json", "--out", out, "--z-range", 400, 700,
                   "--every", 2, "--backend", backend, "--preview-video", tmp_path / "preview.mp4",
                   "--format", "tiff") == 0
     text = capsys.readouterr().out
     assert "3 depth maps to write from 1 of 1 inputs" in text and "frames/s" in text
+    assert asked == [max(1, (os.cpu_count() or 1) - 1)]  # decoded on every core but the graph's
     names = sorted(p.name for p in out.iterdir())
     assert names == ["clip_000000.tiff", "clip_000001.tiff", "clip_000002.tiff"]
     for k, z in enumerate(DEPTHS[::2]):

@@ -236,7 +236,8 @@ class TemporalDepth(nn.Module):
             depth = torch.where(placed, prior_depth.to(image.dtype), z_range[0])  # any finite depth elsewhere
             s_p = depth_to_sweep(depth, z_range).clamp(-1.0, 1.0)
             if k > 1:  # the binned prior: each block's mean over its placed pixels, where half of them are
-                s_p, placed = _binned_prior(s_p, placed, k, level.rig.image_height, level.rig.reference_width)
+                s_p, placed = _binned_prior(s_p, placed, k, level.rig.image_height, level.rig.reference_width,
+                                            (h, self.rig.reference_width))
             s_c, reach = extend_estimate(s_p, placed, self.options.reach)
             s0 = s_c.clamp(-1.0, 1.0)
         if k > 1:
@@ -282,11 +283,15 @@ class TemporalDepth(nn.Module):
                            torch.cat(series_at(final.series, s), 1))
 
 
-def _binned_prior(s: torch.Tensor, placed: torch.Tensor, k: int, h: int, w: int) -> tuple[torch.Tensor, torch.Tensor]:
+def _binned_prior(s: torch.Tensor, placed: torch.Tensor, k: int, h: int, w: int,
+                  full: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
     """(B, 1, H, W_ref) sweep coordinates and usable-prior mask binned by k x k to the binned level's (B, 1, h, w):
-    the mean over each block's usable pixels, usable where at least half of them are."""
+    the mean over each block's usable pixels, usable where at least half of them are. ``full``: (H, W_ref) as ints
+    (static in an exported graph)."""
     weight = placed.to(s.dtype)
     # ceil_mode: a reference half whose width k does not divide (512 / 3) has a last binned column of fewer pixels
-    share = F.avg_pool2d(weight, k, ceil_mode=True)[..., :h, :w]
-    mean = F.avg_pool2d(s * weight, k, ceil_mode=True)[..., :h, :w] / share.clamp_min(1e-6)
+    # (only then: onnxruntime's pooling with ceil_mode is slower, where it changes nothing)
+    ceil = bool(full[0] % k or full[1] % k)
+    share = F.avg_pool2d(weight, k, ceil_mode=ceil)[..., :h, :w]
+    mean = F.avg_pool2d(s * weight, k, ceil_mode=ceil)[..., :h, :w] / share.clamp_min(1e-6)
     return mean.clamp(-1.0, 1.0), share >= 0.5

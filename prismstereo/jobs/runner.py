@@ -431,9 +431,10 @@ class Runner:
                 raise
             return True
 
-        # grey frames from the reader thread, unless the point cloud takes the frames' colours
+        # grey frames from the reader thread, unless the point cloud takes the frames' colours; a video decoded on
+        # every core but one (the graph's, or under the temporal prior the band's: session_threads)
         frames = read_frames(task.source, every=sel.every, start=sel.start + task.first * sel.every, stop=sel.stop,
-                             grey=not opts.ply)
+                             grey=not opts.ply, decode_threads=max(1, self.threads - 1))
         try:
             for files, frame in zip(task.outputs[task.first:], _prefetch(frames, depth=4), strict=False):
                 res = stream.push(frame.image)
