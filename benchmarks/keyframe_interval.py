@@ -4,7 +4,8 @@ The moving sequence of ``benchmarks/video_speed.py`` (30 frames of a slanted pla
 ``thesis_setup1`` at 1024 x 768, range 228-1374 mm) played back and forth to ``--frames`` frames, through a
 :class:`~prismstereo.stream.DepthStream` as ``prismstereo depth`` runs it: key frames by the sensor's default model
 (the hybrid's exported graph, 2 intra-op threads), tracked by the classical model's temporal graph (one thread,
-:func:`~prismstereo.jobs.session_threads`), with ``TemporalOptions(keyframe_interval=K)`` for each ``--intervals`` K.
+:func:`~prismstereo.threads.session_threads`), with ``TemporalOptions(keyframe_interval=K)`` for each
+``--intervals`` K.
 Printed per K: the key frames, the mean and median per-frame time of the stream, the mean relative depth error over
 the co-visible valid pixels (mean over frames, and the worst frame) and the coverage (mean and lowest frame).
 
@@ -27,8 +28,7 @@ from video_speed import Z_RANGE, _pingpong, sensor, sequences  # noqa: E402
 
 from prismstereo import PrismStereo  # noqa: E402
 from prismstereo.depth.temporal import TemporalOptions  # noqa: E402
-from prismstereo.export import OnnxDepth, export_onnx  # noqa: E402
-from prismstereo.jobs import session_threads  # noqa: E402
+from prismstereo.export import export_onnx  # noqa: E402
 from prismstereo.learned import HybridStereo  # noqa: E402
 from prismstereo.stream import DepthStream  # noqa: E402
 from prismstereo.synthetic import ImageFormation, render  # noqa: E402
@@ -47,12 +47,11 @@ def main() -> None:
     print(f"thesis_setup1 1024 x 768, {Z_RANGE[0]:g}-{Z_RANGE[1]:g} mm, {args.frames} frames back and forth over the "
           "moving sequence's 30")
     with tempfile.TemporaryDirectory() as folder:
-        graph = OnnxDepth(export_onnx(HybridStereo(rig, Z_RANGE).eval(), Path(folder) / "frame.onnx"),
-                          threads=session_threads(2))
-        tracker = OnnxDepth(export_onnx(model, Path(folder) / "temporal.onnx", temporal=TemporalOptions()),
-                            threads=session_threads(2, temporal=True))
-        for k in args.intervals:
-            stream = DepthStream(graph, temporal_graph=tracker, temporal=TemporalOptions(keyframe_interval=k))
+        graph = export_onnx(HybridStereo(rig, Z_RANGE).eval(), Path(folder) / "frame.onnx")
+        tracker = export_onnx(model, Path(folder) / "temporal.onnx", temporal=TemporalOptions())
+        for k in args.intervals:  # sessions as the CLI opens them
+            stream = DepthStream(graph, temporal_graph=tracker, temporal=TemporalOptions(keyframe_interval=k),
+                                 threads=2, spinning=False)
             errors, coverage = [], []
             for i in _pingpong(30, args.frames):
                 res = stream.push(caps.image[i])

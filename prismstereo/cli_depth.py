@@ -24,7 +24,8 @@ from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.presets import load_rig
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.io import DEPTH_FILE_FORMATS
-from prismstereo.jobs import BACKENDS, session_threads
+from prismstereo.jobs import BACKENDS
+from prismstereo.threads import session_threads
 
 __all__ = ["add_depth_parser", "add_export_parser"]
 

@@ -39,7 +39,7 @@ from torch import nn
 from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.io import to_grey
-from prismstereo.threads import torch_threads
+from prismstereo.threads import session_threads, torch_threads
 from prismstereo.video import frame_to_grey, frame_to_tensor
 
 if TYPE_CHECKING:
@@ -98,7 +98,8 @@ class DepthStream:
             tracks between key frames (default ``model`` itself). Key frames by a model without a band, such as
             :class:`~prismstereo.learned.HybridStereo`, tracked by the classical band: the key frames cost what
             that model costs.
-        threads: onnxruntime intra-op threads (ONNX graphs only).
+        threads: onnxruntime intra-op threads (ONNX graphs opened from a path; a temporal graph's: one,
+            :func:`~prismstereo.threads.session_threads`).
         spinning: onnxruntime thread spinning (ONNX graphs only; see :class:`~prismstereo.export.OnnxDepth`).
 
     Attributes:
@@ -165,7 +166,7 @@ class DepthStream:
                 raise OptionError("an ONNX stream with the temporal prior needs temporal_graph: the model's temporal "
                                   "graph (export_onnx(model, path, temporal=TemporalOptions()))")
             graph = temporal_graph if isinstance(temporal_graph, OnnxDepth) else OnnxDepth(
-                temporal_graph, threads=threads, spinning=spinning)
+                temporal_graph, threads=session_threads(threads, temporal=True), spinning=spinning)
             if graph.temporal is None:
                 raise OptionError(f"{graph.path.name} is a per-frame graph, not a temporal one")
             if graph.input_shape != self._runner.input_shape:

@@ -1,4 +1,5 @@
-"""torch's intra-op thread count, owned in one place: scoped settings and a batch evaluated image by image.
+"""Thread counts, owned in one place: torch's intra-op count (scoped settings, a batch evaluated image by image)
+and the onnxruntime sessions' (:func:`session_threads`).
 
 ``torch.set_num_threads`` sets the count of the calling thread and the default of threads that start later, so two
 pieces of code on different threads that each set it and restore "their" previous value can restore a count the
@@ -28,7 +29,7 @@ import torch
 
 from prismstereo.errors import check_int, check_shape
 
-__all__ = ["per_image", "torch_threads"]
+__all__ = ["per_image", "session_threads", "torch_threads"]
 
 T = TypeVar("T")
 
@@ -112,3 +113,17 @@ def per_image(fn: Callable[[torch.Tensor], T], images: torch.Tensor) -> list[T]:
 
     with ThreadPoolExecutor(workers) as pool:
         return list(pool.map(share, range(b)))
+
+
+def session_threads(threads: int, temporal: bool = False) -> int:
+    """The onnxruntime intra-op threads of a session opened with ``threads``: all of them for the per-frame graph,
+    one for the temporal graph (the band between key frames). The band's graph is hundreds of small operations on
+    the binned frame that a second thread does not speed up, while waking it for each costs CPU time that a video's
+    decoding and the writing need on the other core (``docs/design.md``, implementation choices). What
+    :class:`~prismstereo.stream.DepthStream` and the jobs (``prismstereo depth``) open the graphs with.
+
+    Example:
+        >>> session_threads(2), session_threads(2, temporal=True)
+        (2, 1)
+    """
+    return 1 if temporal else threads

@@ -171,6 +171,10 @@ def test_temporal_streams_of_both_backends_agree(clip, tmp_path):
     per_frame = export_onnx(model, tmp_path / "m.onnx")
     onnx_stream = DepthStream(per_frame, temporal_graph=export_onnx(model, tmp_path / "t.onnx", temporal=options))
     assert torch_stream.temporal == onnx_stream.temporal == options
+    # sessions opened from paths: the temporal graph on one intra-op thread (threads.session_threads)
+    opened = [g.session.get_session_options().intra_op_num_threads for g in (onnx_stream._runner,
+                                                                             onnx_stream._tracker)]
+    assert opened == [2, 1]
     for k, (frame, z) in enumerate(zip(frames, DEPTHS, strict=True)):
         a, b = torch_stream.push(frame), onnx_stream.push(frame)
         assert a.keyframe == b.keyframe and (a.keyframe or k > 0)  # 20 mm steps: some frames need the full model
@@ -365,11 +369,11 @@ def test_depth_cli_uses_the_temporal_prior_on_videos_unless_told(clip, tmp_path,
 def test_depth_cli_runs_cached_graphs_of_a_video_without_a_torch_model(clip, tmp_path, monkeypatch, capsys):
     """A video's second ONNX run of the same request loads the per-frame and temporal graphs from the cache (no
     torch model built) and writes what the first run wrote. Either way the temporal graph's session has one
-    intra-op thread, the per-frame graph's every core (jobs.session_threads)."""
+    intra-op thread, the per-frame graph's every core (threads.session_threads)."""
     import os
 
     from prismstereo.export import OnnxDepth
-    from prismstereo.jobs import session_threads
+    from prismstereo.threads import session_threads
 
     opened: list[tuple[bool, int]] = []
     original = OnnxDepth.__init__

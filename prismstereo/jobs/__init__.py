@@ -22,7 +22,7 @@ Example:
 
 from prismstereo.jobs.plan import Outputs, Selection, Task, WriteOptions, plan
 from prismstereo.jobs.run import JobSummary, run
-from prismstereo.jobs.runner import BACKENDS, Runner, TaskReport, session_threads
+from prismstereo.jobs.runner import BACKENDS, Runner, TaskReport
 
 __all__ = ["Outputs", "WriteOptions", "Selection", "Task", "TaskReport", "JobSummary", "Runner", "plan", "run",
-           "BACKENDS", "session_threads"]
+           "BACKENDS"]

@@ -20,12 +20,12 @@ from torch import nn
 from prismstereo.errors import PrismStereoError, check_option
 from prismstereo.io import replacing
 from prismstereo.jobs.plan import Outputs, Task, WriteOptions
-from prismstereo.threads import torch_threads
+from prismstereo.threads import session_threads, torch_threads
 
 if TYPE_CHECKING:
     from prismstereo.export import OnnxDepth
 
-__all__ = ["BACKENDS", "Runner", "TaskReport", "session_threads"]
+__all__ = ["BACKENDS", "Runner", "TaskReport"]
 
 BACKENDS = ("torch", "onnx")
 Backend = Literal["torch", "onnx"]
@@ -116,19 +116,6 @@ class _Writer:
 
 
 _FAILURES = (PrismStereoError, OSError)  # what fails one input (unreadable, wrong size, disk full), not the job
-
-
-def session_threads(threads: int, temporal: bool = False) -> int:
-    """The onnxruntime intra-op threads of a job's session: ``threads`` for the per-frame graph, one for the
-    temporal graph (the band between key frames). The band's graph is hundreds of small operations on the binned
-    frame that a second thread does not speed up, while waking it for each costs CPU time that the reader's
-    decoding and the writer need on the other core (``docs/design.md``, implementation choices).
-
-    Example:
-        >>> session_threads(2), session_threads(2, temporal=True)
-        (2, 1)
-    """
-    return 1 if temporal else threads
 
 
 class Runner:
