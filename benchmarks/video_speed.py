@@ -11,18 +11,18 @@ static scene.
    * ``cut``: the moving plane for the first half, then a cut to another texture on a plane at 800 -> 780 mm.
 
    Every frame goes through the ``DepthStream`` s of the default ``PrismStereo`` over 228-1374 mm, exported once
-   (onnxruntime, 2 intra-op threads): per frame, with the temporal prior (its own temporal graph,
-   ``TemporalOptions()``, whose band runs on the 2 x 2-binned frame for the 1024 x 768 pyramid and at full
-   resolution for the one-level 640 x 480 model; key frames by its rules) and with the band at the other of the
-   two resolutions (``temporal k=1`` / ``k=2``) and, for the pyramid, on the 3 x 3-binned frame (``temporal k=3``:
-   ``--temporal-binning 3``), where the hybrid is the sensor's default (1024 x 768) also with its key frames
-   tracked by the binned temporal graphs (``hybrid keys``: what ``prismstereo depth`` runs), and through
-   OpenCV's ``StereoSGBM`` (numDisparities covering
-   the range's correspondence spread, blockSize 5, else defaults) and ``StereoBM`` (same) on the two 8-bit halves,
-   one method after the other per frame, 0.1 s apart (``cv2.setNumThreads(2)``). Printed per method: median and
-   95th-percentile ms per frame, frames/s, the median over frames of the same-frame ratio to SGBM, the mean
-   relative depth error and coverage over the co-visible reference pixels (OpenCV's disparities converted to depth
-   through the exact sweep, as ``benchmarks/onnx_speed.py``) and the temporal stream's key frames.
+   (onnxruntime, 2 intra-op threads, a temporal graph 1: ``threads.session_threads``): per frame, with the temporal
+   prior (its own temporal graph, ``TemporalOptions()``, whose band runs on the 2 x 2-binned frame for the 1024 x 768
+   pyramid and at full resolution for the one-level 640 x 480 model; key frames by its rules) and with the band at
+   the other of the two resolutions (``temporal k=1`` / ``k=2``) and, for the pyramid, on the 3 x 3-binned frame
+   (``temporal k=3``: ``--temporal-binning 3``), where the hybrid is the sensor's default (1024 x 768) also with its
+   key frames tracked by the binned temporal graphs (``hybrid keys``: what ``prismstereo depth`` runs), and through
+   OpenCV's ``StereoSGBM`` (numDisparities covering the range's correspondence spread, blockSize 5, else defaults)
+   and ``StereoBM`` (same) on the two 8-bit halves, one method after the other per frame, 0.1 s apart
+   (``cv2.setNumThreads(2)``). Printed per method: median and 95th-percentile ms per frame, frames/s, the median over
+   frames of the same-frame ratio to SGBM, the mean relative depth error and coverage over the co-visible reference
+   pixels (OpenCV's disparities converted to depth through the exact sweep, as ``benchmarks/onnx_speed.py``) and the
+   temporal stream's key frames.
 2. **Flicker**: ``--static`` captures of a textured plane at 600 mm that differ only in their noise (read noise
    2/255, a new seed per frame): per pixel valid in every frame, the standard deviation of depth over the frames;
    the median over pixels (mm and % of depth) per frame, with the temporal prior and for SGBM.
