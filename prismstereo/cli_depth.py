@@ -362,21 +362,35 @@ def add_depth_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from prismstereo.export import OnnxDepth, describe, export_onnx
+    import shutil
+
+    from prismstereo.export import DEFAULT_OPSET, OnnxDepth, describe, export_onnx, recall, request_key
+    from prismstereo.io import replacing
 
     out = Path(args.out)
     if out.suffix.lower() != ".onnx":
         raise PrismStereoError(f"--out must end in .onnx, got {out}")
     rig = load_rig(args.rig)
     config = _requested_config(args)  # --preset / --config: checked as for depth
-    model, summary = _build_model(args, rig, _model_kind(args, rig), config)
-    print(summary)
+    kind = _model_kind(args, rig)
+    cached = None  # the graph `prismstereo depth --backend onnx` exported for the same request (grey, default opset)
+    if args.channels == 1 and args.opset == DEFAULT_OPSET:
+        cached = recall(request_key(rig, _request(args, config, kind)))
     t0 = time.perf_counter()
-    export_onnx(model, out, channels=args.channels, opset=args.opset)
-    seconds = time.perf_counter() - t0
+    if cached is not None:  # no torch model to build: the cached file, copied whole
+        print(f"{cached.summary} (cached graph)")
+        with replacing(out) as partial:
+            shutil.copyfile(cached.path, partial)
+        how = f"copied from the cache in {time.perf_counter() - t0:.1f} s"
+    else:
+        model, summary = _build_model(args, rig, kind, config)
+        print(summary)
+        t0 = time.perf_counter()
+        export_onnx(model, out, channels=args.channels, opset=args.opset)
+        how = f"exported in {time.perf_counter() - t0:.1f} s"
     runner = OnnxDepth(out)  # proves the file loads in onnxruntime with all graph optimisations
-    print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, exported in {seconds:.1f} s, onnxruntime load "
-          f"{runner.load_seconds:.1f} s): {describe(runner.metadata)}")
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, {how}, onnxruntime load {runner.load_seconds:.1f} s): "
+          f"{describe(runner.metadata)}")
     return 0
 
 

@@ -250,6 +250,16 @@ def test_onnx_backend_matches_torch(scene, tmp_path, monkeypatch, capsys):
     assert _run(scene, scene / "far.png", "--out", c, "--z-range", 400, 700, "--backend", "onnx") == 0
     assert "(cached graph)" in capsys.readouterr().out
     np.testing.assert_array_equal(np.load(b), np.load(c))
+    # `prismstereo export` of the same request copies the cached graph (another opset is another export)
+    out = tmp_path / "exported.onnx"
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(out), "--z-range", "400", "700"]) == 0
+    text = capsys.readouterr().out
+    assert "(cached graph)" in text and "copied from the cache" in text, text
+    assert out.read_bytes() == next((tmp_path / "cache" / "onnx").glob("*.onnx")).read_bytes()
+    assert not list(tmp_path.glob(".*partial*"))
+    with pytest.raises(pytest.fail.Exception, match="a model was built"):
+        main(["export", "--rig", str(scene / "small.json"), "--out", str(out), "--z-range", "400", "700",
+              "--opset", "17"])
     da, db = np.load(a), np.load(b)
     both = np.isfinite(da) & np.isfinite(db)
     assert both.mean() > 0.5 and (np.isfinite(da) == np.isfinite(db)).mean() >= 0.999
