@@ -77,7 +77,7 @@ class _Prior(NamedTuple):
 
 
 def _share(valid: torch.Tensor) -> float:
-    """The share of True in a bool mask (numpy's count: a tenth of the time of a mean over its float copy)."""
+    """The share of True in a bool mask (numpy counts it in place, without a float copy of the mask)."""
     return np.count_nonzero(valid.numpy(force=True)) / max(valid.numel(), 1)
 
 

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import torch
 
-from prismstereo.errors import PrismStereoError, ShapeError
+from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_int
 from prismstereo.io import ImageIOError, read_image, to_grey
 
 __all__ = ["VideoError", "Frame", "VIDEO_SUFFIXES", "IMAGE_SUFFIXES", "is_sequence_source", "is_video_file",
@@ -198,9 +198,9 @@ def frame_to_grey(frame: np.ndarray) -> torch.Tensor:
         >>> frame_to_grey(np.full((2, 3, 3), 255, np.uint8)).shape
         torch.Size([1, 2, 3])
     """
+    if not isinstance(frame, np.ndarray) or frame.ndim != 3:  # grey (or not a frame: its error)
+        return frame_to_tensor(frame)
     _check_frame(frame)
-    if frame.ndim == 2:
-        return torch.from_numpy(frame.astype(np.float32) / np.float32(255.0))[None]
     # cv2.transform: each pixel's weighted channel sum, one pass over the float frame (the weights carry the 1 / 255)
     return torch.from_numpy(cv2.transform(frame.astype(np.float32), _BGR_LUMA).reshape(frame.shape[:2]))[None]
 
@@ -234,9 +234,10 @@ def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int
     check_selection(every, start, stop)
     if not isinstance(grey, bool):
         raise VideoError(f"grey must be a bool, got {grey!r}")
-    if decode_threads is not None and (isinstance(decode_threads, bool) or not isinstance(decode_threads, int)
-                                       or decode_threads < 1):
-        raise VideoError(f"decode_threads must be an int >= 1 or None, got {decode_threads!r}")
+    try:
+        check_int(decode_threads, "decode_threads", 1, none=True)
+    except OptionError as exc:
+        raise VideoError(str(exc)) from exc
     text = str(source)
     wanted = (lambda i: i >= start and (i - start) % every == 0)
     if is_video_file(text):
