@@ -18,6 +18,7 @@ algorithm (the power series of :mod:`~prismstereo.epipolar.series`, the table ga
   :func:`sample_grid` (bilinear samples at normalised positions, border padding), is the package's one bilinear
   ``grid_sample``, which the plane-sweep slices and the rectified level's resampling call in both runtimes.
 * :func:`scatter_min`: a scatter with a minimum (``scatter_reduce`` vs one ScatterElements).
+* :func:`crop`: the top-left (h, w) of a map (a view in eager; exported, a Slice only along an axis that is longer).
 """
 
 from __future__ import annotations
@@ -25,8 +26,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-__all__ = ["GATHER_ROWS", "box_max", "box_mean", "exporting", "fill_invalid", "flat_index", "gather_bilinear",
-           "in_place", "sample_bilinear", "sample_grid", "scan_eager", "scan_traced", "scatter_min", "tracing"]
+__all__ = ["GATHER_ROWS", "box_max", "box_mean", "crop", "exporting", "fill_invalid", "flat_index",
+           "gather_bilinear", "in_place", "sample_bilinear", "sample_grid", "scan_eager", "scan_traced",
+           "scatter_min", "tracing"]
 
 # onnxruntime's GatherElements runs the rows of its index (all axes before the gathered one) on its threads and one
 # row on one thread: the bilinear taps gather from the image repeated on this many rows (a Concat, a copy of the
@@ -64,6 +66,20 @@ def in_place(t: torch.Tensor) -> bool:
         (True, False)
     """
     return not exporting() and not (torch.is_grad_enabled() and t.requires_grad)
+
+
+def crop(t: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """The top-left ``h`` x ``w`` of a (..., H, W) map with H >= h and W >= w, sliced only along an axis longer than
+    asked: in torch eager a slice is a view either way, but an exported Slice copies the map even when it keeps all
+    of it (a binned map whose size k divides, the interpolation of a level back onto the size it came from).
+
+    Example:
+        >>> crop(torch.zeros(1, 1, 5, 4), 4, 4).shape
+        torch.Size([1, 1, 4, 4])
+    """
+    if t.shape[-2] > h:
+        t = t[..., :h, :]
+    return t[..., :w] if t.shape[-1] > w else t
 
 
 def fill_invalid(volume: torch.Tensor, valid: torch.Tensor, value: float, bounded: bool = False) -> torch.Tensor:

@@ -39,8 +39,7 @@ from prismstereo.epipolar.sweep_table import tabulate_sweep, valid_interval
 from prismstereo.errors import OptionError, check_option
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.matching.aggregate import box_std
-from prismstereo.matching.band import FineBand, extend_estimate
+from prismstereo.matching.band import FineBand, extend_estimate, texture_of
 from prismstereo.matching.confidence import (
     CLAMPED_WEIGHTS,
     SMOOTHED_FEATURES,
@@ -49,9 +48,11 @@ from prismstereo.matching.confidence import (
     local_spread,
     smoothed_features,
 )
+from prismstereo.matching.cost import reference_moments
 from prismstereo.matching.postprocess import robust_mean
 from prismstereo.matching.search import build_search
 from prismstereo.matching.split import SplitImage
+from prismstereo.runtime import crop
 
 __all__ = ["DepthLevel", "LevelEstimate", "Placement", "upsample"]
 
@@ -112,7 +113,7 @@ def upsample(t: torch.Tensor, factor: int, size: tuple[int, int], mode: Literal[
     if t.shape[-2] < h or t.shape[-1] < w:
         pad = (0, max(0, w - t.shape[-1]), 0, max(0, h - t.shape[-2]))
         t = F.pad(t, pad, mode="replicate") if beyond == "replicate" else F.pad(t, pad)
-    return t[..., :h, :w]
+    return crop(t, h, w)
 
 
 class DepthLevel(nn.Module):
@@ -278,12 +279,14 @@ class DepthLevel(nn.Module):
         config = self.config
         fine = self.fine if fine is None else fine
         calibration = self.calibration if calibration is None else calibration
-        # the reference's texture (grey std over the cost window): the wide box's weight and a feature
+        # the reference's window moments (ZNCC's), whose variance's root is its texture (grey std over the cost
+        # window): the wide box's weight and a feature
         calibrated = config.validity.validity == "calibrated"
-        texture = None
-        if calibrated or config.aggregation.wide_box > config.aggregation.fine_box:
-            texture = box_std(ref if ref.shape[1] == 1 else ref.mean(1, keepdim=True), config.cost.window).detach()
-        s, ok, confidence, match = fine(ref, other, s0, ok0, self.series, self.interval, texture)
+        moments = texture = None
+        if calibrated or config.aggregation.wide_box > config.aggregation.fine_box or fine.cost == "zncc":
+            moments = reference_moments(ref, config.cost.window)  # ZNCC's gradients pass through these
+            texture = texture_of(moments[1]).detach()
+        s, ok, confidence, match = fine(ref, other, s0, ok0, self.series, self.interval, moments)
         sampled = ok  # the band had a real sample (a dense model's depths), before the validity rules
         features = None
         if calibrated:  # the probability of a depth within 1 % (matching.confidence)

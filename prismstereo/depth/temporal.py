@@ -45,6 +45,7 @@ from prismstereo.epipolar.sweep import depth_to_sweep, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_int, check_number, check_option, check_shape
 from prismstereo.matching.band import FineBand, extend_estimate
 from prismstereo.matching.confidence import CLAMPED_WEIGHTS, ConfidenceModel
+from prismstereo.runtime import crop
 
 __all__ = ["TEMPORAL_BAND_EDGES", "TemporalDepth", "TemporalOptions", "supports_temporal", "temporal_downsample"]
 
@@ -241,7 +242,7 @@ class TemporalDepth(nn.Module):
             s_c, reach = extend_estimate(s_p, placed, self.options.reach)
             s0 = s_c.clamp(-1.0, 1.0)
         if k > 1:
-            binned = F.avg_pool2d(image, k)[..., :level.rig.image_height, :level.rig.image_width]
+            binned = crop(F.avg_pool2d(image, k), level.rig.image_height, level.rig.image_width)
             ref, other = level.split(binned)
         else:
             ref, other = level.split(image)
@@ -292,6 +293,6 @@ def _binned_prior(s: torch.Tensor, placed: torch.Tensor, k: int, h: int, w: int,
     # ceil_mode: a reference half whose width k does not divide (512 / 3) has a last binned column of fewer pixels
     # (only then: onnxruntime's pooling with ceil_mode is slower, where it changes nothing)
     ceil = bool(full[0] % k or full[1] % k)
-    share = F.avg_pool2d(weight, k, ceil_mode=ceil)[..., :h, :w]
-    mean = F.avg_pool2d(s * weight, k, ceil_mode=ceil)[..., :h, :w] / share.clamp_min(1e-6)
+    share = crop(F.avg_pool2d(weight, k, ceil_mode=ceil), h, w)
+    mean = crop(F.avg_pool2d(s * weight, k, ceil_mode=ceil), h, w) / share.clamp_min(1e-6)
     return mean.clamp(-1.0, 1.0), share >= 0.5

@@ -17,8 +17,8 @@ from torch import nn
 
 from prismstereo.epipolar.series import series_at, series_band
 from prismstereo.errors import OptionError, ShapeError, check_number, check_shape
-from prismstereo.matching.aggregate import box_filter, box_std
-from prismstereo.matching.cost import Warped, grey, sweep_cost
+from prismstereo.matching.aggregate import box_filter
+from prismstereo.matching.cost import Warped, grey, reference_moments, sweep_cost
 from prismstereo.matching.search import LevelResult, similarity
 from prismstereo.matching.select import refine, winner_take_all
 from prismstereo.matching.sweep_cost import sample_points
@@ -27,7 +27,7 @@ from prismstereo.runtime import tracing
 if TYPE_CHECKING:
     from prismstereo.config import StereoConfig
 
-__all__ = ["EXPORT_STRIP_VOXELS", "Extended", "FineBand", "STRIP_VOXELS", "extend_estimate"]
+__all__ = ["EXPORT_STRIP_VOXELS", "Extended", "FineBand", "STRIP_VOXELS", "extend_estimate", "texture_of"]
 
 STRIP_VOXELS = 400_000
 """Fine band voxels per strip in torch eager (cache-sized float32 volumes): :attr:`FineBand.strip_voxels`."""
@@ -104,12 +104,14 @@ class FineBand(nn.Module):
         self.strip_voxels, self.export_strip_voxels = STRIP_VOXELS, EXPORT_STRIP_VOXELS
 
     def forward(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
-                series: torch.Tensor, interval: torch.Tensor, texture: torch.Tensor | None = None) -> LevelResult:
+                series: torch.Tensor, interval: torch.Tensor,
+                moments: tuple[torch.Tensor, torch.Tensor] | None = None) -> LevelResult:
         """The band around ``s0`` (B, 1, H, W) (detached, in [-1, 1]) with the estimate's validity ``ok0``;
         ``series`` (2, D + 1, H, W) the exact sweep (:func:`~prismstereo.epipolar.series.sweep_series`),
         ``interval`` (2, H, W) each pixel's valid s (:func:`~prismstereo.epipolar.sweep_table.valid_interval`);
-        ``texture`` optionally (B, 1, H, W) the reference's grey :func:`~prismstereo.matching.aggregate.box_std`
-        over the cost window (the wide box's weight; computed here when None)."""
+        ``moments`` optionally the reference's :func:`~prismstereo.matching.cost.reference_moments` over the cost
+        window, (B, 1, H, W) each (ZNCC's, and the wide box's weight from the variance's root; computed here when
+        None)."""
         exporting = tracing()
         h = reference.shape[-2]
         halo = self.window // 2 + max(self.box, self.wide_box) // 2
@@ -118,19 +120,20 @@ class FineBand(nn.Module):
         voxels = (2 * self.band + 1) * int(reference.shape[-1]) * (1 if exporting else int(reference.shape[0]))
         rows = max(16, (self.export_strip_voxels if exporting else self.strip_voxels) // voxels)
         if rows >= h:  # one piece: no slices (in an exported graph each Slice, and a Concat of one, is a copy)
-            return self._rows(reference, other, s0, ok0, series, 0, interval, texture)
+            return self._rows(reference, other, s0, ok0, series, 0, interval, moments)
         strips = []
         for top in range(0, h, rows):
             lo, hi = max(0, top - halo), min(h, top + rows + halo)
             res = self._rows(reference[..., lo:hi, :], other, s0[..., lo:hi, :], ok0[..., lo:hi, :],
-                             series, lo, interval[:, lo:hi], None if texture is None else texture[..., lo:hi, :])
+                             series, lo, interval[:, lo:hi],
+                             None if moments is None else tuple(m[..., lo:hi, :] for m in moments))
             keep = slice(top - lo, top - lo + min(rows, h - top))
             strips.append([None if t is None else t[..., keep, :] for t in res])
         return LevelResult(*(None if ts[0] is None else torch.cat(ts, -2) for ts in zip(*strips, strict=True)))
 
     def _rows(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
               series: torch.Tensor, top: int, interval: torch.Tensor,
-              texture: torch.Tensor | None = None) -> LevelResult:
+              moments: tuple[torch.Tensor, torch.Tensor] | None = None) -> LevelResult:
         """The band on rows ``top`` ... of the image (``series`` whole, ``interval`` of these rows)."""
         step = self.step
         offsets = torch.arange(-self.band, self.band + 1, device=reference.device).to(reference.dtype) * step
@@ -143,12 +146,15 @@ class FineBand(nn.Module):
         lo, hi = interval.to(reference).unbind(0)
         t = offsets.view(1, -1, 1, 1)  # s0 + t_j within the pixel's interval (beyond [-1, 1]: outside it)
         warped = Warped(sample_points(other, x, y), (t >= lo - s0) & (t <= hi - s0))
-        volume = sweep_cost(reference, warped, self.cost, self.window, self.census_threshold)
+        wide = self.wide_box > self.box
+        if moments is None and (wide or self.cost == "zncc"):
+            moments = reference_moments(reference, self.window)
+        volume = sweep_cost(reference, warped, self.cost, self.window, self.census_threshold,
+                            moments if self.cost == "zncc" else None)
         local = box_filter(volume, self.box)
-        if self.wide_box > self.box:  # weak texture: the cost averaged over a wider box (see FineBand)
-            if texture is None:
-                texture = box_std(grey(reference), self.window)
-            weight = (1.0 - texture.detach() / self.weak_texture).clamp(0.0, 1.0)  # a weight, not a gradient path
+        if wide:  # weak texture: the cost averaged over a wider box (see FineBand)
+            texture = texture_of(moments[1]).detach()
+            weight = (1.0 - texture / self.weak_texture).clamp(0.0, 1.0)  # a weight, not a gradient path
             local = local + weight * (box_filter(volume, self.wide_box) - local)
         if self.band_edges == "clamp" and self.band == 1:  # the winner is always the centre: static slices
             j: torch.Tensor | int = 1
@@ -168,6 +174,18 @@ class FineBand(nn.Module):
         # than gathering the band's samples around s and interpolating between them, which was within 2e-4 px)
         match = torch.cat(series_at(series, s, top), 1) if self.with_match else None
         return LevelResult(s, ok, similarity(_pick(local, j), self.cost, channels, self.window), match)
+
+
+def texture_of(variance: torch.Tensor) -> torch.Tensor:
+    """The reference's texture, the grey standard deviation over the cost window, from the variance of its
+    :func:`~prismstereo.matching.cost.reference_moments` (floored at 1e-12 before the root: a flat window's texture
+    is 1e-6 and its gradient 0, not infinite): the wide box's weight and a feature of the calibrated confidence.
+
+    Example:
+        >>> texture_of(torch.tensor([0.04, 0.0])).tolist()
+        [0.20000000298023224, 9.999999974752427e-07]
+    """
+    return variance.clamp_min(1e-12).sqrt()
 
 
 def _pick(t: torch.Tensor, j: torch.Tensor | int) -> torch.Tensor:

@@ -36,8 +36,8 @@ from prismstereo.errors import OptionError, ShapeError, check_odd, check_option,
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.runtime import fill_invalid
 
-__all__ = ["Cost", "COSTS", "Warped", "ad_gradient_cost", "census_transform", "grey", "ncc_cost", "sweep_cost",
-           "window_moments", "worst_cost", "zncc_cost"]
+__all__ = ["Cost", "COSTS", "Warped", "ad_gradient_cost", "census_transform", "grey", "ncc_cost", "reference_moments",
+           "sweep_cost", "window_moments", "worst_cost", "zncc_cost"]
 
 Cost = Literal["sad", "zncc", "census", "ad_gradient"]
 COSTS: tuple[str, ...] = ("sad", "zncc", "census", "ad_gradient")
@@ -169,8 +169,25 @@ def ncc_cost(cross: torch.Tensor, var_r: torch.Tensor, var_v: torch.Tensor) -> t
     return 1.0 - ncc.clamp(-1, 1)
 
 
-def zncc_cost(reference: torch.Tensor, views: torch.Tensor, window: int) -> torch.Tensor:
-    """1 - ZNCC (B, D, H, W) of the grey ``reference`` (B, C, H, W) against each grey view (B, C, D, H, W).
+def reference_moments(reference: torch.Tensor, window: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Window mean and variance, (B, 1, H, W) each, of the grey ``reference`` (B, C, H, W) centred on 0.5: what
+    :func:`zncc_cost` takes of the reference, and (the variance's root) the texture measure of the fine band's wide
+    box and of the calibrated confidence, from one box filter. Centred because ZNCC is offset-invariant and
+    E[x^2] - E[x]^2 cancels far less in float32 about 0 (torch and onnxruntime then agree to ~1e-6 on low-contrast
+    windows).
+
+    Example:
+        >>> mean, var = reference_moments(torch.full((1, 1, 4, 4), 0.75), 3)
+        >>> float(mean[0, 0, 1, 1]), float(var[0, 0, 1, 1])
+        (0.25, 0.0)
+    """
+    return window_moments(grey(reference) - 0.5, window)
+
+
+def zncc_cost(reference: torch.Tensor, views: torch.Tensor, window: int,
+              moments: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+    """1 - ZNCC (B, D, H, W) of the grey ``reference`` (B, C, H, W) against each grey view (B, C, D, H, W);
+    ``moments``: the reference's :func:`reference_moments` when the caller has them (computed here otherwise).
 
     Example:
         >>> ref = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
@@ -178,18 +195,18 @@ def zncc_cost(reference: torch.Tensor, views: torch.Tensor, window: int) -> torc
         >>> cost.shape, bool(cost[0, 0].max() < 0.01), bool(cost[0, 1].min() > 1.99)
         (torch.Size([1, 2, 8, 8]), True, True)
     """
-    # centred on 0.5 (ZNCC is offset-invariant): E[x^2] - E[x]^2 then cancels far less in float32, which keeps
-    # torch and onnxruntime within ~1e-6 of each other on low-contrast windows
+    # both centred on 0.5, as reference_moments
     ref = grey(reference) - 0.5  # (B, 1, H, W)
     view = grey(views).squeeze(1) - 0.5  # (B, D, H, W)
-    mean_r, var_r = window_moments(ref, window)
+    mean_r, var_r = reference_moments(reference, window) if moments is None else moments
     mean_v, var_v = window_moments(view, window)
     cross = box_filter(view * ref, window) - mean_v * mean_r
     return ncc_cost(cross, var_r, var_v)
 
 
 def sweep_cost(
-    reference: torch.Tensor, warped: Warped, cost: Cost = "census", window: int = 5, census_threshold: float = 0.0
+    reference: torch.Tensor, warped: Warped, cost: Cost = "census", window: int = 5, census_threshold: float = 0.0,
+    moments: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """Per-pixel matching cost of the reference against each view.
 
@@ -202,6 +219,7 @@ def sweep_cost(
         census_threshold: a census bit is set where the neighbour is darker than the centre by more than this
             (>= 0). A threshold that is not a multiple of 1/255 keeps 8-bit ties (equal neighbours) from
             flipping bits on rounding differences between runtimes (torch vs onnxruntime).
+        moments: 'zncc': the reference's :func:`reference_moments` (B, 1, H, W) each, when the caller has them.
 
     Returns:
         (B, D, H, W) cost, the worst value (:func:`worst_cost`) where the view is not valid.
@@ -231,7 +249,7 @@ def sweep_cost(
             gd = (_x_gradient(reference).unsqueeze(2) - _x_gradient(warped.image)).abs()[:, 0]
             volume = ad_gradient_cost(volume, gd)
     else:
-        volume = zncc_cost(reference, warped.image, window)
+        volume = zncc_cost(reference, warped.image, window, moments)
     # ZNCC (1 - a clamped NCC), census counts and 'ad_gradient' lie in [0, worst]; SAD only for images in [0, 1]
     return fill_invalid(volume, warped.valid, worst_cost(cost, reference.shape[1], window), bounded=cost != "sad")
 

@@ -7,9 +7,9 @@ import torch
 
 from prismstereo import OptionError, ShapeError
 from prismstereo.matching import box_filter, census_transform
-from prismstereo.matching.cost import Warped, ad_gradient_cost, sweep_cost, worst_cost
+from prismstereo.matching.cost import Warped, ad_gradient_cost, reference_moments, sweep_cost, worst_cost, zncc_cost
 from prismstereo.matching.sweep_cost import shift_cost, warp_slices
-from prismstereo.runtime import fill_invalid, scan_eager, scan_traced
+from prismstereo.runtime import crop, fill_invalid, scan_eager, scan_traced
 from tests.matching.test_cost_select import disparity_volume, shifted_pair
 
 F64 = torch.float64
@@ -115,6 +115,22 @@ def test_cost_volume_errors():
         disparity_volume(a, torch.rand(1, 2, 8, 8), 2, "sad")
     with pytest.raises(ShapeError, match="image must have shape"):
         census_transform(torch.rand(8, 8))
+
+
+def test_zncc_takes_the_reference_moments_it_would_compute():
+    """ZNCC with the reference's moments given is ZNCC computing them, bitwise; moments of a constant image: its
+    value minus 0.5 and no variance."""
+    g = torch.Generator().manual_seed(7)
+    ref, views = torch.rand(1, 1, 9, 11, generator=g), torch.rand(1, 1, 3, 9, 11, generator=g)
+    assert torch.equal(zncc_cost(ref, views, 5, reference_moments(ref, 5)), zncc_cost(ref, views, 5))
+    mean, var = reference_moments(torch.full((1, 3, 4, 4), 0.75), 3)
+    assert mean.shape == (1, 1, 4, 4) and torch.allclose(mean, torch.full_like(mean, 0.25)) and var.abs().max() < 1e-7
+
+
+def test_crop_slices_only_an_axis_that_is_longer():
+    t = torch.arange(20.0).view(1, 1, 5, 4)
+    assert crop(t, 5, 4) is t
+    assert torch.equal(crop(t, 3, 4), t[..., :3, :]) and torch.equal(crop(t, 5, 2), t[..., :2])
 
 
 def _export_forms(monkeypatch):

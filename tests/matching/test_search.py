@@ -11,12 +11,14 @@ from prismstereo.matching import (
     LevelResult,
     RectifiedSearch,
     SweepSearch,
+    box_filter,
     build_search,
     decide,
     extend_estimate,
     shift_cost,
 )
-from prismstereo.matching.cost import grey
+from prismstereo.matching.band import STRIP_VOXELS, texture_of
+from prismstereo.matching.cost import grey, reference_moments
 from prismstereo.matching.search import similarity
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 from tests.conftest import scaled_rig
@@ -222,6 +224,30 @@ def test_fine_band_wide_box_blends_only_in_weak_texture(plane):
     torch.testing.assert_close(wide.s, boxed.s, atol=1e-5, rtol=0)
     assert torch.equal(wide.valid, boxed.valid)
     assert model.final.fine.wide_box == 21  # the model's default
+
+
+def test_fine_band_takes_the_reference_moments_it_would_compute(plane):
+    """The moments a level passes (ZNCC's, and the wide box's texture) give the band's numbers bitwise, whole and
+    in strips, and the texture is the grey standard deviation over the cost window."""
+    rig, cap = plane
+    model = PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2))
+    ref, other = model.split(cap.image)
+    s0 = torch.full((1, 1, rig.image_height, rig.reference_width), 0.1)
+    ok0 = torch.ones_like(s0, dtype=torch.bool)
+    fine, level = model.final.fine, model.final
+    moments = reference_moments(ref, fine.window)
+    with torch.no_grad():
+        own = fine(ref, other, s0, ok0, level.series, level.interval)
+        given = fine(ref, other, s0, ok0, level.series, level.interval, moments)
+        fine.strip_voxels = 3 * 16 * rig.reference_width  # strips of 16 rows, each with its slice of the moments
+        strips = fine(ref, other, s0, ok0, level.series, level.interval, moments)
+        fine.strip_voxels = STRIP_VOXELS
+    for a, b, c in zip(own, given, strips, strict=True):
+        assert (a is b is c is None) or (torch.equal(a, b) and torch.equal(a, c))
+    grey_ref = ref.double() - 0.5
+    mean = box_filter(grey_ref, fine.window)
+    std = (box_filter(grey_ref * grey_ref, fine.window) - mean * mean).sqrt()
+    torch.testing.assert_close(texture_of(moments[1]).double(), std, atol=1e-5, rtol=0)
 
 
 def test_guided_aggregation_carries_a_shift_through_a_flat_band_and_stops_at_edges():
