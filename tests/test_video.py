@@ -247,6 +247,25 @@ def test_hybrid_key_frames_tracked_by_the_classical_band(clip, tmp_path, backend
         Runner(hybrid, tracker=classical)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("size", [(48, 64), (53, 70), (6, 40)])
+def test_stream_cut_thumbnail_and_extrapolation_masks_are_torch_s(dtype, size):
+    """The stream's 8 x 8 block means (OpenCV's area resize) are torch's average pooling to float rounding, whole
+    blocks only (an image smaller than a block is its own thumbnail); the extrapolation's mask (numpy's comparison)
+    is torch's."""
+    from prismstereo.stream import _block_means, _positive_where
+
+    g = torch.Generator().manual_seed(3)
+    grey = torch.rand(1, 1, *size, generator=g, dtype=dtype)
+    thumb = _block_means(grey)
+    expected = grey if min(size) < 8 else torch.nn.functional.avg_pool2d(grey, 8)
+    assert thumb.shape == expected.shape and thumb.dtype == dtype
+    torch.testing.assert_close(thumb, expected, atol=1e-6, rtol=0)
+    inverse = torch.randn(1, 1, *size, generator=g, dtype=dtype)
+    a, b = (torch.rand(1, 1, *size, generator=g) > 0.3 for _ in range(2))
+    assert torch.equal(_positive_where(inverse, a, b), (inverse > 0) & a & b)
+
+
 def test_stream_is_thread_safe_and_checks_its_input():
     from prismstereo.model import PrismStereo
 
