@@ -19,8 +19,9 @@ With ``downsample`` k > 1 (by default 2 for a pyramid model) the band runs on th
 in a level of its own on the binned rig with the model's options (its sweep, calibrated confidence and
 smoothing): the prior is binned (the mean sweep coordinate of each block's usable pixels, where at least half of
 them are), and the estimate comes back to full resolution by a validity-weighted bilinear interpolation of the
-sweep coordinate (valid pixels interpolate valid neighbours only), with validity and confidence per block: k^2
-times fewer voxels for the binned level's accuracy.
+sweep coordinate (computed on the inverse depth, affine in it: one reciprocal at full resolution; valid pixels
+interpolate valid neighbours only), with validity and confidence per block: k^2 times fewer voxels for the binned
+level's accuracy.
 
 Which frames get the full model instead (the first, every ``keyframe_interval``-th, scene cuts, a prior that lost
 too much of its coverage) is :class:`TemporalOptions`' part, applied by :class:`~prismstereo.stream.DepthStream`.
@@ -41,7 +42,7 @@ from prismstereo.defaults import resolve_level
 from prismstereo.depth.level import DepthLevel, upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.series import series_at
-from prismstereo.epipolar.sweep import depth_to_sweep, sweep_to_depth
+from prismstereo.epipolar.sweep import depth_to_sweep, inverse_to_sweep, sweep_to_inverse
 from prismstereo.errors import OptionError, ShapeError, check_int, check_number, check_option, check_shape
 from prismstereo.matching.band import FineBand, extend_estimate
 from prismstereo.matching.confidence import CLAMPED_WEIGHTS, ConfidenceModel
@@ -235,10 +236,15 @@ class TemporalDepth(nn.Module):
             placed = prior_valid & (prior_confidence >= self.options.min_prior_confidence)
             z_range = torch.tensor(final.z_range, dtype=image.dtype, device=image.device)
             depth = torch.where(placed, prior_depth.to(image.dtype), z_range[0])  # any finite depth elsewhere
-            s_p = depth_to_sweep(depth, z_range).clamp(-1.0, 1.0)
-            if k > 1:  # the binned prior: each block's mean over its placed pixels, where half of them are
-                s_p, placed = _binned_prior(s_p, placed, k, level.rig.image_height, level.rig.reference_width,
-                                            (h, self.rig.reference_width))
+            if k > 1:  # the binned prior: each block's mean over its placed pixels, where half of them are, of the
+                # inverse depth within the range (s is affine in it: the mean of s, in fewer full-resolution passes)
+                bounds = 1.0 / z_range
+                inverse, placed = _binned_prior((1.0 / depth).clamp(bounds[1], bounds[0]), placed, k,
+                                                level.rig.image_height, level.rig.reference_width,
+                                                (h, self.rig.reference_width))
+                s_p = inverse_to_sweep(inverse, z_range).clamp(-1.0, 1.0)
+            else:
+                s_p = depth_to_sweep(depth, z_range).clamp(-1.0, 1.0)
             s_c, reach = extend_estimate(s_p, placed, self.options.reach)
             s0 = s_c.clamp(-1.0, 1.0)
         if k > 1:
@@ -275,24 +281,26 @@ class TemporalDepth(nn.Module):
         size = (self.rig.image_height, self.rig.reference_width)
         dense = final.config.validity.dense
         has = result.confidence > 0 if dense else result.valid
-        s = extend_estimate(depth_to_sweep(result.depth, z_range), has, 1).s
-        s = upsample(s, k, size, "bilinear").clamp(-1.0, 1.0)
+        s = extend_estimate(depth_to_sweep(result.depth, z_range), has, 1).s.clamp(-1.0, 1.0)
+        # the inverse depth interpolated (s is affine in it): the depth one reciprocal away at full resolution
+        inverse = upsample(sweep_to_inverse(s, z_range), k, size, "bilinear")
+        s = inverse_to_sweep(inverse, z_range)  # the index and the match (not outputs of the exported graph)
         maps = [has.to(s.dtype), result.confidence] + ([result.valid.to(s.dtype)] if dense else [])
         shown, confidence, *dense_valid = upsample(torch.cat(maps, 1), k, size, beyond="zero").split(1, 1)
         valid = (dense_valid[0] if dense else shown) > 0.5
-        return DepthResult(sweep_to_depth(s, z_range), valid, confidence * shown, (s + 1.0) / final.step,
+        return DepthResult(1.0 / inverse, valid, confidence * shown, (s + 1.0) / final.step,
                            torch.cat(series_at(final.series, s), 1))
 
 
-def _binned_prior(s: torch.Tensor, placed: torch.Tensor, k: int, h: int, w: int,
+def _binned_prior(x: torch.Tensor, placed: torch.Tensor, k: int, h: int, w: int,
                   full: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
-    """(B, 1, H, W_ref) sweep coordinates and usable-prior mask binned by k x k to the binned level's (B, 1, h, w):
-    the mean over each block's usable pixels, usable where at least half of them are. ``full``: (H, W_ref) as ints
-    (static in an exported graph)."""
-    weight = placed.to(s.dtype)
+    """(B, 1, H, W_ref) values (inverse depths) and usable-prior mask binned by k x k to the binned level's
+    (B, 1, h, w): the mean over each block's usable pixels (0 in a block without any), usable where at least half of
+    them are. ``full``: (H, W_ref) as ints (static in an exported graph)."""
+    weight = placed.to(x.dtype)
     # ceil_mode: a reference half whose width k does not divide (512 / 3) has a last binned column of fewer pixels
     # (only then: onnxruntime's pooling with ceil_mode is slower, where it changes nothing)
     ceil = bool(full[0] % k or full[1] % k)
     share = crop(F.avg_pool2d(weight, k, ceil_mode=ceil), h, w)
-    mean = crop(F.avg_pool2d(s * weight, k, ceil_mode=ceil), h, w) / share.clamp_min(1e-6)
-    return mean.clamp(-1.0, 1.0), share >= 0.5
+    mean = crop(F.avg_pool2d(x * weight, k, ceil_mode=ceil), h, w) / share.clamp_min(1e-6)
+    return mean, share >= 0.5

@@ -45,7 +45,9 @@ __all__ = [
     "SweepFit",
     "chebyshev_basis",
     "depth_to_sweep",
+    "inverse_to_sweep",
     "sweep_to_depth",
+    "sweep_to_inverse",
     "fit_sweep",
     "sweep_coefficients",
     "evaluate_sweep",
@@ -114,8 +116,30 @@ def depth_to_sweep(depth: torch.Tensor, z_range: torch.Tensor) -> torch.Tensor:
         >>> depth_to_sweep(torch.tensor([300.0, 600.0, 1200.0]), torch.tensor([300.0, 1200.0]))
         tensor([-1.0000,  0.3333,  1.0000])
     """
+    return inverse_to_sweep(1.0 / depth, z_range)
+
+
+def inverse_to_sweep(inverse: torch.Tensor, z_range: torch.Tensor) -> torch.Tensor:
+    """Sweep coordinate s = 2 (W - 1/z_min) / (1/z_max - 1/z_min) - 1 of an inverse depth W = 1/Z (1/mm): affine,
+    so that a mean or an interpolation of inverse depths is the same of sweep coordinates.
+
+    Example:
+        >>> inverse_to_sweep(torch.tensor([1 / 300.0, 1 / 1200.0]), torch.tensor([300.0, 1200.0]))
+        tensor([-1.,  1.])
+    """
     w0, w1 = 1.0 / z_range[0], 1.0 / z_range[1]
-    return 2.0 * (1.0 / depth - w0) / (w1 - w0) - 1.0
+    return 2.0 * (inverse - w0) / (w1 - w0) - 1.0
+
+
+def sweep_to_inverse(s: torch.Tensor, z_range: torch.Tensor) -> torch.Tensor:
+    """Inverse depth 1/Z (1/mm) at sweep coordinate s, the inverse of :func:`inverse_to_sweep`.
+
+    Example:
+        >>> (sweep_to_inverse(torch.tensor([-1.0, 1.0]), torch.tensor([300.0, 1200.0])) * 1200.0).round()
+        tensor([4., 1.])
+    """
+    w0, w1 = 1.0 / z_range[0], 1.0 / z_range[1]
+    return w0 + (s + 1.0) * 0.5 * (w1 - w0)
 
 
 def sweep_to_depth(s: torch.Tensor, z_range: torch.Tensor) -> torch.Tensor:
@@ -125,8 +149,7 @@ def sweep_to_depth(s: torch.Tensor, z_range: torch.Tensor) -> torch.Tensor:
         >>> sweep_to_depth(torch.tensor([-1.0, 1.0]), torch.tensor([300.0, 1200.0])).round()
         tensor([ 300., 1200.])
     """
-    w0, w1 = 1.0 / z_range[0], 1.0 / z_range[1]
-    return 1.0 / (w0 + (s + 1.0) * 0.5 * (w1 - w0))
+    return 1.0 / sweep_to_inverse(s, z_range)
 
 
 def _exact(p: RigParameters, u: torch.Tensor, v: torch.Tensor, s: torch.Tensor, z_range: torch.Tensor):

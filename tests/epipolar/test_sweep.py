@@ -8,9 +8,11 @@ from prismstereo.epipolar.sweep import (
     depth_to_sweep,
     evaluate_sweep,
     fit_sweep,
+    inverse_to_sweep,
     sweep_coefficients,
     sweep_positions,
     sweep_to_depth,
+    sweep_to_inverse,
 )
 from prismstereo.geometry.projection import solve_projection
 from tests.conftest import RIGS, scaled_rig
@@ -35,6 +37,11 @@ def test_sweep_coordinate_round_trip_and_ends():
     # uniform s is uniform inverse depth, the spacing of depth_hypotheses
     torch.testing.assert_close(sweep_to_depth(torch.linspace(-1, 1, 7, dtype=torch.float64), rng),
                                depth_hypotheses(228.0, 1374.0, 7))
+    # through the inverse depth: the same bits, and affine (a mean of inverse depths is the mean of s)
+    assert torch.equal(depth_to_sweep(z, rng), inverse_to_sweep(1.0 / z, rng))
+    assert torch.equal(sweep_to_depth(s, rng), 1.0 / sweep_to_inverse(s, rng))
+    torch.testing.assert_close(inverse_to_sweep((1.0 / z).mean(), rng), s.mean())
+    torch.testing.assert_close(sweep_to_inverse(s, rng), 1.0 / z)
 
 
 @pytest.mark.parametrize("name", sorted(RIGS))
