@@ -238,6 +238,22 @@ def test_local_spread_exported_graph_matches_eager(tmp_path):
     torch.testing.assert_close(local_spread(x.clone().requires_grad_(), mask, 15).detach(), eager)
 
 
+@pytest.mark.parametrize("names", ["FEATURES", "SMOOTHED_FEATURES"])
+def test_model_exported_graph_matches_eager(tmp_path, names):
+    """The exported form (one MatMul over the features, batch dynamic) computes the eager multiply-adds' numbers."""
+    ort = pytest.importorskip("onnxruntime")
+    onnx = pytest.importorskip("onnx")
+    names = {"FEATURES": FEATURES, "SMOOTHED_FEATURES": SMOOTHED_FEATURES}[names]
+    model = ConfidenceModel(names=names)
+    x = torch.randn(3, len(names), 9, 11, generator=torch.Generator().manual_seed(6))
+    path = tmp_path / "confidence.onnx"
+    torch.onnx.export(model, (x[:1],), str(path), input_names=["features"], dynamic_axes={"features": {0: "B"}},
+                      opset_version=18, dynamo=False)
+    assert [n.op_type for n in onnx.load(str(path)).graph.node].count("MatMul") == 1
+    out = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"features": x.numpy()})[0]
+    torch.testing.assert_close(torch.from_numpy(out), model(x), atol=1e-6, rtol=0)
+
+
 def test_confidence_threshold_keeps_the_most_within_the_bad_share():
     g = torch.Generator().manual_seed(0)
     c = torch.rand(2000, generator=g)
