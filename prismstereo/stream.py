@@ -40,6 +40,7 @@ from torch import nn
 from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.io import to_grey
+from prismstereo.matching.cost import grey
 from prismstereo.threads import session_threads, torch_threads
 from prismstereo.video import frame_to_grey, frame_to_tensor
 
@@ -77,22 +78,22 @@ class _Prior(NamedTuple):
     confidence: torch.Tensor
 
 
-def _block_means(grey: torch.Tensor) -> torch.Tensor:
+def _block_means(image: torch.Tensor) -> torch.Tensor:
     """The 8 x 8 block means of a (1, 1, H, W) grey image, the cut test's thumbnail (the image itself when smaller
-    than a block): OpenCV's area resize of the whole blocks on the CPU, the same means as torch's average pooling to
-    float rounding in half its time on one thread; torch's pooling elsewhere."""
-    h, w = grey.shape[-2:]
+    than a block): OpenCV's area resize of the whole blocks on the CPU (the same means as torch's average pooling to
+    float rounding, from a faster kernel on one thread), torch's pooling elsewhere."""
+    h, w = image.shape[-2:]
     if min(h, w) < 8:
-        return grey
-    if grey.device.type != "cpu" or grey.dtype not in (torch.float32, torch.float64) or grey.shape[:2] != (1, 1):
-        return F.avg_pool2d(grey, 8)
-    blocks = np.ascontiguousarray(grey[0, 0, :h // 8 * 8, :w // 8 * 8].numpy())
+        return image
+    if image.device.type != "cpu" or image.dtype not in (torch.float32, torch.float64) or image.shape[:2] != (1, 1):
+        return F.avg_pool2d(image, 8)
+    blocks = np.ascontiguousarray(image[0, 0, :h // 8 * 8, :w // 8 * 8].numpy())
     return torch.from_numpy(cv2.resize(blocks, (w // 8, h // 8), interpolation=cv2.INTER_AREA))[None, None]
 
 
-def _positive_where(inverse: torch.Tensor, *masks: torch.Tensor) -> torch.Tensor:
-    """(inverse > 0) & each mask, all of one shape: numpy's comparison on the CPU (torch's bool kernels take several
-    times longer on one thread), torch's elsewhere."""
+def _positive_and(inverse: torch.Tensor, *masks: torch.Tensor) -> torch.Tensor:
+    """(inverse > 0) & each mask, all of one shape: numpy's comparison on the CPU (a faster kernel than torch's bool
+    ones on one thread), torch's elsewhere."""
     if inverse.device.type != "cpu":
         out = inverse > 0
         for mask in masks:
@@ -250,8 +251,7 @@ class DepthStream:
             t0 = time.perf_counter()
             thumb = None
             if self.temporal is not None:
-                grey = image if image.shape[1] == 1 else image.mean(1, keepdim=True)
-                thumb = _block_means(grey)
+                thumb = _block_means(grey(image))
             key = self._keyframe(thumb)
             res = self._run(image) if key else self._run(image, self._predicted())
             if not key and _share(res.valid) < self.temporal.min_valid_ratio * self._key_valid:
@@ -299,7 +299,7 @@ class DepthStream:
         if not self.temporal.extrapolate or before is None:
             return prior
         inverse = before.depth.reciprocal().neg_().add_(prior.depth.reciprocal(), alpha=2.0)  # 2 / z_1 - 1 / z_0
-        usable = _positive_where(inverse, prior.valid, before.valid)
+        usable = _positive_and(inverse, prior.valid, before.valid)
         # (where not usable the reciprocal may be anything, the prior's depth is taken)
         depth = torch.where(usable, inverse.reciprocal_(), prior.depth)
         return _Prior(depth, prior.valid, prior.confidence)

@@ -253,7 +253,7 @@ def test_stream_cut_thumbnail_and_extrapolation_masks_are_torch_s(dtype, size):
     """The stream's 8 x 8 block means (OpenCV's area resize) are torch's average pooling to float rounding, whole
     blocks only (an image smaller than a block is its own thumbnail); the extrapolation's mask (numpy's comparison)
     is torch's."""
-    from prismstereo.stream import _block_means, _positive_where
+    from prismstereo.stream import _block_means, _positive_and
 
     g = torch.Generator().manual_seed(3)
     grey = torch.rand(1, 1, *size, generator=g, dtype=dtype)
@@ -263,7 +263,7 @@ def test_stream_cut_thumbnail_and_extrapolation_masks_are_torch_s(dtype, size):
     torch.testing.assert_close(thumb, expected, atol=1e-6, rtol=0)
     inverse = torch.randn(1, 1, *size, generator=g, dtype=dtype)
     a, b = (torch.rand(1, 1, *size, generator=g) > 0.3 for _ in range(2))
-    assert torch.equal(_positive_where(inverse, a, b), (inverse > 0) & a & b)
+    assert torch.equal(_positive_and(inverse, a, b), (inverse > 0) & a & b)
 
 
 def test_stream_is_thread_safe_and_checks_its_input():

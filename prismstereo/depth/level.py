@@ -279,11 +279,12 @@ class DepthLevel(nn.Module):
         config = self.config
         fine = self.fine if fine is None else fine
         calibration = self.calibration if calibration is None else calibration
-        # the reference's window moments (ZNCC's), whose variance's root is its texture (grey std over the cost
-        # window): the wide box's weight and a feature
+        # a feature of the calibrated confidence: the reference's texture (grey std over the cost window), the root of
+        # its window moments' variance, which the band then takes too (ZNCC's, the wide box's weight; it computes
+        # them itself otherwise)
         calibrated = config.validity.validity == "calibrated"
         moments = texture = None
-        if calibrated or config.aggregation.wide_box > config.aggregation.fine_box or fine.cost == "zncc":
+        if calibrated:
             moments = reference_moments(ref, config.cost.window)  # ZNCC's gradients pass through these
             texture = texture_of(moments[1]).detach()
         s, ok, confidence, match = fine(ref, other, s0, ok0, self.series, self.interval, moments)

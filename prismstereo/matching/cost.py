@@ -198,7 +198,7 @@ def zncc_cost(reference: torch.Tensor, views: torch.Tensor, window: int,
     # both centred on 0.5, as reference_moments
     ref = grey(reference) - 0.5  # (B, 1, H, W)
     view = grey(views).squeeze(1) - 0.5  # (B, D, H, W)
-    mean_r, var_r = reference_moments(reference, window) if moments is None else moments
+    mean_r, var_r = window_moments(ref, window) if moments is None else moments
     mean_v, var_v = window_moments(view, window)
     cross = box_filter(view * ref, window) - mean_v * mean_r
     return ncc_cost(cross, var_r, var_v)
