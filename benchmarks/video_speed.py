@@ -37,10 +37,11 @@ static scene.
    (``run``'s wall, without start-up), the median depth computation per frame (the graph and the stream's work on
    it) and the key frames; and the per-frame graphs alone as the CLI opens them (the ``--no-temporal`` rows'
    budget). ``--captures M`` single captures (the sequence's first M frames as 8-bit PNGs) with ``--workers 1``
-   and ``--workers 2``: (least wall on M - least wall on 2) / (M - 2) per capture, and the CLI's rate. Each run
-   with the model the CLI picks (the sensor's default, the hybrid; under the temporal prior its key frames, tracked
-   by the classical model's band), with ``--temporal-binning 3``, and ``--model classical`` with and without the
-   prior beside it.
+   and ``--workers 2``: (least wall on M - least wall on 2) / (M - 2) per capture, the least of four runs each (the
+   difference of 14 captures' walls is about a second, of the order of two processes' start-up jitter), and the
+   CLI's rate. Each run with the model the CLI picks (the sensor's default, the hybrid; under the temporal prior its
+   key frames, tracked by the classical model's band), with ``--temporal-binning 3``, and ``--model classical`` with
+   and without the prior beside it.
 
 Run: .venv/bin/python benchmarks/video_speed.py [--frames 20] [--static 30] [--sizes 1024 640] [--cli 120]
      [--captures 16]
@@ -317,7 +318,7 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
     _cli_seconds([images[0], "--backend", "onnx", *common, "--out", str(tmp / "warm.npy")])
     for workers in (1, 2):
         heads, wholes, rates = [], [], []
-        for repeat in range(2):
+        for repeat in range(4):
             flags = ["--backend", "onnx", "--workers", str(workers), *common]
             heads.append(_cli_seconds([*images[:2], *flags, "--out", str(tmp / f"c{repeat}h")])[0])
             whole, text = _cli_seconds([*images, *flags, "--out", str(tmp / f"c{repeat}a")])

@@ -9,8 +9,9 @@ Frames may be (C, H, W) / (1, C, H, W) tensors in [0, 1] or OpenCV's decoded uin
 colour is converted to grey when the model takes one channel.
 
 With ``temporal`` the stream uses the temporal prior (:mod:`prismstereo.depth.temporal`): a key frame gets the full
-model, the frames after it a narrow full-resolution band around the previous frame's depth (extrapolated at
-constant velocity in inverse depth when ``extrapolate``). A frame is a key frame when it is the first, when
+model, the frames after it a narrow band around the previous frame's depth (extrapolated at constant velocity in
+inverse depth when ``extrapolate``), kept at the band's resolution
+(:class:`~prismstereo.depth.temporal.BandPrior`). A frame is a key frame when it is the first, when
 ``keyframe_interval`` frames passed since the last, on a scene cut (its 8 x 8 block means differ from the previous
 frame's by more than ``cut_threshold`` on average), when the prior's invalid share grew by more than
 ``max_invalid_growth`` since the last key frame, and (computed again) when the tracked result's valid share fell
@@ -18,7 +19,7 @@ below ``min_valid_ratio`` times the key frame's. The temporal prior is off by de
 need not be a video; an ONNX stream needs the second graph), on by default for videos in ``prismstereo depth``.
 
 An ONNX stream does its own tensor work (the frame's conversion, the cut test's block means, the extrapolated
-prior, the valid shares: a few passes over one plane) on one torch thread
+prior, the valid shares, a key frame's prior: a few passes over one plane) on one torch thread
 (:func:`~prismstereo.threads.torch_threads`): between the graph's runs torch's OpenMP workers and onnxruntime's
 spinning intra-op threads otherwise compete for the same cores, and each waits for the other.
 """
@@ -37,7 +38,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
+from prismstereo.depth.temporal import BandPrior, TemporalDepth, TemporalOptions
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.io import to_grey
 from prismstereo.matching.cost import grey
@@ -70,14 +71,6 @@ class StreamResult(NamedTuple):
     keyframe: bool = True
 
 
-class _Prior(NamedTuple):
-    """The previous frame's result, as the temporal graph takes it."""
-
-    depth: torch.Tensor
-    valid: torch.Tensor
-    confidence: torch.Tensor
-
-
 def _block_means(image: torch.Tensor) -> torch.Tensor:
     """The 8 x 8 block means of a (1, 1, H, W) grey image, the cut test's thumbnail (the image itself when smaller
     than a block): OpenCV's area resize of the whole blocks on the CPU (the same means as torch's average pooling to
@@ -89,20 +82,6 @@ def _block_means(image: torch.Tensor) -> torch.Tensor:
         return F.avg_pool2d(image, 8)
     blocks = np.ascontiguousarray(image[0, 0, :h // 8 * 8, :w // 8 * 8].numpy())
     return torch.from_numpy(cv2.resize(blocks, (w // 8, h // 8), interpolation=cv2.INTER_AREA))[None, None]
-
-
-def _positive_and(inverse: torch.Tensor, *masks: torch.Tensor) -> torch.Tensor:
-    """(inverse > 0) & each mask, all of one shape: numpy's comparison on the CPU (a faster kernel than torch's bool
-    ones on one thread), torch's elsewhere."""
-    if inverse.device.type != "cpu":
-        out = inverse > 0
-        for mask in masks:
-            out &= mask
-        return out
-    out = np.greater(inverse.numpy(), 0)
-    for mask in masks:
-        out &= mask.numpy()
-    return torch.from_numpy(out)
 
 
 def _share(valid: torch.Tensor) -> float:
@@ -204,11 +183,11 @@ class DepthStream:
             self.temporal = temporal if isinstance(temporal, TemporalOptions) else graph.temporal
         else:
             self.temporal = None
-        self._prior: _Prior | None = None
-        self._before: _Prior | None = None  # the frame before the prior (extrapolation)
+        self._prior: BandPrior | None = None  # the last frame's, at the band's resolution
+        self._before: BandPrior | None = None  # the frame before's (extrapolation)
         self._thumb: torch.Tensor | None = None
         self._since_key = 0
-        self._key_valid = 1.0
+        self._key_valid = self._last_valid = 1.0  # valid shares of the last key frame and of the last frame
 
     def _prepare(self, frame: torch.Tensor | np.ndarray) -> torch.Tensor:
         if isinstance(frame, np.ndarray):  # OpenCV's decoded frame: uint8 (H, W) or (H, W, 3) BGR
@@ -253,35 +232,49 @@ class DepthStream:
             if self.temporal is not None:
                 thumb = _block_means(grey(image))
             key = self._keyframe(thumb)
-            res = self._run(image) if key else self._run(image, self._predicted())
-            if not key and _share(res.valid) < self.temporal.min_valid_ratio * self._key_valid:
-                key, res = True, self._run(image)  # the tracking lost too much: the full model after all
+            res, prior = (self._run(image), None) if key else self._track(image, self._predicted())
+            share = None if self.temporal is None else _share(res.valid)
+            if not key and share < self.temporal.min_valid_ratio * self._key_valid:
+                key, res, prior = True, self._run(image), None  # the tracking lost too much: the full model after all
+                share = _share(res.valid)
+            if self.temporal is not None and prior is None:  # a key frame's result as the band's prior
+                prior = self._band_prior(res)
             ms = 1000.0 * (time.perf_counter() - t0)
             number = self.frames
             self.frames += 1
             self.keyframes += key
             self.times_ms.append(ms)
             if self.temporal is not None:
-                self._thumb, self._before = thumb, self._prior
-                self._prior = _Prior(res.depth, res.valid, res.confidence)
+                self._thumb, self._before, self._prior, self._last_valid = thumb, self._prior, prior, share
                 self._since_key = 0 if key else self._since_key + 1
                 if key:
-                    self._key_valid = _share(res.valid)
+                    self._key_valid = share
         return StreamResult(res.depth, res.valid, res.confidence, number, ms, key)
 
     def reset(self) -> None:
         """Forget the previous frames (the next one is a key frame, as after a cut); counts and times stay."""
         with self._lock:
             self._prior = self._before = self._thumb = None
-            self._since_key, self._key_valid = 0, 1.0
+            self._since_key, self._key_valid, self._last_valid = 0, 1.0, 1.0
 
-    def _run(self, image: torch.Tensor, prior: _Prior | None = None):
-        """The model (``prior`` None) or the temporal graph on one image."""
-        runner = self._runner if prior is None else self._tracker
+    def _run(self, image: torch.Tensor):
+        """The model on one image."""
         if self.backend == "torch":
             with torch.inference_mode():
-                return runner(image) if prior is None else runner(image, *prior)
-        return runner(image) if prior is None else runner(image, prior)
+                return self._runner(image)
+        return self._runner(image)
+
+    def _track(self, image: torch.Tensor, prior: BandPrior):
+        """The temporal band on one image: (its result, the next frame's prior)."""
+        if self.backend == "torch":
+            with torch.inference_mode():
+                return self._tracker.track(image, prior)
+        return self._tracker.track(image, prior)
+
+    def _band_prior(self, res) -> BandPrior:
+        """A key frame's result as the band's prior."""
+        with torch.inference_mode():
+            return self._tracker.band_prior(res.depth, res.valid, res.confidence)
 
     def _keyframe(self, thumb: torch.Tensor | None) -> bool:
         """Whether the next frame (its 8 x 8 block means ``thumb``) gets the full model (the class docstring)."""
@@ -290,19 +283,16 @@ class DepthStream:
             return True
         if float((thumb - self._thumb).abs().mean()) > options.cut_threshold:
             return True
-        return (1.0 - _share(prior.valid)) - (1.0 - self._key_valid) > options.max_invalid_growth
+        return (1.0 - self._last_valid) - (1.0 - self._key_valid) > options.max_invalid_growth
 
-    def _predicted(self) -> _Prior:
-        """The prior of the next frame: the last result, its depth extrapolated at constant velocity in inverse
-        depth from the frame before where both are valid (``extrapolate``)."""
+    def _predicted(self) -> BandPrior:
+        """The prior of the next frame: the last one, its inverse depth extrapolated at constant velocity from the
+        frame before where both are placed (``extrapolate``; the band clips it to the range)."""
         prior, before = self._prior, self._before
         if not self.temporal.extrapolate or before is None:
             return prior
-        inverse = before.depth.reciprocal().neg_().add_(prior.depth.reciprocal(), alpha=2.0)  # 2 / z_1 - 1 / z_0
-        usable = _positive_and(inverse, prior.valid, before.valid)
-        # (where not usable the reciprocal may be anything, the prior's depth is taken)
-        depth = torch.where(usable, inverse.reciprocal_(), prior.depth)
-        return _Prior(depth, prior.valid, prior.confidence)
+        inverse = torch.where(prior.placed & before.placed, 2.0 * prior.inverse - before.inverse, prior.inverse)
+        return BandPrior(inverse, prior.placed)
 
     def frames_per_second(self) -> float:
         """Frames per second of the depth computation over the frames so far (0 before any frame).

@@ -23,6 +23,12 @@ sweep coordinate (computed on the inverse depth, affine in it: one reciprocal at
 interpolate valid neighbours only), with validity and confidence per block: k^2 times fewer voxels for the binned
 level's accuracy.
 
+The prior lives at the band's resolution (:class:`BandPrior`: the clipped inverse depth, in which the sweep
+coordinate is affine, and where it places the band). :meth:`TemporalDepth.track` takes one and returns, beside
+the frame's full-resolution result, the one its band found for the next frame (:class:`TrackedDepth`): a video
+binned and interpolated once per frame, not binned again from the interpolated result. :func:`band_prior` makes
+one from a full-resolution result (a key frame's; :meth:`TemporalDepth.forward` takes a previous result that way).
+
 Which frames get the full model instead (the first, every ``keyframe_interval``-th, scene cuts, a prior that lost
 too much of its coverage) is :class:`TemporalOptions`' part, applied by :class:`~prismstereo.stream.DepthStream`.
 Why each default: ``docs/design.md``, *How the model picks its defaults* (temporal options); measured by
@@ -32,7 +38,7 @@ Why each default: ``docs/design.md``, *How the model picks its defaults* (tempor
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -48,7 +54,8 @@ from prismstereo.matching.band import FineBand, extend_estimate
 from prismstereo.matching.confidence import CLAMPED_WEIGHTS, ConfidenceModel
 from prismstereo.runtime import crop
 
-__all__ = ["TEMPORAL_BAND_EDGES", "TemporalDepth", "TemporalOptions", "supports_temporal", "temporal_downsample"]
+__all__ = ["TEMPORAL_BAND_EDGES", "BandPrior", "TemporalDepth", "TemporalOptions", "TrackedDepth", "band_prior",
+           "supports_temporal", "temporal_downsample"]
 
 BandEdges = Literal["reject", "clamp"]
 TEMPORAL_BAND_EDGES: tuple[str, ...] = ("reject", "clamp")
@@ -141,6 +148,81 @@ def temporal_downsample(model: nn.Module, options: TemporalOptions | None = None
     return 2 if getattr(model, "binned", None) is not None else 1
 
 
+class BandPrior(NamedTuple):
+    """A prior at the temporal band's resolution (the binned frame's with ``downsample`` k > 1, else the reference
+    half's): what :meth:`TemporalDepth.track` places its band by, and what it returns for the next frame.
+
+    Attributes:
+        inverse: (B, 1, h, w) inverse depth 1/Z (1/mm), within the depth range's bounds (any such value where not
+            placed).
+        placed: (B, 1, h, w) bool: the pixels whose prior places the band (valid and confident enough).
+    """
+
+    inverse: torch.Tensor
+    placed: torch.Tensor
+
+
+class TrackedDepth(NamedTuple):
+    """A frame's depth found around a prior, and the prior it leaves for the next frame.
+
+    Attributes:
+        result: the frame's :class:`~prismstereo.depth.result.DepthResult`, (B, *, H, W_ref) tensors (an ONNX
+            temporal graph's: :class:`~prismstereo.export.OnnxDepthResult`).
+        prior: the :class:`BandPrior` of this frame's band, (B, 1, h, w) each.
+    """
+
+    result: Any
+    prior: BandPrior
+
+
+def band_prior(depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor, *,
+               z_range: tuple[float, float], min_confidence: float, downsample: int = 1,
+               size: tuple[int, int] | None = None) -> BandPrior:
+    """A full-resolution result (B, 1, H, W_ref) as the temporal band's prior (B, 1, h, w): the pixels valid and at
+    least ``min_confidence`` confident are placed; their inverse depth clipped to the range's bounds; with
+    ``downsample`` k > 1 binned by k x k to ``size`` (h, w): each block's mean over its placed pixels (1/Z, so the
+    mean of the sweep coordinate, affine in it), placed where at least half of them are.
+
+    Args:
+        depth: (B, 1, H, W_ref) depth (mm), anything (NaN too) where not valid.
+        valid: (B, 1, H, W_ref) bool.
+        confidence: (B, 1, H, W_ref) in [0, 1].
+        z_range: (z_min, z_max) mm, the band's range.
+        min_confidence: pixels less confident than this are not placed, in [0, 1].
+        downsample: k >= 1.
+        size: (h, w) the binned level's reference half; None: (H, W_ref) // k.
+
+    Returns:
+        BandPrior((B, 1, h, w) inverse depth, (B, 1, h, w) bool placed).
+
+    Raises:
+        ShapeError: tensors of different shapes, or a non-bool ``valid``.
+
+    Example:
+        >>> depth = torch.full((1, 1, 4, 4), 500.0); valid = torch.ones(1, 1, 4, 4, dtype=torch.bool)
+        >>> prior = band_prior(depth, valid, torch.ones(1, 1, 4, 4), z_range=(400.0, 700.0), min_confidence=0.5,
+        ...                    downsample=2)
+        >>> prior.inverse.shape, round(1 / prior.inverse[0, 0, 0, 0].item(), 3), prior.placed.all().item()
+        (torch.Size([1, 1, 2, 2]), 500.0, True)
+    """
+    check_shape(depth, ["B", 1, "H", "W"], "depth")
+    for name, t in (("valid", valid), ("confidence", confidence)):
+        if t.shape != depth.shape:
+            raise ShapeError(f"{name} must have depth's shape {tuple(depth.shape)}, got {tuple(t.shape)}")
+    if valid.dtype != torch.bool:
+        raise ShapeError(f"valid must be bool, got {valid.dtype}")
+    check_int(downsample, "downsample", 1)
+    placed = valid & (confidence >= min_confidence)
+    z = torch.tensor(z_range, dtype=depth.dtype, device=depth.device)
+    bounds = 1.0 / z
+    inverse = (1.0 / torch.where(placed, depth, z[0])).clamp(bounds[1], bounds[0])  # finite everywhere
+    if downsample == 1:
+        return BandPrior(inverse, placed)
+    full = (int(depth.shape[-2]), int(depth.shape[-1]))
+    h, w = size if size is not None else (full[0] // downsample, full[1] // downsample)
+    return BandPrior(*_binned_prior(inverse, placed, downsample, h, w, full))
+
+
 class TemporalDepth(nn.Module):
     """Depth of a frame searched in a band around a prior (the previous frame's result), at full resolution or on
     the binned frame (``options.downsample``), returned at full resolution.
@@ -152,6 +234,7 @@ class TemporalDepth(nn.Module):
             stream's.
 
     Attributes:
+        options: the options, ``downsample`` resolved.
         downsample: the binning of the band's capture (``options.downsample`` resolved).
         level: the :class:`~prismstereo.depth.level.DepthLevel` whose sweep, confidence and rules the band uses:
             the model's final level, or with ``downsample`` > 1 a level of the binned rig.
@@ -179,6 +262,7 @@ class TemporalDepth(nn.Module):
         self.model = model
         final = model.final
         k = self.downsample = temporal_downsample(model, self.options)
+        self.options = dataclasses.replace(self.options, downsample=k)  # resolved, as an exported graph's
         if k > 1:  # a level of its own on the k x k-binned capture, with the model's options (its coarse search,
             # which the band does not use, at the smallest factor that gives the level a band)
             config = final.config.replace(search={"num_hypotheses": None, "coarse_factor": 2, "band": None})
@@ -206,9 +290,90 @@ class TemporalDepth(nn.Module):
         """The model's rig."""
         return self.model.rig
 
+    @property
+    def prior_size(self) -> tuple[int, int]:
+        """(h, w) of the band's prior: the level's reference half (binned with ``downsample`` > 1)."""
+        return self.level.rig.image_height, self.level.rig.reference_width
+
+    def band_prior(self, depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor) -> BandPrior:
+        """A full-resolution result (B, 1, H, W_ref) each (a key frame's) as this band's prior (B, 1, h, w):
+        :func:`band_prior` with the model's range, ``min_prior_confidence`` and ``downsample``.
+
+        Example:
+            >>> from prismstereo.model import PrismStereo
+            >>> model = PrismStereo(thesis_setup1().downscaled(4), (400.0, 800.0), {"downsample": 2, "full_band": 2})
+            >>> first = model(torch.rand(1, 1, 192, 256))
+            >>> TemporalDepth(model).band_prior(*first[:3]).inverse.shape
+            torch.Size([1, 1, 96, 64])
+        """
+        shape = (depth.shape[0], 1, self.rig.image_height, self.rig.reference_width)
+        if tuple(depth.shape) != shape:
+            raise ShapeError(f"the prior's depth must have shape {shape}, got {tuple(depth.shape)}")
+        return band_prior(depth, valid, confidence, z_range=self.model.final.z_range,
+                          min_confidence=self.options.min_prior_confidence, downsample=self.downsample,
+                          size=self.prior_size)
+
+    def track(self, image: torch.Tensor, prior: BandPrior) -> TrackedDepth:
+        """Depth of ``image`` searched around ``prior``, and the prior it leaves for the next frame.
+
+        Args:
+            image: (B, C, H, W) the full sensor image in [0, 1].
+            prior: BandPrior, (B, 1, h, w) each (:attr:`prior_size`): a key frame's (:meth:`band_prior`), the last
+                tracked frame's, or one extrapolated from them.
+
+        Returns:
+            TrackedDepth: the DepthResult of (B, *, H, W_ref) tensors, as the model's, and this frame's BandPrior.
+
+        Raises:
+            ShapeError: an image of another sensor, a prior of another size or a non-bool ``placed``.
+
+        Example:
+            >>> from prismstereo.model import PrismStereo
+            >>> model = PrismStereo(thesis_setup1().downscaled(4), (400.0, 800.0), {"downsample": 2, "full_band": 2})
+            >>> tracker = TemporalDepth(model); image = torch.rand(1, 1, 192, 256)
+            >>> tracked = tracker.track(image, tracker.band_prior(*model(image)[:3]))
+            >>> tracked.result.depth.shape, tracked.prior.placed.shape
+            (torch.Size([1, 1, 192, 128]), torch.Size([1, 1, 96, 64]))
+        """
+        check_shape(image, ["B", "C", "H", "W"], "image")
+        final = self.model.final
+        h, w = self.rig.image_height, self.rig.image_width
+        if image.shape[-2:] != (h, w):
+            raise ShapeError(f"image is {image.shape[-1]}x{image.shape[-2]} px but the rig's sensor is {w}x{h}")
+        shape = (image.shape[0], 1, *self.prior_size)
+        for name, t in zip(BandPrior._fields, prior, strict=True):
+            if tuple(t.shape) != shape:
+                raise ShapeError(f"the prior's {name} must have shape {shape}, got {tuple(t.shape)}")
+        if prior.placed.dtype != torch.bool:
+            raise ShapeError(f"the prior's placed must be bool, got {prior.placed.dtype}")
+        level, k = self.level, self.downsample
+        with torch.no_grad():  # the prior only places the band
+            z_range = torch.tensor(final.z_range, dtype=image.dtype, device=image.device)
+            s_p = inverse_to_sweep(prior.inverse.to(image.dtype), z_range).clamp(-1.0, 1.0)
+            s_c, reach = extend_estimate(s_p, prior.placed, self.options.reach)
+            s0 = s_c.clamp(-1.0, 1.0)
+        if k > 1:
+            binned = crop(F.avg_pool2d(image, k), level.rig.image_height, level.rig.image_width)
+            ref, other = level.split(binned)
+        else:
+            ref, other = level.split(image)
+        # the band's own NCC is the similarity feature where the per-frame model has the binned level's: evidence
+        # of this frame (the prior's confidence would vouch for a band a scene cut or fast motion has left, see the
+        # module docstring); moves up to half a step from the prior count as none in the offset feature: on a moving
+        # scene a prior one step behind is expected, and the per-frame weights would judge it a misplaced band
+        estimate = level.search_band(ref, other, s0, reach, ~prior.placed, None, fine=self.fine,
+                                     calibration=self.calibration, free_offset=0.5)
+        result = level.finish(estimate)
+        with torch.no_grad():  # the next frame's prior, from the band's own result (not binned again from its
+            # interpolation)
+            following = band_prior(result.depth, result.valid, result.confidence, z_range=final.z_range,
+                                   min_confidence=self.options.min_prior_confidence)
+        return TrackedDepth(result if k == 1 else self.full_resolution(result), following)
+
     def forward(self, image: torch.Tensor, prior_depth: torch.Tensor, prior_valid: torch.Tensor,
                 prior_confidence: torch.Tensor) -> DepthResult:
-        """Depth of ``image`` searched around the prior.
+        """Depth of ``image`` searched around a previous full-resolution result: :meth:`track` of its
+        :meth:`band_prior` (a video keeps the :class:`BandPrior` :meth:`track` returns instead).
 
         Args:
             image: (B, C, H, W) the full sensor image in [0, 1].
@@ -220,46 +385,16 @@ class TemporalDepth(nn.Module):
             DepthResult of (B, *, H, W_ref) tensors, as the model's.
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
-        final = self.model.final
-        h, w = self.rig.image_height, self.rig.image_width
-        if image.shape[-2:] != (h, w):
-            raise ShapeError(f"image is {image.shape[-1]}x{image.shape[-2]} px but the rig's sensor is {w}x{h}")
-        shape = (image.shape[0], 1, h, self.rig.reference_width)
+        shape = (image.shape[0], 1, self.rig.image_height, self.rig.reference_width)
         for name, t in (("prior_depth", prior_depth), ("prior_valid", prior_valid),
                         ("prior_confidence", prior_confidence)):
             if tuple(t.shape) != shape:
                 raise ShapeError(f"{name} must have shape {shape}, got {tuple(t.shape)}")
         if prior_valid.dtype != torch.bool:
             raise ShapeError(f"prior_valid must be bool, got {prior_valid.dtype}")
-        level, k = self.level, self.downsample
-        with torch.no_grad():  # the prior only places the band
-            placed = prior_valid & (prior_confidence >= self.options.min_prior_confidence)
-            z_range = torch.tensor(final.z_range, dtype=image.dtype, device=image.device)
-            depth = torch.where(placed, prior_depth.to(image.dtype), z_range[0])  # any finite depth elsewhere
-            if k > 1:  # the binned prior: each block's mean over its placed pixels, where half of them are, of the
-                # inverse depth within the range (s is affine in it: the mean of s, in fewer full-resolution passes)
-                bounds = 1.0 / z_range
-                inverse, placed = _binned_prior((1.0 / depth).clamp(bounds[1], bounds[0]), placed, k,
-                                                level.rig.image_height, level.rig.reference_width,
-                                                (h, self.rig.reference_width))
-                s_p = inverse_to_sweep(inverse, z_range).clamp(-1.0, 1.0)
-            else:
-                s_p = depth_to_sweep(depth, z_range).clamp(-1.0, 1.0)
-            s_c, reach = extend_estimate(s_p, placed, self.options.reach)
-            s0 = s_c.clamp(-1.0, 1.0)
-        if k > 1:
-            binned = crop(F.avg_pool2d(image, k), level.rig.image_height, level.rig.image_width)
-            ref, other = level.split(binned)
-        else:
-            ref, other = level.split(image)
-        # the band's own NCC is the similarity feature where the per-frame model has the binned level's: evidence
-        # of this frame (the prior's confidence would vouch for a band a scene cut or fast motion has left, see the
-        # module docstring); moves up to half a step from the prior count as none in the offset feature: on a moving
-        # scene a prior one step behind is expected, and the per-frame weights would judge it a misplaced band
-        estimate = level.search_band(ref, other, s0, reach, ~placed, None, fine=self.fine,
-                                     calibration=self.calibration, free_offset=0.5)
-        result = level.finish(estimate)
-        return result if k == 1 else self.full_resolution(result)
+        with torch.no_grad():
+            prior = self.band_prior(prior_depth.to(image.dtype), prior_valid, prior_confidence)
+        return self.track(image, prior).result
 
     def full_resolution(self, result: DepthResult) -> DepthResult:
         """A binned level's result (B, *, h, w) at the model's full resolution (B, *, H, W_ref): the sweep

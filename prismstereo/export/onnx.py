@@ -10,6 +10,11 @@ The graph (``export_onnx``):
   (the model's resolved options as JSON: z range, hypotheses, costs, ...), ``prismstereo.num_hypotheses``,
   ``prismstereo.z_range_mm``, ``prismstereo.input_shape``.
 
+The temporal graph (``export_onnx(..., temporal=TemporalOptions())``, :class:`TemporalGraph`) also takes the band's
+prior :data:`PRIOR_NAMES` (``prior_inverse_depth`` float32 and ``prior_placed`` bool, (B, 1, h, w): a
+:class:`~prismstereo.depth.temporal.BandPrior`, at the band's resolution) and also returns the next frame's,
+:data:`NEXT_PRIOR_NAMES`; its options (``downsample`` resolved) are in ``prismstereo.temporal``.
+
 Everything the model precomputes for a rig (the exact sweep polynomials, the prism masks, hypotheses) is
 stored as constants, so the graph is specific to one rig, sensor size, range and option set. Exported
 with the TorchScript-based exporter (``dynamo=False``) at opset 18: it traces the model once; the
@@ -22,6 +27,7 @@ graphs per rig and options.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import json
@@ -37,11 +43,11 @@ from torch import nn
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_option
 
 if TYPE_CHECKING:
-    from prismstereo.depth.result import DepthResult
-    from prismstereo.depth.temporal import TemporalOptions
+    from prismstereo.depth.temporal import BandPrior, TemporalOptions, TrackedDepth
 
 __all__ = [
     "DEFAULT_OPSET",
+    "NEXT_PRIOR_NAMES",
     "PRIOR_NAMES",
     "DepthGraph",
     "describe",
@@ -57,7 +63,8 @@ __all__ = [
 DEFAULT_OPSET = 18
 INPUT_NAME = "image"
 OUTPUT_NAMES = ("depth_mm", "valid", "confidence")
-PRIOR_NAMES = ("prior_depth_mm", "prior_valid", "prior_confidence")
+PRIOR_NAMES = ("prior_inverse_depth", "prior_placed")
+NEXT_PRIOR_NAMES = ("next_inverse_depth", "next_placed")
 Optimization = Literal["all", "extended", "basic", "disable"]
 OPTIMIZATIONS: tuple[str, ...] = ("all", "extended", "basic", "disable")
 
@@ -101,16 +108,16 @@ class DepthGraph(nn.Module):
 
 
 class TemporalGraph(nn.Module):
-    """The exported temporal computation: a :class:`~prismstereo.depth.temporal.TemporalDepth` with the inputs
-    ``(image, prior_depth_mm, prior_valid, prior_confidence)`` (the previous frame's outputs, of either graph)
-    and the outputs ``(depth_mm, valid, confidence)``.
+    """The exported temporal computation: :meth:`~prismstereo.depth.temporal.TemporalDepth.track` with the inputs
+    ``(image, prior_inverse_depth, prior_placed)`` (a :class:`~prismstereo.depth.temporal.BandPrior`) and the
+    outputs ``(depth_mm, valid, confidence, next_inverse_depth, next_placed)``.
 
     Example:
         >>> from prismstereo.depth.temporal import TemporalDepth
         >>> from prismstereo.model import PrismStereo
         >>> model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0), {"coarse_factor": 2})
-        >>> image = torch.rand(1, 1, 96, 128); prior = model(image)
-        >>> TemporalGraph(TemporalDepth(model))(image, *prior[:3])[0].shape
+        >>> tracker = TemporalDepth(model); image = torch.rand(1, 1, 96, 128)
+        >>> TemporalGraph(tracker)(image, *tracker.band_prior(*model(image)[:3]))[0].shape
         torch.Size([1, 1, 96, 64])
     """
 
@@ -118,10 +125,12 @@ class TemporalGraph(nn.Module):
         super().__init__()
         self.tracker = tracker
 
-    def forward(self, image: torch.Tensor, prior_depth: torch.Tensor, prior_valid: torch.Tensor,
-                prior_confidence: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        result = self.tracker(image, prior_depth, prior_valid, prior_confidence)
-        return result.depth, result.valid, result.confidence
+    def forward(self, image: torch.Tensor, prior_inverse: torch.Tensor,
+                prior_placed: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        from prismstereo.depth.temporal import BandPrior
+
+        result, following = self.tracker.track(image, BandPrior(prior_inverse, prior_placed))
+        return result.depth, result.valid, result.confidence, following.inverse, following.placed
 
 
 @functools.cache
@@ -156,6 +165,10 @@ def graph_metadata(model: nn.Module, channels: int, opset: int,
 
     rig = model.rig
     described = model.describe()
+    if temporal is not None:  # the binning resolved: the graph's prior is at its resolution
+        from prismstereo.depth.temporal import temporal_downsample
+
+        temporal = dataclasses.replace(temporal, downsample=temporal_downsample(model, temporal))
     return {
         "prismstereo.version": __version__,
         "prismstereo.source": source_digest(),
@@ -180,9 +193,9 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
         channels: C of the graph's input, 1 (grey) or 3 (RGB).
         opset: ONNX opset, >= 16 (GridSample).
         temporal: None (the per-frame graph) or :class:`~prismstereo.depth.temporal.TemporalOptions`: the
-            temporal graph (:class:`TemporalGraph`: the inputs ``image`` and :data:`PRIOR_NAMES`, (B, 1, H, W_ref)
-            each; its options in the metadata as ``prismstereo.temporal``), run next to the per-frame one by
-            :class:`~prismstereo.stream.DepthStream`.
+            temporal graph (:class:`TemporalGraph`: the inputs ``image`` and :data:`PRIOR_NAMES`, the outputs and
+            :data:`NEXT_PRIOR_NAMES`; its options in the metadata as ``prismstereo.temporal``), run next to the
+            per-frame one by :class:`~prismstereo.stream.DepthStream`.
 
     Returns:
         The written path.
@@ -209,7 +222,8 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
         raise ExportError(f"opset must be an int in 16..20 (GridSample needs >= 16), got {opset!r}")
     rig = model.rig
     example = torch.rand(1, channels, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(0))
-    inputs, names = (example,), [INPUT_NAME]
+    inputs, names, outputs = (example,), [INPUT_NAME], list(OUTPUT_NAMES)
+    prior_size = (rig.image_height, rig.reference_width)
     if temporal is None:
         graph = DepthGraph(model).eval()
     else:
@@ -218,19 +232,22 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
         if not isinstance(temporal, TemporalOptions):
             raise ExportError(f"temporal must be None or TemporalOptions, got {type(temporal).__name__}")
         try:
-            graph = TemporalGraph(TemporalDepth(model, temporal)).eval()
+            tracker = TemporalDepth(model, temporal)
         except OptionError as exc:
             raise ExportError(f"no temporal graph for this model: {exc}") from exc
+        graph = TemporalGraph(tracker).eval()
         with torch.no_grad():
-            inputs, names = (example, *model(example)[:3]), [INPUT_NAME, *PRIOR_NAMES]
+            inputs = (example, *tracker.band_prior(*model(example)[:3]))
+        names, outputs = [INPUT_NAME, *PRIOR_NAMES], [*OUTPUT_NAMES, *NEXT_PRIOR_NAMES]
+        prior_size = tracker.prior_size
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")  # tracer warnings about Python ints: shapes are static by design
         try:
             torch.onnx.export(graph, inputs, str(path), opset_version=opset, input_names=names,
-                              output_names=list(OUTPUT_NAMES), dynamo=False,
-                              dynamic_axes={n: {0: "batch"} for n in (*names, *OUTPUT_NAMES)})
+                              output_names=outputs, dynamo=False,
+                              dynamic_axes={n: {0: "batch"} for n in names + outputs})
         except Exception as exc:  # the exporter raises many types; report them as one
             raise ExportError(f"ONNX export failed: {exc}") from exc
     proto = onnx.load(str(path))
@@ -238,7 +255,8 @@ def export_onnx(model: nn.Module, path: str | Path, *, channels: int = 1, opset:
     for output in proto.graph.output:
         dims = output.type.tensor_type.shape.dim
         del dims[:]
-        for size in ("batch", 1, rig.image_height, rig.reference_width):
+        h, w = prior_size if output.name in NEXT_PRIOR_NAMES else (rig.image_height, rig.reference_width)
+        for size in ("batch", 1, h, w):
             dim = dims.add()
             if isinstance(size, str):
                 dim.dim_param = size
@@ -271,8 +289,10 @@ class OnnxDepth:
         metadata: the ``prismstereo.*`` metadata_props (str -> str).
         input_shape: (C, H, W) the graph expects.
         load_seconds: time to build the session.
-        temporal: a temporal graph's :class:`~prismstereo.depth.temporal.TemporalOptions` (it takes a prior),
-            None for the per-frame graph.
+        temporal: a temporal graph's :class:`~prismstereo.depth.temporal.TemporalOptions` (``downsample``
+            resolved; it takes a prior: :meth:`track`), None for the per-frame graph.
+        prior_size: a temporal graph's (h, w) of its :class:`~prismstereo.depth.temporal.BandPrior`, None for the
+            per-frame graph.
 
     Raises:
         ExportError: missing file, not an ONNX model, or not exported by prismstereo.
@@ -321,11 +341,12 @@ class OnnxDepth:
             raise ExportError(f"{self.path} must have the input {INPUT_NAME!r} (and a temporal graph "
                               f"{', '.join(PRIOR_NAMES)}), got {', '.join(names)}")
         self.input_shape = tuple(int(d) for d in json.loads(self.metadata["prismstereo.input_shape"])[1:])
-        self.temporal = None
+        self.temporal = self.prior_size = None
         if len(names) > 1:
             from prismstereo.depth.temporal import TemporalOptions
 
             self.temporal = TemporalOptions(**json.loads(self.metadata.get("prismstereo.temporal", "{}")))
+            self.prior_size = tuple(int(d) for d in self.session.get_inputs()[1].shape[2:])
 
     @property
     def rig(self):
@@ -340,11 +361,8 @@ class OnnxDepth:
         low, high = json.loads(self.metadata["prismstereo.z_range_mm"])
         return float(low), float(high)
 
-    def __call__(self, image: torch.Tensor | np.ndarray,
-                 prior: OnnxDepthResult | DepthResult | None = None) -> OnnxDepthResult:
-        """Depth of a batch ``image`` (B, C, H, W) in [0, 1] (any float dtype; run in float32); a temporal graph
-        needs ``prior``: the previous frame's result (anything with ``depth``, ``valid`` and ``confidence``,
-        (B, 1, H, W_ref) each: an :class:`OnnxDepthResult`, a :class:`~prismstereo.model.DepthResult`)."""
+    def _image(self, image: torch.Tensor | np.ndarray) -> np.ndarray:
+        """The graph's float32 input from (B, C, H, W) ``image``, checked."""
         array = image.detach().cpu().numpy() if isinstance(image, torch.Tensor) else np.asarray(image)
         if array.ndim != 4 or tuple(array.shape[1:]) != self.input_shape:
             c, h, w = self.input_shape
@@ -352,20 +370,68 @@ class OnnxDepth:
                              f"got {tuple(array.shape)}")
         if not np.issubdtype(array.dtype, np.floating):
             raise ShapeError(f"image must be floating point in [0, 1], got dtype {array.dtype}")
-        feed = {INPUT_NAME: np.ascontiguousarray(array, dtype=np.float32)}
-        if (prior is None) != (self.temporal is None):
+        return np.ascontiguousarray(array, dtype=np.float32)
+
+    def _kind(self, temporal: bool) -> None:
+        if (self.temporal is not None) != temporal:
             raise OptionError(f"{self.path.name} is a {'temporal' if self.temporal else 'per-frame'} graph: "
-                              f"{'pass' if self.temporal else 'do not pass'} a prior")
-        if prior is not None:
-            for name, t, dtype in zip(PRIOR_NAMES, (prior.depth, prior.valid, prior.confidence),
-                                      (np.float32, np.bool_, np.float32), strict=True):
-                value = t.detach().cpu().numpy() if isinstance(t, torch.Tensor) else np.asarray(t)
-                if value.ndim != 4 or value.shape[:3] != (array.shape[0], 1, array.shape[2]):
-                    raise ShapeError(f"{name} must have shape (B, 1, H, W_ref) with B = {array.shape[0]}, H = "
-                                     f"{array.shape[2]}, got {tuple(value.shape)}")
-                feed[name] = np.ascontiguousarray(value, dtype=dtype)
-        depth, valid, confidence = self.session.run(list(OUTPUT_NAMES), feed)
+                              f"{'track(image, prior)' if self.temporal else 'call it on the image alone'}")
+
+    def __call__(self, image: torch.Tensor | np.ndarray) -> OnnxDepthResult:
+        """Depth of a batch ``image`` (B, C, H, W) in [0, 1] (any float dtype; run in float32) by a per-frame graph.
+
+        Raises:
+            ShapeError: an image of another shape, or not floating point.
+            OptionError: a temporal graph (:meth:`track`).
+        """
+        self._kind(False)
+        depth, valid, confidence = self.session.run(list(OUTPUT_NAMES), {INPUT_NAME: self._image(image)})
         return OnnxDepthResult(torch.from_numpy(depth), torch.from_numpy(valid).bool(), torch.from_numpy(confidence))
+
+    def track(self, image: torch.Tensor | np.ndarray, prior: BandPrior) -> TrackedDepth:
+        """Depth of ``image`` (B, C, H, W) searched around ``prior`` by a temporal graph, as
+        :meth:`~prismstereo.depth.temporal.TemporalDepth.track`.
+
+        Args:
+            image: (B, C, H, W) in [0, 1] (any float dtype; run in float32).
+            prior: a :class:`~prismstereo.depth.temporal.BandPrior`, (B, 1, h, w) each (:attr:`prior_size`).
+
+        Returns:
+            TrackedDepth(OnnxDepthResult of (B, 1, H, W_ref) tensors, the next frame's BandPrior).
+
+        Raises:
+            ShapeError: an image or prior of another shape.
+            OptionError: a per-frame graph.
+        """
+        from prismstereo.depth.temporal import BandPrior, TrackedDepth
+
+        self._kind(True)
+        feed = {INPUT_NAME: self._image(image)}
+        shape = (feed[INPUT_NAME].shape[0], 1, *self.prior_size)
+        for name, t, dtype in zip(PRIOR_NAMES, prior, (np.float32, np.bool_), strict=True):
+            value = t.detach().cpu().numpy() if isinstance(t, torch.Tensor) else np.asarray(t)
+            if tuple(value.shape) != shape:
+                raise ShapeError(f"{name} must have shape {shape}, got {tuple(value.shape)}")
+            feed[name] = np.ascontiguousarray(value, dtype=dtype)
+        depth, valid, confidence, inverse, placed = self.session.run([*OUTPUT_NAMES, *NEXT_PRIOR_NAMES], feed)
+        return TrackedDepth(OnnxDepthResult(torch.from_numpy(depth), torch.from_numpy(valid).bool(),
+                                            torch.from_numpy(confidence)),
+                            BandPrior(torch.from_numpy(inverse), torch.from_numpy(placed).bool()))
+
+    def band_prior(self, depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor) -> BandPrior:
+        """A full-resolution result (B, 1, H, W_ref) each (a key frame's) as a temporal graph's prior
+        (:func:`~prismstereo.depth.temporal.band_prior` with the graph's range, options and :attr:`prior_size`),
+        computed in torch.
+
+        Raises:
+            OptionError: a per-frame graph.
+        """
+        from prismstereo.depth.temporal import band_prior
+
+        self._kind(True)
+        return band_prior(depth, valid, confidence, z_range=self.z_range,
+                          min_confidence=self.temporal.min_prior_confidence, downsample=self.temporal.downsample,
+                          size=self.prior_size)
 
 
 def describe(metadata: dict[str, Any]) -> str:

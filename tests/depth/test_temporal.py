@@ -11,7 +11,7 @@ import torch
 
 from prismstereo import thesis_setup1
 from prismstereo.depth.result import DepthResult
-from prismstereo.depth.temporal import TemporalDepth, TemporalOptions, supports_temporal
+from prismstereo.depth.temporal import BandPrior, TemporalDepth, TemporalOptions, band_prior, supports_temporal
 from prismstereo.epipolar.sweep import depth_to_sweep, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.model import PrismStereo
@@ -79,7 +79,7 @@ def test_supported_models_and_errors(model):
     with pytest.raises(OptionError, match="options must be TemporalOptions"):
         TemporalDepth(model, {"band": 1})
     tracker = TemporalDepth(model)
-    assert tracker.downsample == 2 and tracker.options.downsample is None  # a pyramid: its binned resolution
+    assert tracker.downsample == tracker.options.downsample == 2  # a pyramid: its binned resolution, resolved
     one = PrismStereo(small, (400.0, 700.0), {"coarse_factor": 2})
     assert TemporalDepth(one).downsample == 1 and TemporalDepth(one).level is one.final
     image = torch.rand(1, 1, 192, 256)
@@ -144,6 +144,81 @@ def test_binned_band_shapes_and_moving_sequence_within_tolerance(model, moving):
     err, cov = (statistics.mean(s[i] for s in per) for i in (0, 1))
     t_err, t_cov = (statistics.mean(s[i] for s in tracked) for i in (0, 1))
     assert t_err <= 0.25 and t_cov >= cov - 0.5, (err, cov, t_err, t_cov)
+
+
+def test_band_prior_reference_values_and_errors():
+    """A result as the band's prior: placed where valid and confident enough, 1/Z clipped to the range's bounds
+    (the placement's s is clamped to the range anyway); binned: each block's mean 1/Z over its placed pixels,
+    placed where at least half of them are."""
+    depth = torch.tensor([[[[500.0, 250.0, 600.0, 600.0], [1000.0, 400.0, 600.0, 600.0]]]], dtype=torch.float64)
+    valid = torch.tensor([[[[True, True, True, False], [True, True, False, False]]]])
+    confidence = torch.tensor([[[[0.9, 0.9, 0.9, 0.9], [0.9, 0.2, 0.9, 0.9]]]], dtype=torch.float64)
+    prior = band_prior(depth, valid, confidence, z_range=(400.0, 800.0), min_confidence=0.5)
+    assert prior.placed.tolist() == [[[[True, True, True, False], [True, False, False, False]]]]
+    assert prior.inverse.dtype == torch.float64
+    placed = prior.inverse[prior.placed]
+    torch.testing.assert_close(placed, torch.tensor([1 / 500, 1 / 400, 1 / 600, 1 / 800], dtype=torch.float64))
+    assert bool((prior.inverse[~prior.placed] == 1 / 400).all())  # finite where not placed
+    binned = band_prior(depth, valid, confidence, z_range=(400.0, 800.0), min_confidence=0.5, downsample=2)
+    assert binned.inverse.shape == binned.placed.shape == (1, 1, 1, 2)
+    assert binned.placed.tolist() == [[[[True, False]]]]  # 3 of 4 placed; 1 of 4
+    torch.testing.assert_close(binned.inverse[0, 0, 0, 0], torch.tensor((1 / 500 + 1 / 400 + 1 / 800) / 3,
+                                                                        dtype=torch.float64))
+    with pytest.raises(ShapeError, match="confidence must have depth's shape"):
+        band_prior(depth, valid, confidence[..., :2], z_range=(400.0, 800.0), min_confidence=0.5)
+    with pytest.raises(ShapeError, match="valid must be bool"):
+        band_prior(depth, valid.double(), confidence, z_range=(400.0, 800.0), min_confidence=0.5)
+    with pytest.raises(OptionError, match="downsample must be an int >= 1"):
+        band_prior(depth, valid, confidence, z_range=(400.0, 800.0), min_confidence=0.5, downsample=0)
+
+
+@pytest.mark.parametrize("options", [FULL, TemporalOptions(downsample=2)], ids=["full", "binned"])
+def test_track_leaves_the_band_s_own_prior_and_forward_tracks_a_result_s(model, moving, options):
+    """track returns the frame's result and the prior its band found, at the band's resolution (full resolution:
+    exactly the result's; binned: the binned level's, close to binning the interpolated result again);
+    forward is track of a full-resolution result's band_prior; shape and dtype errors."""
+    tracker = TemporalDepth(model, options)
+    with torch.no_grad():
+        first = model(moving.image[:1])
+        prior = tracker.band_prior(*first[:3])
+        tracked = tracker.track(moving.image[1:2], prior)
+        forward = tracker(moving.image[1:2], *first[:3])
+    for a, b in zip(tracked.result, forward, strict=True):
+        assert torch.equal(a, b)
+    size = (192, 128) if options is FULL else (96, 64)
+    assert tracker.prior_size == size
+    assert prior.inverse.shape == tracked.prior.inverse.shape == tracked.prior.placed.shape == (1, 1, *size)
+    again = tracker.band_prior(*tracked.result[:3])
+    placed = again.placed & tracked.prior.placed
+    if options is FULL:
+        assert torch.equal(again.inverse, tracked.prior.inverse) and torch.equal(again.placed, tracked.prior.placed)
+    else:
+        assert (again.placed == tracked.prior.placed).float().mean() >= 0.97 and placed.float().mean() > 0.5
+        rel = (again.inverse / tracked.prior.inverse - 1)[placed].abs()
+        assert float(rel.median()) < 1e-3, float(rel.median())
+    with pytest.raises(ShapeError, match="the prior's inverse must have shape"):
+        tracker.track(moving.image[1:2], BandPrior(prior.inverse[..., 1:], prior.placed))
+    with pytest.raises(ShapeError, match="the prior's placed must be bool"):
+        tracker.track(moving.image[1:2], BandPrior(prior.inverse, prior.placed.float()))
+    with pytest.raises(ShapeError, match="the prior's depth must have shape"):
+        tracker.band_prior(first.depth[..., 1:], first.valid[..., 1:], first.confidence[..., 1:])
+
+
+def test_stream_extrapolates_the_band_prior_where_both_frames_placed_it(model):
+    """The stream's next prior: 2 / z_1 - 1 / z_0 (constant velocity in inverse depth) where the last two frames'
+    priors are both placed, the last one's elsewhere; placed where the last one is; without ``extrapolate``, the last
+    prior itself."""
+    gen = torch.Generator().manual_seed(5)
+    last, before = (BandPrior(1.0 / (500.0 + 100.0 * torch.rand(1, 1, 6, 8, generator=gen)),
+                              torch.rand(1, 1, 6, 8, generator=gen) > 0.3) for _ in range(2))
+    for extrapolate in (True, False):
+        stream = DepthStream(model, temporal=TemporalOptions(extrapolate=extrapolate))
+        stream._prior, stream._before = last, before
+        predicted = stream._predicted()
+        both = last.placed & before.placed
+        want = torch.where(both, 2 * last.inverse - before.inverse, last.inverse) if extrapolate else last.inverse
+        torch.testing.assert_close(predicted.inverse, want, rtol=1e-6, atol=0)
+        assert torch.equal(predicted.placed, last.placed) and bool(both.any() and (~both).any())
 
 
 def _binned_band(model, seed: int):

@@ -223,33 +223,49 @@ def test_session_cache(exported, model, tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("downsample", [1, 2, 3])
 def test_temporal_graph_matches_torch_and_checks_its_prior(model, captures, exported, tmp_path, downsample):
-    """The temporal graph (image and the previous frame's outputs in, the same outputs out) against
-    TemporalDepth in torch, with the band at full resolution and on the 2 x 2- and 3 x 3-binned capture; the runners
-    refuse a prior they do not take and want one they do."""
+    """The temporal graph (image and the band's prior in, the outputs and the next frame's prior out) against
+    TemporalDepth.track in torch, with the band at full resolution and on the 2 x 2- and 3 x 3-binned capture; its
+    runner's key-frame prior is torch's; the runners refuse a prior they do not take and want one they do."""
     from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
 
     options = TemporalOptions(band=2, downsample=downsample)
     path = export_onnx(model, tmp_path / "temporal.onnx", temporal=options)
     proto = onnx.load(str(path))
-    assert [i.name for i in proto.graph.input] == ["image", "prior_depth_mm", "prior_valid", "prior_confidence"]
-    assert [o.name for o in proto.graph.output] == ["depth_mm", "valid", "confidence"]
-    runner = OnnxDepth(path)
+    assert [i.name for i in proto.graph.input] == ["image", "prior_inverse_depth", "prior_placed"]
+    assert [o.name for o in proto.graph.output] == ["depth_mm", "valid", "confidence", "next_inverse_depth",
+                                                    "next_placed"]
+    runner, tracker = OnnxDepth(path), TemporalDepth(model, options)
     assert runner.temporal == options and OnnxDepth(exported).temporal is None
+    assert runner.prior_size == tracker.prior_size and OnnxDepth(exported).prior_size is None
+    declared = [tuple(d.dim_value for d in o.type.tensor_type.shape.dim[1:]) for o in proto.graph.output]
+    full = (1, model.rig.image_height, model.rig.reference_width)
+    assert declared == [full] * 3 + [(1, *tracker.prior_size)] * 2
     with torch.no_grad():
-        prior = model(captures[:2])
-        want = TemporalDepth(model, options)(captures[:2], *prior[:3])  # a static scene
-    got = runner(captures[:2], prior)
-    both = got.valid & want.valid
-    assert both.float().mean() > 0.3 and (got.valid == want.valid).float().mean() >= 0.999
-    rel = ((got.depth - want.depth).abs() / want.depth)[both]
+        first = model(captures[:2])
+        prior = tracker.band_prior(*first[:3])
+        want = tracker.track(captures[:2], prior)  # a static scene
+    for a, b in zip(runner.band_prior(*first[:3]), prior, strict=True):
+        assert torch.equal(a, b)
+    got = runner.track(captures[:2], prior)
+    for result in (got.result, want.result):
+        assert result.depth.shape == (2, *full)
+    both = got.result.valid & want.result.valid
+    assert both.float().mean() > 0.3 and (got.result.valid == want.result.valid).float().mean() >= 0.999
+    rel = ((got.result.depth - want.result.depth).abs() / want.result.depth)[both]
     assert float((rel > 1e-4).double().mean()) <= 2e-3 and float(rel.max()) <= 1e-3
-    torch.testing.assert_close(got.confidence[both], want.confidence[both], atol=2e-3, rtol=0)
-    with pytest.raises(OptionError, match="temporal graph: pass a prior"):
+    torch.testing.assert_close(got.result.confidence[both], want.result.confidence[both], atol=2e-3, rtol=0)
+    placed = got.prior.placed & want.prior.placed
+    assert got.prior.placed.dtype == torch.bool and got.prior.inverse.shape == (2, 1, *tracker.prior_size)
+    assert (got.prior.placed == want.prior.placed).float().mean() >= 0.995 and placed.float().mean() > 0.3
+    torch.testing.assert_close(got.prior.inverse[placed], want.prior.inverse[placed], rtol=1e-3, atol=0)
+    with pytest.raises(OptionError, match="temporal graph: track"):
         runner(captures[:1])
-    with pytest.raises(OptionError, match="per-frame graph: do not pass a prior"):
-        OnnxDepth(exported)(captures[:1], prior)
-    with pytest.raises(ShapeError, match="prior_depth_mm must have shape"):
-        runner(captures[:1], prior)  # a prior of 2 images for 1
+    with pytest.raises(OptionError, match="per-frame graph: call it on the image alone"):
+        OnnxDepth(exported).track(captures[:1], prior)
+    with pytest.raises(OptionError, match="per-frame graph"):
+        OnnxDepth(exported).band_prior(*first[:3])
+    with pytest.raises(ShapeError, match="prior_inverse_depth must have shape"):
+        runner.track(captures[:1], prior)  # a prior of 2 images for 1
     with pytest.raises(ExportError, match="temporal must be None or TemporalOptions"):
         export_onnx(model, tmp_path / "bad.onnx", temporal={"band": 1})
     single = PrismStereo(model.rig, (300.0, 900.0), {"coarse_factor": 1})
