@@ -1,19 +1,18 @@
 """The temporal prior: the depth of a video frame searched in a narrow band around the previous frame's depth.
 
 Between two frames of a video most pixels move by a fraction of a hypothesis step. :class:`TemporalDepth` takes a
-:class:`~prismstereo.model.PrismStereo` and places a band directly on a prior (the previous frame's depth,
-validity and confidence, at full resolution) instead of on the binned level's estimate: its full-resolution
+:class:`~prismstereo.model.PrismStereo` and places a band directly on a prior (the previous frame's inverse depth
+where it is valid and confident, :class:`BandPrior`) instead of on the binned level's estimate: its full-resolution
 level's band, or one on the binned frame (``downsample``, below); no coarse search, and a band of 2 ``band`` + 1
-hypotheses (default 3, against the pyramid's 5). With
-``band_edges='clamp'`` the sub-pixel fit may move the estimate up to the band's outer sample (``vertex_limit`` 1
-of :class:`~prismstereo.matching.band.FineBand`, not the search's half step): a plane moving by one hypothesis
-step per frame is then followed in the frame it moves, where a half-step limit left the first tracked frames
-off until the extrapolation caught up. Prior pixels that
-are invalid or less confident than ``min_prior_confidence`` take the mean sweep coordinate of the others within
-``reach`` pixels (:func:`~prismstereo.matching.band.extend_estimate`); where neither exists the pixel is invalid.
-The calibrated confidence sees the band's own NCC where the per-frame model sees the binned level's similarity:
-evidence of the frame itself, so that a band that a scene cut or fast motion has left behind is judged unsure
-(the stream then computes the frame with the full model).
+hypotheses (default 3, against the pyramid's 5). With ``band_edges='clamp'`` the sub-pixel fit may move the estimate
+up to the band's outer sample (``vertex_limit`` 1 of :class:`~prismstereo.matching.band.FineBand`, not the search's
+half step): a plane moving by one hypothesis step per frame is then followed in the frame it moves, where a
+half-step limit left the first tracked frames off until the extrapolation caught up. Prior pixels that are invalid
+or less confident than ``min_prior_confidence`` take the mean sweep coordinate of the others within ``reach`` pixels
+(:func:`~prismstereo.matching.band.extend_estimate`); where neither exists the pixel is invalid. The calibrated
+confidence sees the band's own NCC where the per-frame model sees the binned level's similarity: evidence of the
+frame itself, so that a band that a scene cut or fast motion has left behind is judged unsure (the stream then
+computes the frame with the full model).
 
 With ``downsample`` k > 1 (by default 2 for a pyramid model) the band runs on the capture binned by k x k instead,
 in a level of its own on the binned rig with the model's options (its sweep, calibrated confidence and
