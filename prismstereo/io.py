@@ -87,7 +87,8 @@ def read_image(path: str | Path) -> torch.Tensor:
 
 def to_grey(image: torch.Tensor) -> torch.Tensor:
     """The grey image the models take, (*, 1, H, W), of an image (*, C, H, W) in [0, 1]: itself with one channel,
-    else :func:`kornia.color.rgb_to_grayscale` of its RGB channels (ITU-R BT.601 weights 0.299, 0.587, 0.114).
+    else the ITU-R BT.601 luma of its RGB channels (weights 0.299, 0.587, 0.114): the bits of
+    :func:`kornia.color.rgb_to_grayscale` (tested), computed here so that the depth path never imports kornia.
 
     The one conversion of colour captures and frames (the CLI's jobs, :class:`~prismstereo.stream.DepthStream`,
     :func:`~prismstereo.video.read_frames` with ``grey=True``, Ray's ``DepthPredictor``), so that a frame converted
@@ -113,9 +114,9 @@ def to_grey(image: torch.Tensor) -> torch.Tensor:
         return image
     if image.shape[-3] != 3:
         raise ShapeError(f"image must have 1 (grey) or 3 (RGB) channels, got {image.shape[-3]}")
-    from kornia.color import rgb_to_grayscale
-
-    return rgb_to_grayscale(image)
+    r, g, b = image.unbind(-3)
+    w_r, w_g, w_b = torch.tensor([0.299, 0.587, 0.114], dtype=image.dtype).to(image.device).unbind()
+    return torch.addcmul(torch.addcmul(r * w_r, g, w_g), b, w_b).unsqueeze(-3)  # kornia's order of operations
 
 
 def write_image(path: str | Path, image: torch.Tensor, bits: int = 8) -> None:

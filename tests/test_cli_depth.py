@@ -1,6 +1,7 @@
 """``prismstereo depth`` on a 128 x 96 version of setup 1 (rendered fronto-parallel planes)."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -250,6 +251,14 @@ def test_onnx_backend_matches_torch(scene, tmp_path, monkeypatch, capsys):
     assert _run(scene, scene / "far.png", "--out", c, "--z-range", 400, 700, "--backend", "onnx") == 0
     assert "(cached graph)" in capsys.readouterr().out
     np.testing.assert_array_equal(np.load(b), np.load(c))
+    # a cached graph's run in a fresh process, on a colour capture, loads neither a torch model nor kornia
+    code = ("import sys; from prismstereo.cli import main; rc = main(sys.argv[1:]); "
+            "print('exit', rc, 'kornia' in sys.modules, 'prismstereo.model' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code, "depth", str(scene / "near.png"), "--rig",
+                           str(scene / "small.json"), "--out", str(tmp_path / "near.npy"), "--z-range", "400", "700",
+                           "--backend", "onnx"], capture_output=True, text=True,
+                          env={**os.environ, "PRISMSTEREO_CACHE": str(tmp_path / "cache")})
+    assert "(cached graph)" in proc.stdout and proc.stdout.splitlines()[-1] == "exit 0 False False", proc.stdout
     # `prismstereo export` of the same request copies the cached graph (another opset is another export)
     out = tmp_path / "exported.onnx"
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(out), "--z-range", "400", "700"]) == 0

@@ -150,7 +150,9 @@ def test_to_grey_is_the_bt601_luma_of_rgb_and_keeps_grey():
     grey = to_grey(rgb)
     assert grey.shape == (2, 1, 4, 5) and grey.dtype == torch.float64
     torch.testing.assert_close(grey, 0.299 * rgb[:, :1] + 0.587 * rgb[:, 1:2] + 0.114 * rgb[:, 2:])
-    assert torch.equal(to_grey(rgb[0]), rgb_to_grayscale(rgb[0]))  # (C, H, W) too, the same bits as kornia's
+    for dtype in (torch.float64, torch.float32, torch.float16, torch.bfloat16):  # the same bits as kornia's
+        assert torch.equal(to_grey(rgb.to(dtype)), rgb_to_grayscale(rgb.to(dtype)))
+        assert torch.equal(to_grey(rgb[0].to(dtype)), rgb_to_grayscale(rgb[0].to(dtype)))  # (C, H, W) too
     one = rgb[:, :1]
     assert to_grey(one) is one
     with pytest.raises(ShapeError, match="1 \\(grey\\) or 3 \\(RGB\\) channels, got 2"):

@@ -16,7 +16,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import NamedTuple
 
-import kornia
 import torch
 
 from prismstereo.calibration.problem import RigProblem
@@ -114,6 +113,9 @@ def initial_poses(rig: BiPrismRig, obs: Observations) -> torch.Tensor:
         >>> initial_poses(thesis_setup1(), gather_observations([], parse_target("checkerboard:4x7:6"))).shape
         torch.Size([0, 6])
     """
+    # kornia imported where used: a cached graph's depth run never loads it
+    from kornia.geometry.conversions import rotation_matrix_to_axis_angle
+
     poses = []
     for k in range(len(obs.views)):
         sel = obs.view == k
@@ -132,7 +134,7 @@ def initial_poses(rig: BiPrismRig, obs: Observations) -> torch.Tensor:
             raise CalibrationError(f"view {obs.views[k]}: its corners do not triangulate to a board in front of the "
                                    "prism with the nominal rig (is the rig file the right one?)")
         r, t = rigid_fit(board_pts[ok], x[ok])
-        w = kornia.geometry.conversions.rotation_matrix_to_axis_angle(r[None])[0]
+        w = rotation_matrix_to_axis_angle(r[None])[0]
         poses.append(torch.cat([w, t]))
     return torch.stack(poses) if poses else torch.zeros(0, 6, dtype=F64)
 
@@ -169,7 +171,10 @@ class BoardProblem(RigProblem):
                 iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
         """The exact projection of every corner's board point, posed by its view's (axis-angle, translation)."""
         obs = self.obs
-        rot = kornia.geometry.conversions.axis_angle_to_rotation_matrix(blocks[:, :3])  # (V, 3, 3)
+        # kornia imported where used: a cached graph's depth run never loads it
+        from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+
+        rot = axis_angle_to_rotation_matrix(blocks[:, :3])  # (V, 3, 3)
         pts = (rot[obs.view] @ obs.points.to(blocks).unsqueeze(-1)).squeeze(-1) + blocks[obs.view, 3:]
         uvs, valids = [], []
         for half, rows in (("left", self._left_rows), ("right", self._right_rows)):

@@ -23,7 +23,6 @@ from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
-from kornia.filters import gaussian_blur2d
 
 from prismstereo.errors import CalibrationError
 
@@ -128,6 +127,9 @@ def refine_corners(
     radius = radius.to(dtype)
     if sigma_px > 0:
         k = 2 * math.ceil(3 * sigma_px) + 1
+        # kornia imported where used: a cached graph's depth run never loads it
+        from kornia.filters import gaussian_blur2d
+
         img = gaussian_blur2d(img[None, None], (k, k), (sigma_px, sigma_px), border_type="replicate")[0, 0]
     grad = torch.stack([torch.gradient(img, dim=1)[0], torch.gradient(img, dim=0)[0]])  # (2, H, W): d/du, d/dv
     stack = torch.cat([img[None], grad])  # (3, H, W)

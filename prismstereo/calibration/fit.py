@@ -12,7 +12,6 @@ import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
-import kornia
 import numpy as np
 import torch
 from tqdm.auto import tqdm
@@ -130,8 +129,11 @@ def view_depth_uncertainty(rig: BiPrismRig, covariance: torch.Tensor, depths: to
 
 def _board_depths(problem: BoardProblem, x: torch.Tensor) -> torch.Tensor:
     """(V,) depth (mm) of each posed board's centre."""
+    # kornia imported where used: a cached graph's depth run never loads it
+    from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+
     poses = problem.blocks(x)
-    rot = kornia.geometry.conversions.axis_angle_to_rotation_matrix(poses[:, :3])
+    rot = axis_angle_to_rotation_matrix(poses[:, :3])
     return (rot @ problem.obs.points.mean(0).to(poses))[:, 2] + poses[:, 5]
 
 

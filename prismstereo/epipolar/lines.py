@@ -18,7 +18,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import torch
-from kornia.geometry.epipolar import compute_correspond_epilines, fundamental_from_projections
 
 from prismstereo.errors import RigError, check_floating, check_shape
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
@@ -138,6 +137,9 @@ def fundamental_matrix(cameras: VirtualCameraPair) -> torch.Tensor:
         >>> fundamental_matrix(virtual_cameras(thesis_setup1())).shape
         torch.Size([3, 3])
     """
+    # kornia imported where used: a cached graph's depth run never loads it
+    from kornia.geometry.epipolar import fundamental_from_projections
+
     p_left, p_right = projection_matrix(cameras.left), projection_matrix(cameras.right)
     return fundamental_from_projections(p_left[None], p_right[None])[0]
 
@@ -159,6 +161,9 @@ def fundamental_epipolar_lines(uv_ref: torch.Tensor, fundamental: torch.Tensor) 
     """
     check_shape(uv_ref, ["*", 2], "uv_ref")
     check_shape(fundamental, [3, 3], "fundamental")
+    # kornia imported where used: a cached graph's depth run never loads it
+    from kornia.geometry.epipolar import compute_correspond_epilines
+
     flat = uv_ref.reshape(1, -1, 2)
     lines = compute_correspond_epilines(flat, fundamental.to(uv_ref)[None])
     return lines.reshape(*uv_ref.shape[:-1], 3)

@@ -17,14 +17,16 @@ OC_x (it quotes the left virtual camera at x = +9.167 mm, rotated by -0.0538 rad
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+from typing import TYPE_CHECKING, Literal, NamedTuple
 
 import torch
-from kornia.geometry.camera import PinholeCamera
 
 from prismstereo.errors import OptionError, RigError, check_option, check_shape
 from prismstereo.geometry.optics import Half, RayBundle, apex_ray, points_at_depth, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
+
+if TYPE_CHECKING:
+    from kornia.geometry.camera import PinholeCamera
 
 __all__ = [
     "VirtualCamera",
@@ -175,6 +177,9 @@ def _rodrigues(w: torch.Tensor) -> torch.Tensor:
 
 
 def _camera(fx, fy, cx, cy, rotation, centre, rig: BiPrismRig) -> PinholeCamera:
+    # kornia imported where used: a cached graph's depth run never loads it
+    from kornia.geometry.camera import PinholeCamera
+
     dt = rotation.dtype
     k = torch.eye(4, dtype=dt)
     k[0, 0], k[1, 1], k[0, 2], k[1, 2] = fx, fy, cx, cy
