@@ -225,8 +225,10 @@ def _cli_seconds(args: list[str]) -> tuple[float, str]:
     """Wall seconds of ``prismstereo depth ARGS`` in a subprocess, and what it printed."""
     cli = Path(sys.executable).with_name("prismstereo")
     start = time.perf_counter()
-    done = subprocess.run([str(cli), "depth", *args], capture_output=True, text=True, check=True)
+    done = subprocess.run([str(cli), "depth", *args], capture_output=True, text=True)
     seconds = time.perf_counter() - start
+    if done.returncode:  # the CLI's own reasons (a failed input, a full disk), not only its exit status
+        raise SystemExit(f"prismstereo depth {' '.join(args)} exited {done.returncode}:\n{done.stderr[-2000:]}")
     return seconds, done.stdout
 
 
