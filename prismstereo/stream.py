@@ -257,19 +257,19 @@ class DepthStream:
             self._prior = self._before = self._thumb = None
             self._since_key, self._key_valid, self._last_valid = 0, 1.0, 1.0
 
+    def _inference(self):
+        """torch's inference mode around a torch model's run (an ONNX graph's needs none)."""
+        return torch.inference_mode() if self.backend == "torch" else contextlib.nullcontext()
+
     def _run(self, image: torch.Tensor):
         """The model on one image."""
-        if self.backend == "torch":
-            with torch.inference_mode():
-                return self._runner(image)
-        return self._runner(image)
+        with self._inference():
+            return self._runner(image)
 
     def _track(self, image: torch.Tensor, prior: BandPrior):
         """The temporal band on one image: (its result, the next frame's prior)."""
-        if self.backend == "torch":
-            with torch.inference_mode():
-                return self._tracker.track(image, prior)
-        return self._tracker.track(image, prior)
+        with self._inference():
+            return self._tracker.track(image, prior)
 
     def _band_prior(self, res) -> BandPrior:
         """A key frame's result as the band's prior."""
