@@ -24,11 +24,11 @@ demo: $(STAMP)
 	$(VENV)/bin/prismstereo demo
 
 test: $(STAMP)
-	$(VENV)/bin/ruff check prismstereo tests benchmarks export
+	$(VENV)/bin/ruff check prismstereo tests benchmarks
 	$(PYC) $(PY) -m pytest -q
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check prismstereo tests benchmarks export
+	$(VENV)/bin/ruff check prismstereo tests benchmarks
 
 bench: $(STAMP)
 	for b in benchmarks/[!_]*.py; do echo "== $$b"; $(PY) $$b || exit 1; done

@@ -34,7 +34,7 @@ from prismstereo import thesis_setup1, thesis_setup2
 from prismstereo.calibration import calibrate_board, calibrate_self, parse_target
 from prismstereo.calibration.parameters import NAMES, rig_vector, to_display, tolerance_vector
 from prismstereo.calibration.uncertainty import depth_uncertainty
-from prismstereo.model import PrismStereo
+from prismstereo.classical.model import PrismStereo
 from prismstereo.synthetic import (
     ImageFormation,
     calibration_views,

@@ -51,6 +51,7 @@ from prismstereo import PrismStereo, thesis_setup1, thesis_setup2  # noqa: E402
 from prismstereo.export import OnnxDepth, export_onnx  # noqa: E402
 from prismstereo.learned import HybridStereo, LearnedStereo  # noqa: E402
 from prismstereo.synthetic import ImageFormation, disparity_scene, fronto_parallel_plane, render  # noqa: E402
+from prismstereo.threads import set_torch_threads  # noqa: E402
 
 Z_RANGE = (228.0, 1374.0)
 CHAINS = ("accurate", "dense", "learned", "block", "hybrid")
@@ -67,7 +68,7 @@ def peak():  # this process's own high-water mark (ru_maxrss would include the p
     line = next(x for x in Path("/proc/self/status").read_text().splitlines() if x.startswith("VmHWM"))
     return int(line.split()[1]) / 1024
 
-torch.set_num_threads(2)
+set_torch_threads(2)
 model = HybridStereo(thesis_setup1(), (228.0, 1374.0), weights=sys.argv[1] if len(sys.argv) > 1 else "default").eval()
 built = peak()
 Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current resident size
@@ -165,7 +166,7 @@ def main() -> None:
     unknown = set(chains) - set(CHAINS)
     if unknown:
         raise SystemExit(f"unknown chains {sorted(unknown)}; choose from {', '.join(CHAINS)}")
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     cv2.setNumThreads(2)
     s1 = thesis_setup1()
     caps = {name: (s1, cap) for name, cap in captures(s1, args.cache).items()}

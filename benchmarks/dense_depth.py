@@ -66,10 +66,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fit_confidence import procedural_surface  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
-from prismstereo.config import preset  # noqa: E402
-from prismstereo.defaults import default_downsample  # noqa: E402
+from prismstereo.classical.config import preset  # noqa: E402
+from prismstereo.classical.defaults import default_downsample  # noqa: E402
+from prismstereo.classical.model import PrismStereo  # noqa: E402
 from prismstereo.matching.confidence import confidence_threshold  # noqa: E402
-from prismstereo.model import PrismStereo  # noqa: E402
 from prismstereo.synthetic import (  # noqa: E402
     ImageFormation,
     fronto_parallel_plane,
@@ -77,6 +77,7 @@ from prismstereo.synthetic import (  # noqa: E402
     middlebury_scene,
     render,
 )
+from prismstereo.threads import set_torch_threads  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
 MODELS = {"thresholds": {"validity": "thresholds", "smoothing": 0}, "unsmoothed": {"smoothing": 0},
@@ -192,7 +193,7 @@ def main() -> None:
                         help="add a model by its options (see the module docstring)")
     args = parser.parse_args()
     extra = dict(model_config(spec) for spec in args.model)
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     rig = thesis_setup1() if args.scale == 1 else thesis_setup1().downscaled(args.scale)
     caps = captures(rig, args.cache)
     pyramid = default_downsample(rig) > 1  # 'dense cf1' needs the binned model (a single level has

@@ -56,9 +56,10 @@ import time
 import torch
 
 from prismstereo import thesis_setup1, thesis_setup2
-from prismstereo.config import PRESETS
-from prismstereo.model import PrismStereo
+from prismstereo.classical.config import PRESETS
+from prismstereo.classical.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, slanted_plane, step_scene
+from prismstereo.threads import set_torch_threads
 
 THESIS_DEPTHS = (228.0, 312.0, 353.0, 418.0, 525.0, 625.0, 780.0, 936.0, 1192.0, 1374.0)
 Z_RANGE = (205.0, 1511.0)
@@ -135,7 +136,7 @@ def main() -> None:
     z_range = tuple(args.z_range)
     if not (0 < z_range[0] < z_range[1] and all(z_range[0] <= z <= z_range[1] for z in (args.slanted, *args.step))):
         parser.error(f"need 0 < ZMIN < ZMAX around --slanted and --step, got {z_range}, {args.slanted}, {args.step}")
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     form = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
     for key in args.setups:
         rig = SETUPS[key]().downscaled(args.scale)

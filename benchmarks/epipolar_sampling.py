@@ -16,6 +16,7 @@ from _timing import median_ms  # benchmarks/_timing.py (scripts run from this fo
 
 from prismstereo import thesis_setup1, thesis_setup2
 from prismstereo.epipolar import band_residual, depth_hypotheses, exact_sampling_grid, shift_bands
+from prismstereo.threads import set_torch_threads
 
 
 def _sampling_cost(h: int, w_ref: int, d: int, bands: int) -> tuple[float, float]:
@@ -41,7 +42,7 @@ def _sampling_cost(h: int, w_ref: int, d: int, bands: int) -> tuple[float, float
 
 
 def main() -> None:
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     rows = torch.arange(0, 768, 48)
     for name, rig, d in (("thesis_setup1", thesis_setup1(), 368), ("thesis_setup2", thesis_setup2(), 456)):
         depths = depth_hypotheses(228.0, 1374.0, d)

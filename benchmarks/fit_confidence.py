@@ -43,11 +43,11 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo import thesis_setup1, thesis_setup2
-from prismstereo.config import preset
+from prismstereo.classical.config import preset
+from prismstereo.classical.model import PrismStereo
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.data import procedural_picture
 from prismstereo.matching.confidence import FEATURES, SMOOTHED_FEATURES, ConfidenceModel, fit_confidence
-from prismstereo.model import PrismStereo
 from prismstereo.synthetic import (
     ImageFormation,
     Scene,

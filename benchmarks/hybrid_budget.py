@@ -43,6 +43,7 @@ from video_speed import disparities  # noqa: E402
 from prismstereo import PrismStereo, thesis_setup1  # noqa: E402
 from prismstereo.export import OnnxDepth, export_onnx  # noqa: E402
 from prismstereo.synthetic import ImageFormation, render, slanted_plane  # noqa: E402
+from prismstereo.threads import set_torch_threads  # noqa: E402
 
 Z_RANGE = (228.0, 1374.0)
 DILATIONS = (1, 2, 4, 8, 1, 1, 1, 1)
@@ -81,7 +82,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rounds", type=int, default=9, help="interleaved timing rounds")
     args = parser.parse_args()
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     cv2.setNumThreads(2)
     rig = thesis_setup1()
     capture = render(rig, [slanted_plane(rig, 525.0, 30.0)], ImageFormation(supersample=2, noise_sigma=1 / 255))

@@ -21,17 +21,18 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from video_speed import Z_RANGE, _pingpong, sensor, sequences  # noqa: E402
 
 from prismstereo import PrismStereo  # noqa: E402
-from prismstereo.depth.temporal import TemporalOptions  # noqa: E402
+from prismstereo.classical.temporal import TemporalOptions  # noqa: E402
 from prismstereo.export import export_onnx  # noqa: E402
 from prismstereo.learned import HybridStereo  # noqa: E402
+from prismstereo.predictor import Predictor  # noqa: E402
 from prismstereo.stream import DepthStream  # noqa: E402
 from prismstereo.synthetic import ImageFormation, render  # noqa: E402
+from prismstereo.threads import set_torch_threads  # noqa: E402
 
 
 def main() -> None:
@@ -39,7 +40,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=240, help="frames played (back and forth over 30)")
     parser.add_argument("--intervals", type=int, nargs="+", default=(30, 60, 120), help="key-frame intervals")
     args = parser.parse_args()
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     rig = sensor(1024)
     caps = render(rig, sequences(rig, 30)["moving"], ImageFormation(supersample=2, noise_sigma=1 / 255, seed=3))
     w = rig.reference_width
@@ -50,8 +51,8 @@ def main() -> None:
         graph = export_onnx(HybridStereo(rig, Z_RANGE).eval(), Path(folder) / "frame.onnx")
         tracker = export_onnx(model, Path(folder) / "temporal.onnx", temporal=TemporalOptions())
         for k in args.intervals:  # sessions as the CLI opens them
-            stream = DepthStream(graph, temporal_graph=tracker, temporal=TemporalOptions(keyframe_interval=k),
-                                 threads=2, spinning=False)
+            predictor = Predictor.from_graphs(graph, tracker, threads=2, spinning=False)
+            stream = DepthStream(predictor, temporal=TemporalOptions(keyframe_interval=k))
             errors, coverage = [], []
             for i in _pingpong(30, args.frames):
                 res = stream.push(caps.image[i])

@@ -37,10 +37,11 @@ from dense_depth import captures as dense_captures  # noqa: E402
 from dense_depth import scores  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
+from prismstereo.classical.model import PrismStereo  # noqa: E402
 from prismstereo.export import OnnxDepth, export_onnx  # noqa: E402
 from prismstereo.learned import LearnedStereo  # noqa: E402
-from prismstereo.model import PrismStereo  # noqa: E402
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render  # noqa: E402
+from prismstereo.threads import set_torch_threads  # noqa: E402
 
 
 def captures(rig, cache: Path) -> dict[str, dict]:
@@ -79,7 +80,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="timed forward passes per capture and model")
     parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads (use 1 on a shared CPU)")
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
+    set_torch_threads(args.threads)
     rig = thesis_setup1()
     z_range = tuple(args.z_range)
     caps = captures(rig, args.cache)

@@ -5,7 +5,7 @@ bad>1px (percentage of pixels with ground truth whose disparity is off by more t
 bad: for prismstereo the pixels neither valid nor filled, for OpenCV its invalid value), the ratio to StereoSGBM
 and the time per pair (2 threads; other jobs on the machine make the times longer), side by side for:
 
-* prismstereo: :func:`~prismstereo.matching.rectified.match_rectified` with the default ``MatchOptions`` (the depth
+* prismstereo: :func:`~prismstereo.classical.rectified.match_rectified` with the default ``MatchOptions`` (the depth
   model's shift volume and decision with the matcher's config: truncated colour + gradient cost, guided-filter
   aggregation; then the matcher's own post-processing: sub-pixel fit on the colour difference, left-right check,
   background fill, medians, colour-weighted median);
@@ -24,10 +24,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
 
+from prismstereo.classical.rectified import match_rectified
 from prismstereo.io import read_image
-from prismstereo.matching.rectified import match_rectified
+from prismstereo.threads import set_torch_threads
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
 SCENES = {"Tsukuba": ("disp_gt.pgm", 16.0, 16), "Venus": ("disp_gt.png", 8.0, 32)}
@@ -41,7 +41,7 @@ def bad_percent(disparity: np.ndarray, valid: np.ndarray, gt: np.ndarray) -> flo
 
 
 def main() -> None:
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     cv2.setNumThreads(2)
     print(f"{'scene':8s} {'method':27s} {'bad>1px %':>10s} {'x SGBM':>8s} {'ms':>8s}")
     for scene, (gt_name, scale, num_disp) in SCENES.items():

@@ -23,9 +23,10 @@ from pathlib import Path
 import torch
 
 from prismstereo import thesis_setup1
+from prismstereo.classical.model import PrismStereo
 from prismstereo.export import OnnxDepth, export_onnx
-from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, step_scene
+from prismstereo.threads import set_torch_threads
 
 FORMATION = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
 
@@ -34,7 +35,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scale", type=int, default=1, help="sensor downscale factor (1 = 1024 x 768)")
     args = parser.parse_args()
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     rig = thesis_setup1().downscaled(args.scale)
     scenes = [fronto_parallel_plane(rig, z, seed=i) for i, z in enumerate((312.0, 525.0, 780.0))]
     scenes.append(step_scene(rig, 450.0, 650.0, seed=12))

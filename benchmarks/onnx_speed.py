@@ -1,7 +1,7 @@
 """Speed of the depth model in torch and onnxruntime against OpenCV's StereoSGBM / StereoBM on this machine,
 with the accuracy each reaches on a rendered capture; batching, peak memory and an onnxruntime profile.
 
-Everything runs on 2 threads (``torch.set_num_threads(2)``, ``cv2.setNumThreads(2)``, onnxruntime 2 intra-op
+Everything runs on 2 threads (``set_torch_threads(2)``, ``cv2.setNumThreads(2)``, onnxruntime 2 intra-op
 and 1 inter-op thread, all graph optimisations) with ``thesis_setup1`` at 1024 x 768 (``--scale K`` divides the
 sensor by K for quick runs). Times: ``--repeats`` interleaved rounds after one warm-up call each
 (``benchmarks/_timing.py``: every method once per round, in reversed order every other round, 0.1 s apart), the
@@ -105,12 +105,13 @@ import torch
 from _timing import interleaved_ms, paired_ratio  # benchmarks/_timing.py (scripts run from this folder)
 
 from prismstereo import thesis_setup1
+from prismstereo.classical.model import PrismStereo
 from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.export import OnnxDepth, export_onnx
 from prismstereo.geometry import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, render, slanted_plane
+from prismstereo.threads import set_torch_threads
 
 F64 = torch.float64
 FORMATION = ImageFormation(supersample=2, noise_sigma=1 / 255, bits=8)
@@ -475,9 +476,9 @@ TORCH_RSS = RSS_HELPERS + """
 import numpy as np
 import torch
 from prismstereo import thesis_setup1
-from prismstereo.model import PrismStereo
+from prismstereo.classical.model import PrismStereo
 out = {"imports": hwm()}
-torch.set_num_threads(2)
+set_torch_threads(2)
 image = torch.from_numpy(np.load(sys.argv[2]))
 config = json.loads(sys.argv[1])
 model = PrismStereo(thesis_setup1().downscaled(config["scale"]), tuple(config["z_range"])).eval()
@@ -569,7 +570,7 @@ def main() -> None:
     parser.add_argument("--narrow-coarse-factor", type=int, default=0,
                         help="coarse_factor of the narrow-range model (0 = the model's default)")
     args = parser.parse_args()
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     cv2.setNumThreads(2)
     t_start = time.perf_counter()
     print(machine_line())

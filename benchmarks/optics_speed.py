@@ -17,6 +17,7 @@ from _timing import median_ms  # benchmarks/_timing.py (scripts run from this fo
 
 from prismstereo import thesis_setup1
 from prismstereo.geometry import points_at_depth, project_points, trace_pixels
+from prismstereo.threads import set_torch_threads
 
 
 class _Project(torch.nn.Module):
@@ -33,7 +34,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     rig = thesis_setup1()
     h, w = rig.image_height, rig.image_width
     rows = []

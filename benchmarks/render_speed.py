@@ -12,8 +12,6 @@ import statistics
 import time
 from pathlib import Path
 
-import torch
-
 from prismstereo import thesis_setup1
 from prismstereo.synthetic import (
     ImageFormation,
@@ -25,6 +23,7 @@ from prismstereo.synthetic import (
     sphere_scene,
     step_scene,
 )
+from prismstereo.threads import set_torch_threads
 
 MIDDLEBURY = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury" / "Tsukuba"
 
@@ -34,7 +33,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--supersample", type=int, default=3)
     args = parser.parse_args()
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     rig = thesis_setup1()
     scenes = [
         fronto_parallel_plane(rig, 525.0),

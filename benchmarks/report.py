@@ -82,7 +82,7 @@ BENCHMARKS: dict[str, Benchmark] = {
         "defocus, 228-1374 mm: valid and dense coverage with their bad > 1 % shares, the share a confidence threshold "
         "keeps at <= 3 % bad, the reliability of each chain's confidence per band, and each chain's exported graph "
         "against StereoSGBM in the same run. The hybrid is the default of `prismstereo depth` (captures) and "
-        "`prismstereo export` on these sensors (`prismstereo.defaults.default_model`).\n\n"
+        "`prismstereo export` on these sensors (`prismstereo.models.default_kind`).\n\n"
         "![time against the photographs' share kept at <= 3 % bad, every chain](frontier.png)"),
     "middlebury": Benchmark(
         "middlebury.py", (), "The rectified matcher on the Middlebury pairs",

@@ -88,9 +88,10 @@ from prismstereo.baselines import (
     triangulate_pinholes,
 )
 from prismstereo.calibration import calibrate_board, detect_board, parse_target
+from prismstereo.classical.model import PrismStereo
 from prismstereo.geometry import virtual_camera, virtual_cameras
-from prismstereo.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, calibration_views, fronto_parallel_plane, render
+from prismstereo.threads import set_torch_threads
 
 THESIS_DEPTHS = (228.0, 312.0, 353.0, 418.0, 525.0, 625.0, 780.0, 936.0, 1192.0, 1374.0)
 # the thesis' recovered-depth errors (%), geometric / Zhang / Tsai: Table 4.3 (setup 1) and 4.4 (setup 2)
@@ -304,7 +305,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (0: torch's default)")
     args = parser.parse_args()
     if args.threads:
-        torch.set_num_threads(args.threads)
+        set_torch_threads(args.threads)
     t0 = time.perf_counter()
     for setup in args.setups:
         out = run_setup(setup, args)

@@ -66,11 +66,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from onnx_speed import opencv_depth, opencv_halves, pixel_sweep, score, spread_report  # noqa: E402
 
 from prismstereo import thesis_setup1  # noqa: E402
-from prismstereo.defaults import default_model  # noqa: E402
-from prismstereo.depth.temporal import TemporalOptions, temporal_downsample  # noqa: E402
-from prismstereo.export import export_onnx, onnx_session  # noqa: E402
+from prismstereo.classical.model import PrismStereo  # noqa: E402
+from prismstereo.classical.prior import TemporalOptions  # noqa: E402
+from prismstereo.classical.temporal import temporal_downsample  # noqa: E402
+from prismstereo.export import export_onnx  # noqa: E402
 from prismstereo.learned import HybridStereo  # noqa: E402
-from prismstereo.model import PrismStereo  # noqa: E402
+from prismstereo.models import build_model, default_kind  # noqa: E402
+from prismstereo.predictor import Predictor  # noqa: E402
 from prismstereo.stream import DepthStream  # noqa: E402
 from prismstereo.synthetic import (  # noqa: E402
     ImageFormation,
@@ -79,6 +81,7 @@ from prismstereo.synthetic import (  # noqa: E402
     slanted_plane,
     step_scene,
 )
+from prismstereo.threads import set_torch_threads  # noqa: E402
 
 Z_RANGE = (228.0, 1374.0)
 
@@ -123,20 +126,21 @@ def streams(rig, tmp: Path, name: str) -> tuple[PrismStereo, dict[str, DepthStre
     model = PrismStereo(rig, Z_RANGE).eval()
     graph = export_onnx(model, tmp / f"{name}_{rig.image_width}.onnx")
     default = temporal_downsample(model)
-    runs = {"per-frame ONNX": DepthStream(graph, threads=2)}
+    runs = {"per-frame ONNX": DepthStream(Predictor.from_graphs(graph, threads=2))}
     # the full-resolution band for a binned default, and the coarser binning of --temporal-binning 3; the binned
     # band otherwise
     others = (1, 3) if default > 1 else (2,)
     hybrid = None
-    if default_model(rig) == "hybrid":  # the CLI's default: the hybrid's key frames
+    if default_kind(rig) == "hybrid":  # the CLI's default: the hybrid's key frames
         hybrid = export_onnx(HybridStereo(rig, Z_RANGE).eval(), tmp / f"{name}_{rig.image_width}_hybrid.onnx")
     for k in (default, *others):
         temporal = export_onnx(model, tmp / f"{name}_{rig.image_width}_temporal_{k}.onnx",
                                temporal=TemporalOptions() if k == default else TemporalOptions(downsample=k))
         label = "" if k == default else f" k={k}"
-        runs[f"temporal{label} ONNX"] = DepthStream(graph, temporal_graph=temporal, threads=2)
+        runs[f"temporal{label} ONNX"] = DepthStream(Predictor.from_graphs(graph, temporal, threads=2), temporal=True)
         if hybrid is not None and k != 1:
-            runs[f"hybrid keys{label} ONNX"] = DepthStream(hybrid, temporal_graph=temporal, threads=2)
+            keyed = Predictor.from_graphs(hybrid, temporal, threads=2)
+            runs[f"hybrid keys{label} ONNX"] = DepthStream(keyed, temporal=True)
     return model, runs
 
 
@@ -305,13 +309,13 @@ def end_to_end(frames: int, captures: int, tmp: Path) -> None:
         print(f"{name:48s} {best:12.1f} {best / sgbm_frame:7.2f} {min(rates):12.1f} {min(medians):12.1f} {keys:>10s} "
               f"{model}")
     alone = []  # the per-frame graphs without the CLI around them, for the --no-temporal rows
-    for name, model in (("hybrid", HybridStereo(rig, Z_RANGE)), ("classical", PrismStereo(rig, Z_RANGE))):
-        session = onnx_session(model.eval(), threads=2, spinning=False)  # as the CLI's runner opens it
-        session(caps.image[:1])
+    for name in ("hybrid", "classical"):  # as the CLI's pipeline opens them
+        session = Predictor(build_model(rig, name, Z_RANGE), backend="onnx", threads=2, spinning=False)
+        session.depth(caps.image[:1])
         times = []
         for k in order[:30]:
             start = time.perf_counter()
-            session(caps.image[k:k + 1])
+            session.depth(caps.image[k:k + 1])
             times.append(1000 * (time.perf_counter() - start))
         alone.append(f"{name} {statistics.median(times):.1f} ms")
     print("per-frame graphs alone, as the CLI runs them (onnxruntime, 2 threads, not spinning; median of 30 frames): "
@@ -339,7 +343,7 @@ def main() -> None:
     parser.add_argument("--cli", type=int, default=120, metavar="N", help="video frames end to end (0 skips)")
     parser.add_argument("--captures", type=int, default=16, metavar="M", help="captures end to end")
     args = parser.parse_args()
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     cv2.setNumThreads(2)
     with tempfile.TemporaryDirectory() as folder:
         if args.cli:

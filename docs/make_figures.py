@@ -12,10 +12,11 @@ import torch  # noqa: E402
 from prismstereo import PrismStereo, thesis_setup1  # noqa: E402
 from prismstereo.depth import depth_to_points  # noqa: E402
 from prismstereo.synthetic import ImageFormation, render, sphere_scene  # noqa: E402
+from prismstereo.threads import set_torch_threads  # noqa: E402
 
 
 def main() -> None:
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     rig = thesis_setup1()
     capture = render(rig, sphere_scene(rig, 560.0, 14.0, 700.0, seed=3), ImageFormation(supersample=2,
                                                                                           noise_sigma=1 / 255))

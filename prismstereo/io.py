@@ -24,12 +24,11 @@ import cv2
 import numpy as np
 import torch
 
-from prismstereo.errors import PrismStereoError, ShapeError, check_floating, check_shape
+from prismstereo.errors import PrismStereoError, check_shape
 
 __all__ = [
     "ImageIOError",
     "read_image",
-    "to_grey",
     "write_image",
     "save_capture",
     "write_depth_npy",
@@ -83,40 +82,6 @@ def read_image(path: str | Path) -> torch.Tensor:
     else:
         tensor = torch.from_numpy(data)[None]
     return tensor.to(torch.float32) / scale
-
-
-def to_grey(image: torch.Tensor) -> torch.Tensor:
-    """The grey image the models take, (*, 1, H, W), of an image (*, C, H, W) in [0, 1]: itself with one channel,
-    else the ITU-R BT.601 luma of its RGB channels (weights 0.299, 0.587, 0.114): the bits of
-    :func:`kornia.color.rgb_to_grayscale` (tested), computed here so that the depth path never imports kornia.
-
-    The one conversion of colour captures and frames (the CLI's jobs, :class:`~prismstereo.stream.DepthStream`,
-    :func:`~prismstereo.video.read_frames` with ``grey=True``, Ray's ``DepthPredictor``), so that a frame converted
-    on a reader thread is bit for bit the frame the stream would have converted. (A video's decoded 8-bit frames
-    take :func:`~prismstereo.video.frame_to_grey`: the same weights in one pass, equal to float rounding.)
-
-    Args:
-        image: (*, C, H, W) with C = 1 or 3 (RGB), floating point.
-
-    Returns:
-        (*, 1, H, W), ``image`` itself when C = 1.
-
-    Raises:
-        ShapeError: C is neither 1 nor 3. PrismStereoError (a ``TypeError``): an integer image.
-
-    Example:
-        >>> to_grey(torch.tensor([1.0, 0.0, 0.0]).view(3, 1, 1)).flatten().tolist()
-        [0.29899999499320984]
-    """
-    check_shape(image, ["*", "C", "H", "W"], "image")
-    check_floating(image, "image")
-    if image.shape[-3] == 1:
-        return image
-    if image.shape[-3] != 3:
-        raise ShapeError(f"image must have 1 (grey) or 3 (RGB) channels, got {image.shape[-3]}")
-    r, g, b = image.unbind(-3)
-    w_r, w_g, w_b = torch.tensor([0.299, 0.587, 0.114], dtype=image.dtype).to(image.device).unbind()
-    return torch.addcmul(torch.addcmul(r * w_r, g, w_g), b, w_b).unsqueeze(-3)  # kornia's order of operations
 
 
 def write_image(path: str | Path, image: torch.Tensor, bits: int = 8) -> None:

@@ -10,6 +10,7 @@ import torch
 from filelock import FileLock
 
 from prismstereo import BiPrismRig, thesis_setup1, thesis_setup2
+from prismstereo.threads import set_torch_threads, torch_threads
 
 # Round-trip tolerances of project_points (issue: < 1e-6 px in float64, < 1e-3 px in float32).
 ROUND_TRIP_TOL = {torch.float64: 1e-6, torch.float32: 1e-3}
@@ -59,10 +60,8 @@ def random_pixels(rig: BiPrismRig, n: int, dtype: torch.dtype, seed: int = 0) ->
 def one_thread():
     """Small tensors: intra-op threads only add contention on a shared CPU (use per module with
     ``pytestmark = pytest.mark.usefixtures("one_thread")``)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+    with torch_threads(1):
+        yield
 
 
 def _xdist_worker() -> bool:
@@ -81,14 +80,14 @@ XDIST_GROUPS = {
     **{f"tests/calibration/test_fit.py::{name}": "calibrated" for name in (
         "test_result_report_and_plot", "test_outlier_view_is_flagged", "test_initial_poses_triangulate_the_boards",
         "test_diverged_fit_is_an_error", "test_board_jacobian_matches_finite_differences")},
-    "tests/depth/test_temporal.py": "temporal model and sequences",
+    "tests/classical/test_temporal.py": "temporal model and sequences",
     "tests/export/test_onnx.py": "exported graph and captures",
     "tests/learned/test_hybrid.py": "hybrid model",
-    "tests/test_cli_calibrate.py": "calibration bench",
-    **{f"tests/test_jobs.py::{name}": "local ray" for name in (
+    "tests/cli/test_calibrate.py": "calibration bench",
+    **{f"tests/jobs/test_jobs.py::{name}": "local ray" for name in (
         "test_ray_writes_the_same_files_and_survives_a_dead_worker",
-        "test_depth_predictor_maps_the_model_over_a_ray_dataset")},
-    "tests/test_dense.py": "weak-texture models (weak)",
+        "test_depth_mapper_maps_the_model_over_a_ray_dataset")},
+    "tests/classical/test_dense.py": "weak-texture models (weak)",
 }
 
 
@@ -126,11 +125,11 @@ def one_thread_per_worker():
         yield
         return
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)
+    set_torch_threads(1)  # the worker process's own count (scopes of the tests return to it)
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("OMP_NUM_THREADS", "1")
         yield
-    torch.set_num_threads(threads)
+    set_torch_threads(threads)
 
 
 @pytest.fixture(scope="session", autouse=True)

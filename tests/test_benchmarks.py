@@ -11,7 +11,7 @@ from default_chain import score  # noqa: E402
 from dense_depth import best_coverage, edge_strength, jump_distance, model_config  # noqa: E402
 from fit_confidence import fit_options  # noqa: E402
 
-from prismstereo.config import preset  # noqa: E402
+from prismstereo.classical.config import preset  # noqa: E402
 
 
 def test_jump_distance_of_a_step():
@@ -69,7 +69,7 @@ def test_fit_options_reject_edges_only_where_the_preset_leaves_them():
     for name in ("fast", "dense"):
         assert fit_options(name) == preset(name).to_options()
     from prismstereo import thesis_setup1
-    from prismstereo.model import PrismStereo
+    from prismstereo.classical.model import PrismStereo
 
     rig = thesis_setup1().downscaled(8)
     assert PrismStereo(rig, (400.0, 700.0), fit_options("accurate")).final.config.search.band_edges == "reject"
@@ -94,7 +94,7 @@ def test_edge_strength_tells_marked_jumps_from_hidden_ones():
 
 
 def test_default_chain_score_counts_valid_and_dense_pixels():
-    from prismstereo.model import DepthResult
+    from prismstereo.depth.result import DepthResult
 
     truth = torch.full((1, 1, 2, 5), 500.0, dtype=torch.float64)
     depth = torch.tensor([[[[500.0, 501.0, 510.0, 500.0, 520.0], [500.0, 500.0, 500.0, 500.0, 500.0]]]])

@@ -1,8 +1,7 @@
 """Every docstring example of the package runs and prints what it shows.
 
 Examples use ``torch``, ``Path``, ``thesis_setup1`` and ``thesis_setup2`` without importing them (provided
-here). ``prismstereo.export.onnx`` is left out: its examples export ONNX graphs (tens of seconds each) and
-``tests/export`` exercises the same calls.
+here). ``python -m prismstereo.cli`` (``prismstereo.cli.__main__``) is left out: importing it runs the command.
 """
 
 import doctest
@@ -16,8 +15,9 @@ import torch
 
 import prismstereo
 from prismstereo import thesis_setup1, thesis_setup2
+from prismstereo.threads import torch_threads
 
-SKIP = {"prismstereo.export.onnx", "prismstereo.__main__"}
+SKIP = {"prismstereo.cli.__main__"}
 MODULES = sorted(m.name for m in pkgutil.walk_packages(prismstereo.__path__, "prismstereo.") if m.name not in SKIP)
 
 
@@ -25,13 +25,9 @@ MODULES = sorted(m.name for m in pkgutil.walk_packages(prismstereo.__path__, "pr
 def test_docstring_examples(name):
     module = importlib.import_module(name)
     globs = {"torch": torch, "Path": Path, "thesis_setup1": thesis_setup1, "thesis_setup2": thesis_setup2}
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with torch_threads(1):
         result = doctest.testmod(module, extraglobs=globs, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE,
                                  report=True, verbose=False)
-    finally:
-        torch.set_num_threads(threads)
     assert result.failed == 0, f"{result.failed} of {result.attempted} examples failed in {name}"
 
 

@@ -58,7 +58,8 @@ def test_check_floating():
 
 def test_top_level_exports_the_depth_model_lazily():
     import prismstereo
-    from prismstereo.model import DepthResult, PrismStereo
+    from prismstereo.classical.model import PrismStereo
+    from prismstereo.depth.result import DepthResult
     from prismstereo.stream import DepthStream
 
     assert prismstereo.PrismStereo is PrismStereo and prismstereo.DepthResult is DepthResult

@@ -1,15 +1,12 @@
 import numpy as np
 import pytest
 import torch
-from kornia.color import rgb_to_grayscale
 
-from prismstereo.errors import ShapeError
 from prismstereo.io import (
     ImageIOError,
     depth_png_scale,
     read_depth,
     read_image,
-    to_grey,
     write_depth,
     write_depth_png,
     write_image,
@@ -142,20 +139,3 @@ def test_depth_file_errors(tmp_path):
     (tmp_path / "plain.json").write_text('{"scale": 3}')
     with pytest.raises(ImageIOError, match="unreadable depth scale in .*plain.json"):
         read_depth(tmp_path / "plain.png")
-
-
-def test_to_grey_is_the_bt601_luma_of_rgb_and_keeps_grey():
-    gen = torch.Generator().manual_seed(0)
-    rgb = torch.rand(2, 3, 4, 5, generator=gen, dtype=torch.float64)
-    grey = to_grey(rgb)
-    assert grey.shape == (2, 1, 4, 5) and grey.dtype == torch.float64
-    torch.testing.assert_close(grey, 0.299 * rgb[:, :1] + 0.587 * rgb[:, 1:2] + 0.114 * rgb[:, 2:])
-    for dtype in (torch.float64, torch.float32, torch.float16, torch.bfloat16):  # the same bits as kornia's
-        assert torch.equal(to_grey(rgb.to(dtype)), rgb_to_grayscale(rgb.to(dtype)))
-        assert torch.equal(to_grey(rgb[0].to(dtype)), rgb_to_grayscale(rgb[0].to(dtype)))  # (C, H, W) too
-    one = rgb[:, :1]
-    assert to_grey(one) is one
-    with pytest.raises(ShapeError, match="1 \\(grey\\) or 3 \\(RGB\\) channels, got 2"):
-        to_grey(rgb[:, :2])
-    with pytest.raises(TypeError, match="floating-point"):
-        to_grey(torch.zeros(3, 4, 5, dtype=torch.uint8))

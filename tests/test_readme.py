@@ -5,6 +5,8 @@ from pathlib import Path
 
 import torch
 
+from prismstereo.threads import torch_threads
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
@@ -19,9 +21,6 @@ def test_readme_starts_with_the_two_commands_and_stays_short():
 
 def test_readme_python_quickstart_runs(capsys):
     code = re.search(r"```python\n(.*?)```", README.read_text(), re.S).group(1)
-    threads = torch.get_num_threads()
-    try:
+    with torch_threads(torch.get_num_threads()):  # whatever the code sets, the count is restored after it
         exec(compile(code, "README.md", "exec"), {})
-    finally:
-        torch.set_num_threads(threads)
     assert "torch.Size([1, 1, 768, 512])" in capsys.readouterr().out

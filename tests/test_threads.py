@@ -9,10 +9,12 @@ from prismstereo.threads import per_image, torch_threads
 
 @pytest.fixture
 def two_threads():
+    from prismstereo.threads import set_torch_threads
+
     threads = torch.get_num_threads()
-    torch.set_num_threads(2)
+    set_torch_threads(2)
     yield
-    torch.set_num_threads(threads)
+    set_torch_threads(threads)
 
 
 def test_images_in_order_on_workers_with_the_callers_modes(two_threads):
@@ -89,3 +91,38 @@ def test_torch_threads_scopes_nest_overlap_and_restore_the_first_count(two_threa
     with pytest.raises(OptionError, match="count must be an int >= 1"):
         with torch_threads(0):
             pass
+
+
+def test_thread_plan_is_the_one_decision_of_every_count():
+    """A process's share of the cores, its model and per-frame graph on all of them, the temporal graph and the side
+    work on one, decoding on the rest; shares of the machine among worker processes."""
+    import os
+
+    from prismstereo.threads import ThreadPlan, thread_plan
+
+    assert thread_plan(cores=8) == ThreadPlan(cores=8, torch=8, graph=8, temporal_graph=1, decode=7, side=1)
+    assert thread_plan(3, cores=8).cores == 2 and thread_plan(4, cores=2).cores == 1  # at least one each
+    assert thread_plan(cores=1).decode == 1
+    assert thread_plan().cores == (os.cpu_count() or 1)
+    for bad in (0, 1.5, True):
+        with pytest.raises(OptionError, match="workers must be an int >= 1"):
+            thread_plan(bad)
+    with pytest.raises(OptionError, match="cores must be an int >= 1"):
+        thread_plan(cores=0)
+
+
+def test_set_torch_threads_sets_the_programs_count_and_what_scopes_return_to():
+    from prismstereo.threads import set_torch_threads
+
+    before = torch.get_num_threads()
+    try:
+        set_torch_threads(1)
+        assert torch.get_num_threads() == 1
+        with torch_threads(2):
+            set_torch_threads(3)  # inside a scope: the scope keeps its count, and returns to the program's
+            assert torch.get_num_threads() == 2
+        assert torch.get_num_threads() == 3
+    finally:
+        set_torch_threads(before)
+    with pytest.raises(OptionError, match="count must be an int >= 1"):
+        set_torch_threads(0)

@@ -1,8 +1,8 @@
-"""Depth from matching results: exact conversions between indices, disparities and metric depth, the z-buffer
-occlusion test, point clouds of the reference view (and PLY files), and the depth range a rig can search."""
+"""Depth from matching results: exact conversions between indices, disparities and metric depth, the models' result
+(:class:`DepthResult`) and its maps brought to full resolution (:func:`upsample`), point clouds of the reference view
+(and PLY files), and the depth range a rig can search."""
 
 from prismstereo.depth.convert import depth_to_disparity, depth_to_index, disparity_to_depth, index_to_depth
-from prismstereo.depth.occlusion import zbuffer_visible
 from prismstereo.depth.points import PointCloud, PointCloudError, depth_to_points, read_ply, write_ply
 from prismstereo.depth.range import (
     DepthRangeError,
@@ -11,13 +11,16 @@ from prismstereo.depth.range import (
     covisible_fraction,
     default_z_range,
 )
+from prismstereo.depth.resample import upsample
+from prismstereo.depth.result import DepthResult
 
 __all__ = [
+    "DepthResult",
+    "upsample",
     "depth_to_disparity",
     "depth_to_index",
     "disparity_to_depth",
     "index_to_depth",
-    "zbuffer_visible",
     "PointCloud",
     "PointCloudError",
     "depth_to_points",

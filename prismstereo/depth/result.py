@@ -1,4 +1,4 @@
-"""The depth models' output: :class:`DepthResult`, shared by :class:`~prismstereo.model.PrismStereo`,
+"""The depth models' output: :class:`DepthResult`, shared by :class:`~prismstereo.classical.model.PrismStereo`,
 :class:`~prismstereo.learned.LearnedStereo` and :class:`~prismstereo.stream.DepthStream` users."""
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ correspondence of reference pixel (u, v) at sweep coordinate s; thesis eq. 4.1-4
 by a line) on a pixel grid times a set of depths; a(., .) vanishes on the reference half's centre column
 (the gauge: any common function of the row could be added to both). After the warps, a reference pixel and
 its correspondences at every depth share one row, and disparity is a pure column shift: the matcher
-builds a 1-D cost volume by shifts (:class:`~prismstereo.model.PrismStereo` with ``sampling='rectified'``).
+builds a 1-D cost volume by shifts (:class:`~prismstereo.classical.model.PrismStereo` with ``sampling='rectified'``).
 
 The residual |R_ref - R_oth(m)| is what the bi-prism's non-central rays leave (no row warp can remove it).
 Measured over 228-1374 mm at full resolution, degree 4 (every 8th pixel, 33 depths, co-visible samples):

@@ -1,6 +1,13 @@
-"""The cache of exported graphs: each model's graph exported once per rig, options, channels, opset, package version
-and source (:func:`onnx_session`), and a request index (:func:`remember`, :func:`recall`) that finds a cached graph
-from what a caller asked for (rig, range, options), without building the torch model that resolves it.
+"""The cache of exported graphs: request -> graphs, in one place.
+
+:func:`cached_graphs` is the one way to a model's graphs: the per-frame graph and, for videos, the temporal graph
+of the band the model offers (its ``tracker``). Each is exported once per rig, model description, channels, opset,
+temporal options, package version and source (:func:`cache_path`) into :func:`cache_directory`, written under a
+temporary name and renamed, so a concurrent reader never sees half a file. A model asked for by its
+:class:`~prismstereo.models.ModelSpec` is also indexed by that request (:func:`request_key`, :func:`remember`,
+:func:`recall`): the next time the same request is served from the cache without building the torch model.
+:class:`~prismstereo.predictor.Predictor` (its ONNX backend), ``prismstereo depth --backend onnx`` and
+``prismstereo export`` go through it.
 """
 
 from __future__ import annotations
@@ -11,22 +18,37 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from torch import nn
-
-from prismstereo.export.onnx import DEFAULT_OPSET, OnnxDepth, export_onnx, graph_metadata, source_digest
+from prismstereo.export.graph import DEFAULT_OPSET, export_onnx, source_digest
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.io import replacing
 
 if TYPE_CHECKING:
-    from prismstereo.depth.temporal import TemporalOptions
+    from prismstereo.classical import TemporalDepth, TemporalOptions
+    from prismstereo.models import DepthModel, ModelSpec
 
-__all__ = ["cache_directory", "cache_path", "export_cached", "onnx_session", "request_key", "remember", "recall",
-           "CachedGraph"]
+__all__ = ["GraphFiles", "cache_directory", "cache_path", "cached_graphs", "export_cached", "recall", "remember",
+           "request_key"]
+
+
+class GraphFiles(NamedTuple):
+    """A model's graphs in the cache.
+
+    Attributes:
+        path: the per-frame graph.
+        summary: the model's summary line (:func:`~prismstereo.models.describe_model`, with its temporal band).
+        temporal: the temporal graph of the band that tracks between key frames, when temporal options were asked
+            for and the model offers a band; else None.
+        cached: served by a request remembered before (:func:`recall`), no model built.
+    """
+
+    path: Path
+    summary: str
+    temporal: Path | None = None
+    cached: bool = False
 
 
 def cache_directory() -> Path:
-    """Where :func:`onnx_session` keeps exported graphs: ``$PRISMSTEREO_CACHE`` or
-    ``~/.cache/prismstereo/onnx``.
+    """Where exported graphs are kept: ``$PRISMSTEREO_CACHE/onnx`` or ``~/.cache/prismstereo/onnx``.
 
     Example:
         >>> cache_directory().name
@@ -36,32 +58,36 @@ def cache_directory() -> Path:
     return Path(root) / "onnx" if root else Path.home() / ".cache" / "prismstereo" / "onnx"
 
 
-_SESSIONS: dict[tuple[str, int, bool], OnnxDepth] = {}
+def _directory(cache_dir: str | Path | None) -> Path:
+    return Path(cache_dir) if cache_dir is not None else cache_directory()
 
 
-def cache_path(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OPSET,
+def cache_path(model: DepthModel, *, channels: int = 1, opset: int = DEFAULT_OPSET,
                temporal: TemporalOptions | None = None, cache_dir: str | Path | None = None) -> Path:
-    """The file of ``model``'s graph in the cache of :func:`onnx_session`: ``<hash>.onnx`` in ``cache_dir`` (default
-    :func:`cache_directory`), the hash of the graph's metadata (the model's description, rig, channels, opset,
-    temporal options, package version and source digest).
+    """The file of ``model``'s graph (with ``temporal``: of its temporal band's graph) in the cache: ``<hash>.onnx``
+    in ``cache_dir`` (default :func:`cache_directory`), the hash of the model's description and rig, the channels,
+    the opset, the temporal options, the package version and the source digest.
 
     Example:
-        >>> from prismstereo.model import PrismStereo
+        >>> from prismstereo.classical import PrismStereo
         >>> cache_path(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), cache_dir="c").suffix
         '.onnx'
     """
-    meta = graph_metadata(model, channels, opset, temporal)
-    directory = Path(cache_dir) if cache_dir is not None else cache_directory()
-    return directory / f"{hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]}.onnx"
+    from prismstereo import __version__
+
+    blob = json.dumps({"model": model.describe(), "rig": model.rig.to_dict(), "channels": channels, "opset": opset,
+                       "temporal": None if temporal is None else temporal.to_dict(), "version": __version__,
+                       "source": source_digest()}, sort_keys=True)
+    return _directory(cache_dir) / f"{hashlib.sha256(blob.encode()).hexdigest()[:16]}.onnx"
 
 
-def export_cached(model: nn.Module, path: Path, *, channels: int = 1, opset: int = DEFAULT_OPSET,
-                  temporal: TemporalOptions | None = None) -> Path:
-    """``model``'s graph at ``path`` (a cache file of :func:`onnx_session`), exported unless the file exists: written
+def export_cached(model: DepthModel, path: Path, *, channels: int = 1, opset: int = DEFAULT_OPSET,
+                  temporal: TemporalOptions | TemporalDepth | None = None) -> Path:
+    """``model``'s graph at ``path`` (a cache file, :func:`cache_path`), exported unless the file exists: written
     under a temporary name and renamed, so a concurrent reader never sees half a file.
 
     Example:
-        >>> from prismstereo.model import PrismStereo
+        >>> from prismstereo.classical import PrismStereo
         >>> import tempfile; path = Path(tempfile.mkdtemp()) / "onnx" / "graph.onnx"
         >>> export_cached(PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0)), path).is_file()
         True
@@ -72,56 +98,63 @@ def export_cached(model: nn.Module, path: Path, *, channels: int = 1, opset: int
     return path
 
 
-def onnx_session(model: nn.Module, *, channels: int = 1, opset: int = DEFAULT_OPSET, threads: int = 2,
-                 cache_dir: str | Path | None = None, spinning: bool = True,
-                 temporal: TemporalOptions | None = None) -> OnnxDepth:
-    """The exported graph of ``model`` in onnxruntime, exported once per rig, options, channels, opset and
-    package version (a file ``<hash>.onnx`` in ``cache_dir``, default :func:`cache_directory`) and kept per
-    process.
+def cached_graphs(model: DepthModel | ModelSpec, *, temporal: TemporalOptions | None = None, channels: int = 1,
+                  opset: int = DEFAULT_OPSET, cache_dir: str | Path | None = None) -> GraphFiles:
+    """A model's graphs from the cache, exported into it the first time: the per-frame graph and, with
+    ``temporal``, the temporal graph of the band the model offers (none for a model without one).
 
     Args:
-        model: a :class:`~prismstereo.model.PrismStereo`.
-        channels: input channels (1 or 3).
+        model: a built model, or a :class:`~prismstereo.models.ModelSpec`: then the graphs of the same request
+            are served without building the model (:func:`recall`), and a new request is remembered.
+        temporal: the temporal band's options, or None (the per-frame graph only).
+        channels: input channels of the graphs (1 or 3).
         opset: ONNX opset of a new export.
-        threads: onnxruntime intra-op threads.
-        cache_dir: directory of cached exports.
-        spinning: see :class:`OnnxDepth`.
-        temporal: None, or :class:`~prismstereo.depth.temporal.TemporalOptions`: the temporal graph
-            (:func:`export_onnx`).
+        cache_dir: the cache (default :func:`cache_directory`).
 
     Returns:
-        OnnxDepth.
+        GraphFiles.
 
     Example:
-        >>> from prismstereo.model import PrismStereo
+        >>> from prismstereo.models import ModelSpec
         >>> import tempfile; cache = tempfile.mkdtemp()
-        >>> model = PrismStereo(thesis_setup1().downscaled(16), (400.0, 700.0))
-        >>> onnx_session(model, cache_dir=cache) is onnx_session(model, cache_dir=cache)
-        True
+        >>> spec = ModelSpec(rig=thesis_setup1().downscaled(16), z_range=(400.0, 700.0))
+        >>> first, again = cached_graphs(spec, cache_dir=cache), cached_graphs(spec, cache_dir=cache)
+        >>> first.path == again.path, first.cached, again.cached
+        (True, False, True)
     """
-    path = cache_path(model, channels=channels, opset=opset, temporal=temporal, cache_dir=cache_dir)
-    key = (str(path), threads, spinning)
-    if key in _SESSIONS:
-        return _SESSIONS[key]
-    export_cached(model, path, channels=channels, opset=opset, temporal=temporal)
-    runner = OnnxDepth(path, threads=threads, spinning=spinning)
-    _SESSIONS[key] = runner
-    return runner
+    from prismstereo.models import ModelSpec
+
+    if not isinstance(model, ModelSpec):
+        return _export(model, temporal, channels, opset, cache_dir)
+    request = {**model.request(), "temporal": None if temporal is None else temporal.to_dict()}
+    key = request_key(model.rig, request, channels=channels, opset=opset)
+    found = recall(key, cache_dir=cache_dir)
+    if found is not None:
+        return found
+    files = _export(model.build(), temporal, channels, opset, cache_dir)
+    remember(key, files.path, files.summary, temporal=files.temporal, cache_dir=cache_dir)
+    return files
 
 
-class CachedGraph(NamedTuple):
-    """A cached graph found by its request: its file, the summary of the model that exported it and, for sequences
-    under the temporal prior, the file of the temporal graph that tracks between its key frames (else None)."""
+def _export(model: DepthModel, temporal: TemporalOptions | None, channels: int, opset: int,
+            cache_dir: str | Path | None) -> GraphFiles:
+    """A built model's graphs in the cache (:func:`cached_graphs`)."""
+    from prismstereo.models import describe_model
 
-    path: Path
-    summary: str
-    temporal: Path | None = None
+    path = export_cached(model, cache_path(model, channels=channels, opset=opset, cache_dir=cache_dir),
+                         channels=channels, opset=opset)
+    tracker = None if temporal is None else model.tracker(temporal)
+    band = None
+    if tracker is not None:
+        band = export_cached(model, cache_path(model, channels=channels, opset=opset, temporal=temporal,
+                                               cache_dir=cache_dir), channels=channels, opset=opset, temporal=tracker)
+    return GraphFiles(path, describe_model(model, temporal, tracker), band)
 
 
 def request_key(rig: BiPrismRig, request: dict[str, Any], *, channels: int = 1, opset: int = DEFAULT_OPSET) -> str:
     """The cache's name for a request: a hash of the rig, ``request`` (what the caller asked for, before the model
-    resolves its defaults: e.g. the range and the options as given; JSON-serialisable), the channels, the opset,
-    the package version and the source digest.
+    resolves its defaults, JSON-serialisable: :meth:`~prismstereo.models.ModelSpec.request`), the channels, the
+    opset, the package version and the source digest.
 
     Example:
         >>> len(request_key(thesis_setup1(), {"z_range_mm": [400.0, 700.0], "config": "accurate"}))
@@ -135,14 +168,13 @@ def request_key(rig: BiPrismRig, request: dict[str, Any], *, channels: int = 1, 
 
 
 def _index(key: str, cache_dir: str | Path | None) -> Path:
-    directory = Path(cache_dir) if cache_dir is not None else cache_directory()
-    return directory / "requests" / f"{key}.json"
+    return _directory(cache_dir) / "requests" / f"{key}.json"
 
 
 def remember(key: str, graph: str | Path, summary: str, *, temporal: str | Path | None = None,
              cache_dir: str | Path | None = None) -> Path:
-    """Record that the request ``key`` (:func:`request_key`) is served by the cached ``graph`` (and for sequences
-    the cached ``temporal`` graph beside it), with the model's ``summary`` line; returns the index file.
+    """Record that the request ``key`` (:func:`request_key`) is served by the cached ``graph`` (and for videos the
+    cached ``temporal`` graph beside it), with the model's ``summary`` line; returns the index file.
 
     Example:
         >>> remember("0123456789abcdef", "graph.onnx", "a model", cache_dir="cache")  # doctest: +SKIP
@@ -156,9 +188,8 @@ def remember(key: str, graph: str | Path, summary: str, *, temporal: str | Path 
     return path
 
 
-def recall(key: str, *, cache_dir: str | Path | None = None) -> CachedGraph | None:
-    """The cached graph of the request ``key``, or None if it was never remembered or its graph (or temporal graph)
-    is gone.
+def recall(key: str, *, cache_dir: str | Path | None = None) -> GraphFiles | None:
+    """The cached graphs of the request ``key``, or None if it was never remembered or a graph of it is gone.
 
     Example:
         >>> recall("no such request", cache_dir="/nonexistent") is None
@@ -174,4 +205,4 @@ def recall(key: str, *, cache_dir: str | Path | None = None) -> CachedGraph | No
         return None
     if not graph.is_file() or (temporal is not None and not temporal.is_file()):
         return None
-    return CachedGraph(graph, summary, temporal)
+    return GraphFiles(graph, summary, temporal, cached=True)

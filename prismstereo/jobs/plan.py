@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -11,7 +11,7 @@ import torch
 from prismstereo.errors import PrismStereoError
 from prismstereo.io import DEPTH_SUFFIXES
 
-__all__ = ["Outputs", "WriteOptions", "Selection", "Task", "plan"]
+__all__ = ["ARGUMENTS", "Outputs", "PlanError", "Selection", "Task", "WriteOptions", "plan"]
 
 
 class Outputs(NamedTuple):
@@ -72,6 +72,29 @@ class Task(NamedTuple):
     selection: Selection = Selection()
     error: str | None = None
 
+ARGUMENTS: tuple[str, ...] = ("out", "format", "every", "start", "stop", "preview_video", "skip_existing")
+"""The arguments :class:`PlanError` messages name (:func:`plan`'s, the selection's and the write options')."""
+
+
+class PlanError(PrismStereoError, ValueError):
+    """A job that cannot be planned. Its message names :func:`plan`'s arguments (:data:`ARGUMENTS`: ``out``,
+    ``format``, ...) by ``names`` (the CLI's flags), else by their own names; :meth:`naming` says it with others.
+
+    Example:
+        >>> error = PlanError("{out} must be a directory, got {path}", path="a.npy")
+        >>> str(error), error.naming({"out": "--out"})
+        ('out must be a directory, got a.npy', '--out must be a directory, got a.npy')
+    """
+
+    def __init__(self, template: str, names: Mapping[str, str] | None = None, **values: object) -> None:
+        self.template, self.values = template, values
+        super().__init__(self.naming(names or {}))
+
+    def naming(self, names: Mapping[str, str]) -> str:
+        """The message with each argument named by ``names`` (the argument's own name where it has none)."""
+        return self.template.format(**{a: names.get(a, a) for a in ARGUMENTS}, **self.values)
+
+
 def _outputs(folder: Path, stem: str, path: Path, options: WriteOptions) -> Outputs:
     png = path.suffix.lower() == ".png"
     return Outputs(path, folder / f"{stem}_preview.png" if png else None,
@@ -81,13 +104,13 @@ def _outputs(folder: Path, stem: str, path: Path, options: WriteOptions) -> Outp
 
 
 def plan(inputs: Sequence[str | Path], out: Path, options: WriteOptions, selection: Selection | None = None, *,
-         skip_existing: bool = False) -> list[Task]:
-    """The tasks of a job: each input's outputs, checked before any work.
+         skip_existing: bool = False, names: Mapping[str, str] | None = None) -> list[Task]:
+    """The tasks of a job: each input's outputs, checked before any work (it reads no image and writes nothing).
 
     ``out`` is a directory (created when written to), or for a single capture a ``.npy`` / ``.png`` / ``.tiff``
     file. A capture writes ``out/<stem>.<format>``, a sequence (video, directory of images, glob) one file per
-    selected frame, ``out/<name>_000000.<format>``, ... (:func:`~prismstereo.video.sequence_name`). An input that
-    cannot be opened, or a selection that keeps no frame of it, becomes a task with an ``error`` (reported, the
+    selected frame, ``out/<name>_000000.<format>``, ... (:func:`~prismstereo.stream.video.sequence_name`). An input
+    that cannot be opened, or a selection that keeps no frame of it, becomes a task with an ``error`` (reported, the
     others still run); outputs that collide or would overwrite an input raise.
 
     Args:
@@ -96,74 +119,105 @@ def plan(inputs: Sequence[str | Path], out: Path, options: WriteOptions, selecti
         options: formats and companions.
         selection: the frames of every sequence (default: all).
         skip_existing: start each task after the outputs already on disk (:attr:`Task.first`).
+        names: how the errors name the arguments (:data:`ARGUMENTS`; the CLI passes its flags); default their own
+            names.
 
     Returns:
         One :class:`Task` per input, in order.
 
     Raises:
-        PrismStereoError: a bad ``out``, a ``format`` contradicting it, colliding outputs, an output overwriting an
-            input, a preview video with other than one sequence or a sequence option without a sequence.
+        PlanError: no inputs, a bad ``out``, a ``format`` contradicting it, colliding outputs, an output overwriting
+            an input, a preview video with other than one sequence or a sequence option without a sequence (its
+            message names these arguments: :class:`PlanError`).
 
     Example:
         >>> [t.outputs[0].depth.name for t in plan(["a.png", "b.png"], Path("out"), WriteOptions(format="png"))]
         ['a.png', 'b.png']
     """
-    from prismstereo.video import (
-        check_selection,
-        is_sequence_source,
-        is_video_file,
-        sequence_files,
-        sequence_length,
-        sequence_name,
-    )
+    from prismstereo.stream.video import check_selection, is_sequence_source
 
     if not inputs:
-        raise PrismStereoError("no inputs")
+        raise PlanError("no inputs")
+    names = dict(names or {})
     selection = selection or Selection()
     sequences = [is_sequence_source(p) for p in inputs]
-    fmt, suffix = options.format, out.suffix.lower()
-    if suffix in DEPTH_SUFFIXES and not out.is_dir():
-        if len(inputs) > 1 or any(sequences):
-            what = "a video or sequence writes one file per frame" if any(sequences) else f"{len(inputs)} images"
-            raise PrismStereoError(f"{what}: --out must be a directory, got {out}")
-        if fmt is not None and fmt != DEPTH_SUFFIXES[suffix]:
-            raise PrismStereoError(f"--format {fmt} contradicts --out {out}")
-    elif out.exists() and not out.is_dir():
-        raise PrismStereoError(f"--out {out} exists and is not a directory")
-    elif suffix:
-        raise PrismStereoError(f"--out must end in .npy, .png or .tiff (one image) or be a directory, got {out}")
-    if not any(sequences) and (selection != Selection() or options.preview_video is not None):
-        raise PrismStereoError("--every, --start, --stop and --preview-video need a video, a directory or a glob "
-                               "of images")
-    if options.preview_video is not None and (len(inputs) > 1 or skip_existing):
-        raise PrismStereoError("--preview-video needs a single video or sequence and no --skip-existing")
+    fmt = _check_arguments(inputs, out, options, selection, any(sequences), skip_existing, names)
     if any(sequences):
-        check_selection(*selection)
-    fmt = fmt or DEPTH_SUFFIXES.get(suffix, "npy")
+        try:
+            check_selection(*selection)
+        except PrismStereoError as exc:  # its message starts with the argument's name: every, start or stop
+            name, rest = str(exc).split(" ", 1)
+            raise PlanError("{" + name + "} {rest}", names, rest=rest) from exc
     tasks, protected = [], {}
     for source, sequence in zip(inputs, sequences, strict=True):
-        source = str(source)
-        if not sequence:
-            path = out if suffix in DEPTH_SUFFIXES else out / f"{Path(source).stem}.{fmt}"
-            folder, stem = (out.parent, out.stem) if suffix in DEPTH_SUFFIXES else (out, Path(source).stem)
-            outputs = (_outputs(folder, stem, path, options),)
-            protected[Path(source).resolve()] = source
-            error = None if Path(source).is_file() else f"image not found: {source}"
-            tasks.append(Task(source, False, outputs, error=error))
-            continue
-        try:
-            total = sequence_length(source)
-            if not is_video_file(source):
-                protected.update({p.resolve(): source for p in sequence_files(source)})
-        except PrismStereoError as exc:
-            tasks.append(Task(source, True, (), selection=selection, error=str(exc)))
-            continue
-        stop = total if selection.stop is None else min(selection.stop, total)
-        count = max(0, -(-(stop - selection.start) // selection.every))
-        name = sequence_name(source)
-        outputs = tuple(_outputs(out, f"{name}_{k:06d}", out / f"{name}_{k:06d}.{fmt}", options) for k in range(count))
-        error = None if count else f"--start {selection.start} selects no frame: {source} has {total} frames"
-        tasks.append(Task(source, True, outputs, selection=selection, error=error))
+        if sequence:
+            tasks.append(_sequence_task(str(source), out, fmt, options, selection, protected, names))
+        else:
+            tasks.append(_capture_task(str(source), out, fmt, options, protected))
+    _check_collisions(tasks, protected, names)
+    if skip_existing:
+        tasks = [t._replace(first=next((k for k, o in enumerate(t.outputs) if not o.exist()), len(t.outputs)))
+                 for t in tasks]
+    return tasks
+
+
+def _check_arguments(inputs: Sequence[str | Path], out: Path, options: WriteOptions, selection: Selection,
+                     sequences: bool, skip_existing: bool, names: dict[str, str]) -> str:
+    """:func:`plan`'s checks of its arguments together; returns the depth files' format."""
+    fmt, suffix = options.format, out.suffix.lower()
+    if suffix in DEPTH_SUFFIXES and not out.is_dir():
+        if len(inputs) > 1 or sequences:
+            what = "a video or sequence writes one file per frame" if sequences else f"{len(inputs)} images"
+            raise PlanError("{what}: {out} must be a directory, got {path}", names, what=what, path=out)
+        if fmt is not None and fmt != DEPTH_SUFFIXES[suffix]:
+            raise PlanError("{format} {fmt} contradicts {out} {path}", names, fmt=fmt, path=out)
+    elif out.exists() and not out.is_dir():
+        raise PlanError("{out} {path} exists and is not a directory", names, path=out)
+    elif suffix:
+        raise PlanError("{out} must end in .npy, .png or .tiff (one image) or be a directory, got {path}", names,
+                        path=out)
+    if not sequences and (selection != Selection() or options.preview_video is not None):
+        raise PlanError("{every}, {start}, {stop} and {preview_video} need a video, a directory or a glob of images",
+                        names)
+    if options.preview_video is not None and (len(inputs) > 1 or skip_existing):
+        raise PlanError("{preview_video} needs a single video or sequence and no {skip_existing}", names)
+    return fmt or DEPTH_SUFFIXES.get(suffix, "npy")
+
+
+def _capture_task(source: str, out: Path, fmt: str, options: WriteOptions, protected: dict[Path, str]) -> Task:
+    """A single capture's task (its file protected from being overwritten)."""
+    single = out.suffix.lower() in DEPTH_SUFFIXES
+    path = out if single else out / f"{Path(source).stem}.{fmt}"
+    folder, stem = (out.parent, out.stem) if single else (out, Path(source).stem)
+    protected[Path(source).resolve()] = source
+    error = None if Path(source).is_file() else f"image not found: {source}"
+    return Task(source, False, (_outputs(folder, stem, path, options),), error=error)
+
+
+def _sequence_task(source: str, out: Path, fmt: str, options: WriteOptions, selection: Selection,
+                   protected: dict[Path, str], names: dict[str, str]) -> Task:
+    """A sequence's task: one output per selected frame (its image files protected from being overwritten)."""
+    from prismstereo.stream.video import is_video_file, sequence_files, sequence_length, sequence_name
+
+    try:
+        total = sequence_length(source)
+        if not is_video_file(source):
+            protected.update({p.resolve(): source for p in sequence_files(source)})
+    except PrismStereoError as exc:
+        return Task(source, True, (), selection=selection, error=str(exc))
+    stop = total if selection.stop is None else min(selection.stop, total)
+    count = max(0, -(-(stop - selection.start) // selection.every))
+    name = sequence_name(source)
+    outputs = tuple(_outputs(out, f"{name}_{k:06d}", out / f"{name}_{k:06d}.{fmt}", options) for k in range(count))
+    error = None if count else str(PlanError("{start} {first} selects no frame: {source} has {total} frames", names,
+                                             first=selection.start, source=source, total=total))
+    return Task(source, True, outputs, selection=selection, error=error)
+
+
+def _check_collisions(tasks: list[Task], protected: dict[Path, str], names: dict[str, str]) -> None:
+    """Outputs that would overwrite an input or that two inputs would both write: a PlanError."""
+    from prismstereo.stream.video import is_sequence_source
+
     written: dict[Path, str] = {}
     for task in tasks:
         for files in task.outputs:
@@ -173,11 +227,9 @@ def plan(inputs: Sequence[str | Path], out: Path, options: WriteOptions, selecti
                 key = path.resolve()
                 if key in protected:
                     what = "frame" if is_sequence_source(protected[key]) else "image"
-                    raise PrismStereoError(f"--out would overwrite the input {what} {protected[key]} ({path})")
+                    raise PlanError("{out} would overwrite the input {what} {source} ({path})", names, what=what,
+                                    source=protected[key], path=path)
                 if key in written:
-                    raise PrismStereoError(f"{written[key]} and {task.source} would both write {path}")
+                    raise PlanError("{first} and {second} would both write {path}", names, first=written[key],
+                                    second=task.source, path=path)
                 written[key] = task.source
-    if skip_existing:
-        tasks = [t._replace(first=next((k for k, o in enumerate(t.outputs) if not o.exist()), len(t.outputs)))
-                 for t in tasks]
-    return tasks

@@ -4,8 +4,8 @@ block level with a learned 2-D refinement (HybridStereo); their training data an
 from prismstereo.learned.data import KINDS, TrainingSet, procedural_picture, random_capture_spec, training_set
 from prismstereo.learned.hybrid import HYBRID_WEIGHTS, HybridArchitecture, HybridStereo
 from prismstereo.learned.network import (
-    DEFAULT_WEIGHTS,
     HYPOTHESIS_SPACING_PX,
+    LEARNED_WEIGHTS,
     Architecture,
     LearnedStereo,
     WeightsError,
@@ -18,7 +18,7 @@ __all__ = [
     "HYBRID_WEIGHTS",
     "HybridArchitecture",
     "HybridStereo",
-    "DEFAULT_WEIGHTS",
+    "LEARNED_WEIGHTS",
     "HYPOTHESIS_SPACING_PX",
     "Architecture",
     "LearnedStereo",

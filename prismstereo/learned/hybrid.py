@@ -2,18 +2,20 @@
 
 Data path (one capture, both halves as recorded; k = ``block``; (h, w) the reference half binned 2 x 2):
 
-1. :class:`~prismstereo.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band) with the
-   'dense' preset's matching (:data:`CLASSICAL`): the exact plane sweep on the k x k-binned capture gives every
-   covered block a sweep coordinate s (linear in 1/Z), its calibrated confidence and the coverage;
+1. :class:`~prismstereo.classical.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band) with the
+   'dense' preset (:func:`classical_config`): the exact plane sweep on the k x k-binned capture gives every covered
+   block a sweep coordinate s (linear in 1/Z), its calibrated confidence and the coverage
+   (:meth:`~prismstereo.classical.model.PrismStereo.block_estimate`);
 2. refinement stages, first on that k x k grid (``quarter``, block 4: twice the reach per layer), then on the
    2 x 2-binned grid (``iterations``; the maps carried over bilinearly, block centres kept: pixel j of that grid is
    at full-sensor 2 j + 1/2). Each samples the other half of the normalised binned capture
    (:func:`~prismstereo.learned.network.normalise_image`) along every reference pixel's exact sweep (the binned
    rig's sweep polynomials, thesis eq. 4.1-4.10 done exactly: :func:`sweep_match`) at s + o steps for offsets
-   o = -2 ... 2 (a step is <= 1 px at the stage's resolution: :func:`~prismstereo.defaults.default_hypotheses`);
-   the local absolute differences are a small cost curve around the estimate. A dilated 3 x 3 CNN (the StereoNet /
-   HITNet refinement) on the reference image, the cost curve, the estimate's local relief and the classical
-   confidence and coverage predicts a residual of s in steps and a confidence logit;
+   o = -2 ... 2 (a step is <= 1 px at the stage's resolution:
+   :func:`~prismstereo.classical.defaults.default_hypotheses`); the local absolute differences are a small cost curve
+   around the estimate. A dilated 3 x 3 CNN (the StereoNet / HITNet refinement) on the reference image, the cost curve,
+   the estimate's local relief and the classical confidence and coverage predicts a residual of s in steps and a
+   confidence logit;
 3. s and the confidence bilinearly to full resolution, depth exact from s (thesis eq. 6.1-6.10 via the sweep).
 
 The weights are the CNNs only; the sweep, masks and the classical level are built from the rig and range the model
@@ -31,8 +33,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo.defaults import default_hypotheses
-from prismstereo.depth.level import upsample
+from prismstereo.classical import PrismStereo, StereoConfig, TemporalDepth, TemporalOptions, preset
+from prismstereo.classical.defaults import default_hypotheses
+from prismstereo.conventions import to_grey
+from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_shape
@@ -44,7 +48,7 @@ from prismstereo.matching.band import extend_estimate
 from prismstereo.runtime import sample_bilinear
 
 __all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "HybridArchitecture", "HybridStereo", "RefinementInputs",
-           "load_hybrid_weights", "sweep_match", "truth_sweep"]
+           "classical_config", "load_hybrid_weights", "sweep_match", "truth_sweep"]
 
 HYBRID_WEIGHTS = Path(__file__).resolve().parent / "weights" / "hybrid.pt"
 HYBRID_FORMAT = "prismstereo.hybrid/1"
@@ -55,10 +59,6 @@ RELIEF_STEPS = 8.0  # the estimate's local relief is given to the CNN in steps, 
 # neighbours' mean s, so the refinement starts near the truth there instead of at s = 0
 FILL_RADIUS = 3
 VALID_CONFIDENCE = 0.5  # the validity threshold of weights without a calibrated one (``valid_confidence``)
-# the classical level: the 'dense' preset's matching (gradient-augmented absolute differences, guided-filter
-# aggregation, a coarse level at factor 2) in block mode, a depth for every covered pixel
-CLASSICAL = {"full_band": 0, "dense": True, "coarse_factor": 2, "cost": "ad_gradient", "aggregation": "guided",
-             "box": 1}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,7 +165,7 @@ class HybridStereo(nn.Module):
 
     Args:
         rig: the full-resolution rig; its sensor size must be divisible by the architecture's ``block``.
-        z_range_mm: (z_min, z_max) searched; None: the classical model's default
+        z_range: (z_min, z_max) searched, mm; None: the classical model's default
             (:func:`~prismstereo.depth.range.default_z_range`).
         weights: ``'default'`` (the shipped ``weights/hybrid.pt``), None (random initialisation from torch's global
             RNG; the untrained heads keep the classical estimate) or a weights file path.
@@ -190,12 +190,13 @@ class HybridStereo(nn.Module):
     coefficients: torch.Tensor
     rays_valid: torch.Tensor
 
-    def __init__(self, rig: BiPrismRig, z_range_mm: tuple[float, float] | None = None, *,
+    kind = "hybrid"
+
+    def __init__(self, rig: BiPrismRig, z_range: tuple[float, float] | None = None, *,
                  weights: str | Path | None | Literal["default"] = "default",
                  architecture: HybridArchitecture | None = None) -> None:
         super().__init__()
         from prismstereo.depth.range import check_z_range, default_z_range
-        from prismstereo.model import PrismStereo
 
         if not isinstance(rig, BiPrismRig):
             raise OptionError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
@@ -212,8 +213,8 @@ class HybridStereo(nn.Module):
         if rig.image_width % arch.block or rig.image_height % arch.block:
             raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by block {arch.block}")
         k = arch.block
-        z = default_z_range(rig) if z_range_mm is None else check_z_range(rig, z_range_mm)
-        self.classical = PrismStereo(rig, z, {**CLASSICAL, "downsample": k})
+        z = default_z_range(rig) if z_range is None else check_z_range(rig, z_range)
+        self.classical = PrismStereo(rig, z, classical_config(k))
         self.stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.iterations)])
         self.quarter_stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.quarter)])
         if state is not None:
@@ -262,6 +263,18 @@ class HybridStereo(nn.Module):
         """(D,) the classical level's hypotheses, mm."""
         return self.classical.depths
 
+    def tracker(self, options: TemporalOptions | None = None) -> TemporalDepth | None:
+        """The temporal band that tracks this model's depth between key frames of a video: the classical default
+        model's of the same rig and range (:meth:`~prismstereo.classical.model.PrismStereo.tracker`; the hybrid has
+        no band of its own), None where that model has none.
+
+        Example:
+            >>> model = HybridStereo(thesis_setup1().downscaled(2), (450.0, 1000.0), weights=None)
+            >>> model.tracker().rig == model.rig
+            True
+        """
+        return PrismStereo(self.rig, self.z_range).tracker(options)
+
     def weights(self) -> dict[str, torch.Tensor]:
         """The learned tensors (what a weights file holds): ``half.*`` and ``quarter.*`` stages."""
         return {**{f"half.{k}": v for k, v in self.stages.state_dict().items()},
@@ -286,15 +299,15 @@ class HybridStereo(nn.Module):
         """The model in one line.
 
         Example:
-            >>> HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None).summary()
-            'hybrid: 4x4-binned classical level (...), then learned 2-D stages: 1 at 1/4 and 1 at 1/2 (5 x 16 ch, ...)'
+            >>> summary = HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None).summary()
+            >>> summary.startswith("hybrid: classical block level ("), "on 4x4-binned pixels" in summary
+            (True, True)
         """
         a = self.architecture
         count = sum(v.numel() for v in self.weights().values())
         quarter = f"{a.quarter} at 1/4 and " if a.quarter else ""
-        return (f"hybrid: {a.block}x{a.block}-binned classical level ({self.classical.final.summary()}), then "
-                f"learned 2-D stages: {quarter}{a.iterations} at 1/2 ({a.layers} x {a.channels} ch, {count} "
-                f"parameters)")
+        return (f"hybrid: classical block level ({self.classical.summary()}), then learned 2-D stages: "
+                f"{quarter}{a.iterations} at 1/2 ({a.layers} x {a.channels} ch, {count} parameters)")
 
     def save(self, path: str | Path, **metadata: Any) -> Path:
         """Write the CNNs' weights with the architecture and ``metadata`` (small, plain values)."""
@@ -310,7 +323,7 @@ class HybridStereo(nn.Module):
             RefinementInputs, (B, *, h, w) maps.
         """
         self._check(image)
-        return self.initial_binned(F.avg_pool2d(image.to(self.coefficients.dtype).mean(1, keepdim=True), 2))
+        return self.initial_binned(F.avg_pool2d(to_grey(image.to(self.coefficients.dtype)), 2))
 
     def initial_binned(self, grey: torch.Tensor) -> RefinementInputs:
         """:meth:`initial` of the 2 x 2-binned grey capture ``grey`` (B, 1, H/2, W/2) (training keeps captures so).
@@ -322,12 +335,9 @@ class HybridStereo(nn.Module):
         """
         k = self.architecture.block
         with torch.no_grad():
-            level = self.classical.final
-            res = level.depth(grey if k == 2 else F.avg_pool2d(grey, k // 2))
-            covered = res.confidence > 0
-            s = torch.where(covered, res.index * level.step - 1.0, torch.zeros_like(res.index))
-            s = extend_estimate(s, covered, FILL_RADIUS).s
-        return RefinementInputs(normalise_image(grey), s, res.confidence, covered.to(grey.dtype))
+            block = self.classical.block_estimate(grey if k == 2 else F.avg_pool2d(grey, k // 2))
+            s = extend_estimate(block.s, block.covered, FILL_RADIUS).s
+        return RefinementInputs(normalise_image(grey), s, block.confidence, block.covered.to(grey.dtype))
 
     def _check(self, image: torch.Tensor) -> None:
         check_shape(image, ["B", "C", "H", "W"], "image")
@@ -403,7 +413,8 @@ class HybridStereo(nn.Module):
         return out
 
     def forward(self, image: torch.Tensor) -> DepthResult:
-        """Depth of the reference half of captures ``image`` (B, C, H, W) in [0, 1] (colour is averaged to grey).
+        """Depth of the reference half of captures ``image`` (B, C, H, W) in [0, 1] (colour: its
+        :func:`~prismstereo.conventions.to_grey`).
 
         Returns:
             :class:`~prismstereo.depth.result.DepthResult`: depth (B, 1, H, W_ref) mm on every ray that sees
@@ -424,11 +435,23 @@ class HybridStereo(nn.Module):
         s, confidence, match = (upsample(t, 2, size, mode="bilinear") for t in (s, torch.sigmoid(logit), match))
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         confidence = confidence * self.rays_valid.to(dtype)
-        level = self.classical.final
         depth = sweep_to_depth(s, z_range)
         out = image.dtype
         return DepthResult(depth.to(out), confidence >= self.valid_confidence, confidence.to(out),
-                           ((s + 1.0) / level.step).to(out), match.to(out))
+                           ((s + 1.0) / self.classical.step).to(out), match.to(out))
+
+
+def classical_config(block: int) -> StereoConfig:
+    """The hybrid's classical level: the 'dense' preset (gradient-augmented absolute differences, guided-filter
+    aggregation, a coarse level at factor 2, a depth for every covered pixel) in block mode on ``block`` x ``block``
+    bins.
+
+    Example:
+        >>> config = classical_config(4)
+        >>> config.search.downsample, config.search.full_band, config.validity.dense
+        (4, 0, True)
+    """
+    return preset("dense").replace(search={"downsample": block, "full_band": 0})
 
 
 def sweep_match(coefficients: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -26,7 +26,7 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 
-from prismstereo.defaults import default_hypotheses
+from prismstereo.classical.defaults import default_hypotheses
 from prismstereo.errors import OptionError
 from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
 from prismstereo.geometry.rig import BiPrismRig

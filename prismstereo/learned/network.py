@@ -2,8 +2,8 @@
 
 Data path (one capture, both halves side by side as recorded; B batch, D hypotheses, G groups, s = ``scale``):
 
-1. grey (channel mean), normalised per image (zero mean, unit standard deviation) and locally (9 x 9 window):
-   two channels, so that brightness and contrast matter less;
+1. grey (:func:`~prismstereo.conventions.to_grey`), normalised per image (zero mean, unit standard deviation) and
+   locally (9 x 9 window): two channels, so that brightness and contrast matter less;
 2. a feature CNN on the whole capture down to 1/s (stride-2 convolutions of kernel 4 and padding 1, so feature
    pixel i is centred on the block centre s i + (s - 1) / 2, the ray of the binned rig's pixel i);
 3. :class:`~prismstereo.nn.PrismCostVolume` with G groups on the exact sweep of the given rig: (B, G, D, h, w_ref);
@@ -28,6 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo.conventions import to_grey
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, evaluate_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_shape
@@ -37,10 +38,11 @@ from prismstereo.matching.aggregate import box_filter
 from prismstereo.nn import PrismCostVolume, depth_regression
 from prismstereo.runtime import exporting
 
-__all__ = ["DEFAULT_WEIGHTS", "FORMAT", "HYPOTHESIS_SPACING_PX", "Architecture", "LearnedStereo", "WeightsError",
+__all__ = ["LEARNED_WEIGHTS", "FORMAT", "HYPOTHESIS_SPACING_PX", "Architecture", "LearnedStereo", "WeightsError",
            "learned_hypotheses", "load_weights", "read_weights", "write_weights"]
 
-DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "thesis_setup1.pt"
+LEARNED_WEIGHTS = Path(__file__).resolve().parent / "weights" / "thesis_setup1.pt"
+"""The shipped weights of :class:`LearnedStereo` (the hybrid's: :data:`~prismstereo.learned.hybrid.HYBRID_WEIGHTS`)."""
 # the spacing of neighbouring hypotheses on the sweep at the feature stride (px) that the default count keeps on every
 # rig and range: the shipped weights' (trained with 24 hypotheses over 450-1000 mm on setup 1 binned by 2, 16 px of
 # sweep at stride 4 in 23 steps, 0.70 px; run with 48 at full resolution, 32 px in 47 steps, 0.68 px)
@@ -140,7 +142,7 @@ def normalise_image(image: torch.Tensor, window: int = 9) -> torch.Tensor:
         >>> normalise_image(torch.rand(2, 3, 16, 20)).shape
         torch.Size([2, 2, 16, 20])
     """
-    grey = image.mean(1, keepdim=True)
+    grey = to_grey(image)
     mean = grey.mean((2, 3), keepdim=True)
     std = (grey - mean).square().mean((2, 3), keepdim=True).sqrt()
     local, local_sq = box_filter(torch.cat([grey, grey.square()], 1), window).split(1, 1)
@@ -158,7 +160,7 @@ def load_weights(path: str | Path) -> tuple[Architecture, dict[str, torch.Tensor
         WeightsError: missing or unreadable file, or not a LearnedStereo weights file.
 
     Example:
-        >>> arch, state, meta = load_weights(DEFAULT_WEIGHTS)
+        >>> arch, state, meta = load_weights(LEARNED_WEIGHTS)
         >>> arch.scale, meta["rig"]
         (4, 'thesis_setup1')
     """
@@ -194,7 +196,7 @@ def read_weights(path: str | Path, fmt: str, architecture: type, model: str) -> 
         WeightsError: missing or unreadable file, another format, or an invalid architecture.
 
     Example:
-        >>> read_weights(DEFAULT_WEIGHTS, FORMAT, Architecture, "LearnedStereo")[0].scale
+        >>> read_weights(LEARNED_WEIGHTS, FORMAT, Architecture, "LearnedStereo")[0].scale
         4
     """
     path = Path(path)
@@ -219,7 +221,7 @@ def learned_hypotheses(rig: BiPrismRig, z_range_mm: tuple[float, float], scale: 
     """The learned model's default D: hypotheses uniform in the sweep parameter whose neighbours are at most
     ``spacing_px`` apart on every reference pixel's sweep at the feature stride ``scale`` (the rig binned by it), so
     that a wider range gets more hypotheses at the spacing the weights were trained with (the classical model's rule,
-    :func:`~prismstereo.defaults.default_hypotheses`, at the cost volume's resolution).
+    :func:`~prismstereo.classical.defaults.default_hypotheses`, at the cost volume's resolution).
 
     Args:
         rig: the full-resolution rig.
@@ -234,7 +236,7 @@ def learned_hypotheses(rig: BiPrismRig, z_range_mm: tuple[float, float], scale: 
         >>> learned_hypotheses(thesis_setup1(), (450.0, 1000.0)), learned_hypotheses(thesis_setup1(), (200.0, 1600.0))
         (48, 168)
     """
-    from prismstereo.defaults import default_hypotheses
+    from prismstereo.classical.defaults import default_hypotheses
 
     if not (isinstance(spacing_px, (int, float)) and spacing_px > 0):
         raise OptionError(f"spacing_px must be a positive number, got {spacing_px!r}")
@@ -248,7 +250,7 @@ class LearnedStereo(nn.Module):
     Args:
         rig: the full-resolution rig; its sensor size must be divisible by ``scale``. Its geometry is checked
             first (:func:`~prismstereo.geometry.optics.check_rig_images`), here and in :meth:`for_rig`.
-        z_range_mm: (z_min, z_max) searched, beyond the prism's back plane.
+        z_range: (z_min, z_max) searched, mm, beyond the prism's back plane.
         num_hypotheses: D >= 2, uniform in 1/Z; None: :func:`learned_hypotheses` of the rig and range.
         scale: feature stride (2, 4 or 8); part of the architecture.
         weights: ``'default'`` (the shipped ``weights/thesis_setup1.pt``), None (random initialisation from torch's
@@ -271,11 +273,12 @@ class LearnedStereo(nn.Module):
 
     coefficients: torch.Tensor
     rays_valid: torch.Tensor
+    kind = "learned"
 
     def __init__(
         self,
         rig: BiPrismRig,
-        z_range_mm: tuple[float, float],
+        z_range: tuple[float, float],
         *,
         num_hypotheses: int | None = None,
         scale: int = 4,
@@ -289,7 +292,7 @@ class LearnedStereo(nn.Module):
         check_rig_images(rig)
         state = metadata = None
         if weights is not None:
-            path = DEFAULT_WEIGHTS if isinstance(weights, str) and weights == "default" else Path(weights)
+            path = LEARNED_WEIGHTS if isinstance(weights, str) and weights == "default" else Path(weights)
             file_arch, state, metadata = load_weights(path)
             architecture = architecture or file_arch
             if dataclasses.replace(architecture, scale=scale) != file_arch:
@@ -307,9 +310,9 @@ class LearnedStereo(nn.Module):
                 self.load_state_dict(state)
             except RuntimeError as exc:
                 raise WeightsError(f"weights do not fit the architecture {self.architecture}: {exc}") from exc
-        self._attach(rig, z_range_mm, num_hypotheses, with_match)
+        self._attach(rig, z_range, num_hypotheses, with_match)
 
-    def _attach(self, rig: BiPrismRig, z_range_mm: tuple[float, float], num_hypotheses: int | None,
+    def _attach(self, rig: BiPrismRig, z_range: tuple[float, float], num_hypotheses: int | None,
                 with_match: bool) -> None:
         """Build the rig-dependent buffers (not part of the state dict)."""
         s = self.architecture.scale
@@ -318,10 +321,10 @@ class LearnedStereo(nn.Module):
         if num_hypotheses is None:
             from prismstereo.depth import check_z_range
 
-            num_hypotheses = learned_hypotheses(rig, check_z_range(rig, z_range_mm), s)
+            num_hypotheses = learned_hypotheses(rig, check_z_range(rig, z_range), s)
         self.rig, self.with_match = rig, bool(with_match)
-        self.volume = PrismCostVolume(rig, z_range_mm, num_hypotheses, s, groups=self.architecture.groups)
-        self.z_range_mm = self.volume.z_range_mm
+        self.volume = PrismCostVolume(rig, z_range, num_hypotheses, s, groups=self.architecture.groups)
+        self.z_range = self.volume.z_range_mm
         self.num_hypotheses = num_hypotheses
         h, w_ref = rig.image_height, rig.reference_width
         v, u = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w_ref, dtype=torch.float64),
@@ -330,12 +333,12 @@ class LearnedStereo(nn.Module):
         rays = trace_pixels(rig, uv)
         self.register_buffer("rays_valid", (rays.valid & rays.left).view(1, 1, h, w_ref), persistent=False)
         if self.with_match:
-            coefficients = sweep_coefficients(fit_sweep(rig, self.z_range_mm), uv)
+            coefficients = sweep_coefficients(fit_sweep(rig, self.z_range), uv)
         else:
             coefficients = torch.zeros(0)
         self.register_buffer("coefficients", coefficients.to(torch.get_default_dtype()), persistent=False)
 
-    def for_rig(self, rig: BiPrismRig, z_range_mm: tuple[float, float], *, num_hypotheses: int | None = None,
+    def for_rig(self, rig: BiPrismRig, z_range: tuple[float, float], *, num_hypotheses: int | None = None,
                 with_match: bool | None = None) -> LearnedStereo:
         """A model for another rig or range that shares this one's CNNs (same parameter tensors); ``num_hypotheses``
         None: :func:`learned_hypotheses` of that rig and range.
@@ -347,12 +350,22 @@ class LearnedStereo(nn.Module):
             (True, torch.Size([8]))
         """
         with torch.random.fork_rng(devices=[]):  # its own CNNs are replaced: their initialisation draws nothing
-            twin = LearnedStereo(rig, z_range_mm, num_hypotheses=num_hypotheses,
+            twin = LearnedStereo(rig, z_range, num_hypotheses=num_hypotheses,
                                  scale=self.architecture.scale, weights=None, architecture=self.architecture,
                                  with_match=self.with_match if with_match is None else with_match)
         twin.metadata = self.metadata
         twin.features, twin.aggregation, twin.refinement = self.features, self.aggregation, self.refinement
         return twin.to(next(self.parameters()))
+
+    def tracker(self, options: Any = None) -> None:
+        """None: the learned model has no band to place on a previous frame (a video's frames are computed each on
+        its own).
+
+        Example:
+            >>> LearnedStereo(thesis_setup1().downscaled(8), (450.0, 1000.0), num_hypotheses=8).tracker() is None
+            True
+        """
+        return None
 
     def describe(self) -> dict[str, Any]:
         """What the model is, JSON-ready (the ONNX export's metadata and cache key): its class, range, hypotheses,
@@ -370,7 +383,7 @@ class LearnedStereo(nn.Module):
             if not name.startswith("volume."):
                 digest.update(name.encode())
                 digest.update(tensor.detach().float().cpu().numpy().tobytes())
-        return {"model": "LearnedStereo", "z_range_mm": list(self.z_range_mm), "num_hypotheses": self.num_hypotheses,
+        return {"model": "LearnedStereo", "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses,
                 "architecture": dataclasses.asdict(self.architecture), "with_match": self.with_match,
                 "weights_sha256": digest.hexdigest()[:16]}
 
@@ -393,14 +406,14 @@ class LearnedStereo(nn.Module):
             >>> model.index_to_depth(torch.tensor([0.0, 1.0, 2.0]))
             tensor([450., 600., 900.])
         """
-        return sweep_to_depth(index * (2.0 / (self.num_hypotheses - 1)) - 1.0, self.z_range_mm)
+        return sweep_to_depth(index * (2.0 / (self.num_hypotheses - 1)) - 1.0, self.z_range)
 
     def depth_to_index(self, depth: torch.Tensor) -> torch.Tensor:
         """Fractional hypothesis index of depths (mm, any shape), the inverse of :meth:`index_to_depth`."""
-        return (depth_to_sweep(depth, self.z_range_mm) + 1.0) * ((self.num_hypotheses - 1) / 2.0)
+        return (depth_to_sweep(depth, self.z_range) + 1.0) * ((self.num_hypotheses - 1) / 2.0)
 
     def extra_repr(self) -> str:
-        return (f"z_range_mm={self.z_range_mm}, num_hypotheses={self.num_hypotheses}, "
+        return (f"z_range={self.z_range}, num_hypotheses={self.num_hypotheses}, "
                 f"sensor={self.rig.image_width}x{self.rig.image_height}, {self.architecture}")
 
     def save(self, path: str | Path, **metadata: Any) -> Path:
@@ -452,10 +465,11 @@ class LearnedStereo(nn.Module):
         return _Parts(coarse, index, logit, inside)
 
     def forward(self, image: torch.Tensor) -> DepthResult:
-        """Depth of the reference half of captures ``image`` (B, C, H, W) in [0, 1] (colour is averaged to grey).
+        """Depth of the reference half of captures ``image`` (B, C, H, W) in [0, 1] (colour: its
+        :func:`~prismstereo.conventions.to_grey`).
 
         Returns:
-            :class:`~prismstereo.model.DepthResult`: depth (B, 1, H, W_ref) mm; valid (B, 1, H, W_ref) bool
+            :class:`~prismstereo.depth.result.DepthResult`: depth (B, 1, H, W_ref) mm; valid (B, 1, H, W_ref) bool
             (confidence >= 0.5 on valid reference rays that have a valid hypothesis); confidence (B, 1, H, W_ref)
             in [0, 1] (trained as the probability of a depth within 1 % of the truth; 0 outside); index
             (B, 1, H, W_ref) fractional hypothesis index; match (B, 2, H, W_ref) right-half (u, v) at the

@@ -1,12 +1,15 @@
-"""Matching layers: split the capture, build cost volumes, select hypotheses, post-process estimates.
+"""The matching stages: split the capture, build cost volumes, aggregate, select hypotheses, post-process estimates,
+judge them. Operations only, each taking its stage's options (:mod:`~prismstereo.matching.options`); the models that
+compose them are :mod:`prismstereo.classical` and :mod:`prismstereo.learned`.
 
-The depth model's path: :class:`SplitImage`, the coarse level (:mod:`~prismstereo.matching.search`:
+The classical chain's path: :class:`SplitImage`, the coarse level (:mod:`~prismstereo.matching.search`:
 :class:`RectifiedSearch` / :class:`SweepSearch` with :class:`SweepSampler`, the plane sweep's sampling that
 :class:`~prismstereo.nn.PrismCostVolume` shares, :func:`sweep_cost` / :func:`shift_cost`, and one :func:`decide`:
 :func:`box_filter`, :func:`sgm_aggregate`, winner, sub-pixel fit), the fine bands (:mod:`~prismstereo.matching.band`:
 :class:`FineBand`), the smoothing (:func:`robust_mean`) and the calibrated confidence
-(:class:`ConfidenceModel`). The rectified-pair matcher (``prismstereo match``, :mod:`~prismstereo.matching.rectified`)
-runs on the same :func:`shift_cost` and :func:`decide`, with its own post-processing.
+(:class:`ConfidenceModel`), the z-buffer occlusion test (:func:`zbuffer_visible`). The rectified-pair matcher
+(``prismstereo match``, :mod:`~prismstereo.classical.rectified`) runs on the same :func:`shift_cost` and
+:func:`decide`, with its own post-processing.
 """
 
 from prismstereo.matching.aggregate import box_filter, box_std, guided_filter, sgm_aggregate, sgm_aggregate_guided
@@ -28,14 +31,14 @@ from prismstereo.matching.cost import (
     sweep_cost,
     worst_cost,
 )
+from prismstereo.matching.occlusion import zbuffer_visible
+from prismstereo.matching.options import AggregationConfig, BandOptions, CostConfig, DecisionOptions
 from prismstereo.matching.postprocess import RobustMean, fill_background, median_filter, robust_mean, weighted_median
 from prismstereo.matching.search import (
-    BuiltSearch,
     Decision,
     LevelResult,
     RectifiedSearch,
     SweepSearch,
-    build_search,
     decide,
 )
 from prismstereo.matching.select import (
@@ -57,8 +60,6 @@ __all__ = [
     "Halves",
     "SweepSearch",
     "RectifiedSearch",
-    "build_search",
-    "BuiltSearch",
     "decide",
     "Decision",
     "FineBand",
@@ -100,4 +101,9 @@ __all__ = [
     "subpixel_refine_guarded",
     "uniqueness",
     "winner_take_all",
+    "zbuffer_visible",
+    "AggregationConfig",
+    "BandOptions",
+    "CostConfig",
+    "DecisionOptions",
 ]

@@ -20,7 +20,8 @@ from prismstereo.runtime import box_mean, in_place, scan_eager, scan_traced
 __all__ = ["box_filter", "box_std", "guided_filter", "sgm_aggregate", "sgm_aggregate_guided"]
 
 # the guided filter's radius, regularisation and subsampling (chosen on Middlebury): the defaults of the 'guided'
-# aggregation's options (prismstereo.config.AggregationConfig), which the depth model and the rectified matcher share
+# aggregation's options (prismstereo.matching.options.AggregationConfig), which the depth model and the rectified
+# matcher share
 GUIDED_RADIUS, GUIDED_EPS, GUIDED_SUBSAMPLE = 13, 1e-4, 2
 
 # (scan dim, reverse, row shift of the predecessor): dim 3 scans columns, dim 2 rows; a shift of +-1 makes

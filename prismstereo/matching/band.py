@@ -10,22 +10,21 @@ common field of view.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import torch
 from torch import nn
 
+from prismstereo.conventions import to_grey
 from prismstereo.epipolar.series import series_at, series_band
 from prismstereo.errors import OptionError, ShapeError, check_number, check_shape
 from prismstereo.matching.aggregate import box_filter
-from prismstereo.matching.cost import Warped, grey, reference_moments, sweep_cost
+from prismstereo.matching.cost import Warped, reference_moments, sweep_cost
+from prismstereo.matching.options import BandOptions
 from prismstereo.matching.search import LevelResult, similarity
 from prismstereo.matching.select import refine, winner_take_all
 from prismstereo.matching.sweep_cost import sample_points
 from prismstereo.runtime import tracing
-
-if TYPE_CHECKING:
-    from prismstereo.config import StereoConfig
 
 __all__ = ["EXPORT_STRIP_VOXELS", "Extended", "FineBand", "STRIP_VOXELS", "extend_estimate", "texture_of"]
 
@@ -58,16 +57,16 @@ class FineBand(nn.Module):
     at least 16 rows), :data:`STRIP_VOXELS` and :data:`EXPORT_STRIP_VOXELS` by default.
 
     Args:
-        config: the level's resolved options (:func:`~prismstereo.defaults.resolve_level`): the band's cost
-            ``fine_cost``, ``window``, ``census_threshold``, its box ``fine_box``, ``wide_box`` and
-            ``weak_texture``, ``band_edges``, ``refinement``.
+        options: the band's cost ``fine_cost``, ``window``, ``census_threshold``, its box ``fine_box``,
+            ``wide_box`` and ``weak_texture``, ``band_edges``, ``refinement`` (a resolved level's:
+            :meth:`~prismstereo.classical.config.StereoConfig.band_options`).
         band: R.
         step: hypothesis spacing in s.
         split: the other half's first full-sensor column.
         with_match: return each pixel's match (False: ``match`` None, for a caller that moves s afterwards).
         vertex_limit: the sub-pixel fit's largest move from the winner, in steps (0.5: within half a step of a
             true minimum; 1.0: up to the band's outer sample, for a band placed on a prior that may lag the
-            motion by a step, :class:`~prismstereo.depth.temporal.TemporalDepth`).
+            motion by a step, :class:`~prismstereo.classical.temporal.TemporalDepth`).
 
     Example:
         >>> from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients
@@ -78,29 +77,25 @@ class FineBand(nn.Module):
         >>> coefficients = sweep_coefficients(fit, uv).permute(2, 0, 1, 3)
         >>> series = sweep_series(coefficients).float()
         >>> interval = valid_interval(tabulate_sweep(coefficients).float(), torch.ones(96, 64, dtype=torch.bool), 64)
-        >>> from prismstereo.config import StereoConfig
-        >>> from prismstereo.defaults import resolve_level
-        >>> fine = FineBand(resolve_level(rig, (400.0, 900.0), StereoConfig()), 2, 0.05, 64)
+        >>> from prismstereo.matching.options import AggregationConfig, CostConfig
+        >>> fine = FineBand(BandOptions(CostConfig(), AggregationConfig(), "clamp", "parabola"), 2, 0.05, 64)
         >>> res = fine(torch.rand(1, 1, 96, 64), torch.rand(1, 1, 96, 64), torch.zeros(1, 1, 96, 64),
         ...            torch.ones(1, 1, 96, 64, dtype=torch.bool), series, interval)
         >>> res.s.shape
         torch.Size([1, 1, 96, 64])
     """
 
-    def __init__(self, config: StereoConfig, band: int, step: float, split: int, with_match: bool = True, *,
+    def __init__(self, options: BandOptions, band: int, step: float, split: int, with_match: bool = True, *,
                  vertex_limit: float = 0.5) -> None:
         super().__init__()
         check_number(vertex_limit, "vertex_limit", 0.0, 1.0, open_low=True)
-        if config.search.band_edges is None or config.refinement.refinement is None:
-            raise OptionError("FineBand needs a resolved config (prismstereo.defaults.resolve_level): band_edges and "
-                              "refinement set")
-        self.config, self.band, self.step, self.split = config, band, step, split
+        self.options, self.band, self.step, self.split = options.checked(), band, step, split
         self.with_match, self.vertex_limit = with_match, float(vertex_limit)
-        cost, aggregation = config.cost, config.aggregation
+        cost, aggregation = options.cost, options.aggregation
         self.cost, self.window, self.census_threshold = cost.fine_cost, cost.window, float(cost.census_threshold)
         self.box, self.wide_box, self.weak_texture = aggregation.fine_box, aggregation.wide_box, float(
             aggregation.weak_texture)
-        self.band_edges, self.refinement = config.search.band_edges, config.refinement.refinement
+        self.band_edges, self.refinement = options.band_edges, options.refinement
         self.strip_voxels, self.export_strip_voxels = STRIP_VOXELS, EXPORT_STRIP_VOXELS
 
     def forward(self, reference: torch.Tensor, other: torch.Tensor, s0: torch.Tensor, ok0: torch.Tensor,
@@ -142,7 +137,7 @@ class FineBand(nn.Module):
         x, y = series_band(series, s0, offsets, top, origin=(self.split, 0.0))
         channels = reference.shape[1]
         if self.cost == "zncc":  # ZNCC compares grey windows: sample the grey image (linear)
-            reference, other = grey(reference), grey(other)
+            reference, other = to_grey(reference, dim=1), to_grey(other, dim=1)
         lo, hi = interval.to(reference).unbind(0)
         t = offsets.view(1, -1, 1, 1)  # s0 + t_j within the pixel's interval (beyond [-1, 1]: outside it)
         warped = Warped(sample_points(other, x, y), (t >= lo - s0) & (t <= hi - s0))
@@ -213,7 +208,7 @@ def extend_estimate(s: torch.Tensor, valid: torch.Tensor, radius: int) -> Extend
     A coarse level loses a margin of about its window at the edges of the common field of view (its windows
     leave the other half's image there) and elsewhere along invalid patches; the fine band, with its own
     smaller full-resolution windows and checks, can still match most of these pixels if it is placed near
-    the right s. (:class:`~prismstereo.model.PrismStereo` accepts such a pixel only at a higher confidence.)
+    the right s. (:class:`~prismstereo.classical.model.PrismStereo` accepts such a pixel only at a higher confidence.)
 
     Args:
         s: (B, 1, H, W) estimate; any value where invalid (NaN too: kept only where out of reach).

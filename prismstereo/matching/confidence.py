@@ -1,4 +1,4 @@
-"""Calibrated confidence: the probability that a depth of :class:`~prismstereo.model.PrismStereo` is right.
+"""Calibrated confidence: the probability that a depth of :class:`~prismstereo.classical.model.PrismStereo` is right.
 
 A coarse-to-fine estimate carries more evidence about its own correctness than the final window's NCC alone:
 whether the coarse level agreed, how rough the estimate is around the pixel (wrong matches in weak texture are

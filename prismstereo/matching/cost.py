@@ -17,9 +17,9 @@ Costs (lower is better), all (B, D, H, W):
   floored at ~ the variance of 8-bit read noise (:func:`ncc_cost`); differentiable.
 * ``'ad_gradient'``: Rhemann et al.'s (2011) truncated colour + gradient difference per pixel
   (:func:`ad_gradient_cost` of the mean absolute colour difference and of the difference of the horizontal
-  gradients of the channel means), in [0, 1]; the gradient term ignores brightness offsets between the views, the
-  truncations limit the weight of occluded and mismatched pixels. No window: meant for an edge-aware aggregation
-  (:func:`~prismstereo.matching.aggregate.guided_filter`).
+  gradients of the grey images, :func:`~prismstereo.conventions.to_grey`), in [0, 1]; the gradient term ignores
+  brightness offsets between the views, the truncations limit the weight of occluded and mismatched pixels. No window:
+  meant for an edge-aware aggregation (:func:`~prismstereo.matching.aggregate.guided_filter`).
 
 Views that are not valid get the cost's worst value (:func:`worst_cost`).
 """
@@ -32,11 +32,12 @@ from typing import Literal, NamedTuple
 import torch
 import torch.nn.functional as F
 
+from prismstereo.conventions import to_grey
 from prismstereo.errors import OptionError, ShapeError, check_odd, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.runtime import fill_invalid
 
-__all__ = ["Cost", "COSTS", "Warped", "ad_gradient_cost", "census_transform", "grey", "ncc_cost", "reference_moments",
+__all__ = ["Cost", "COSTS", "Warped", "ad_gradient_cost", "census_transform", "ncc_cost", "reference_moments",
            "sweep_cost", "window_moments", "worst_cost", "zncc_cost"]
 
 Cost = Literal["sad", "zncc", "census", "ad_gradient"]
@@ -130,17 +131,6 @@ def census_cost(reference: torch.Tensor, views: torch.Tensor, window: int, thres
     return count.sum(1) if count.shape[1] > 1 else count.squeeze(1)  # over channels once, at the end
 
 
-def grey(x: torch.Tensor) -> torch.Tensor:
-    """Channel mean of (B, C, ...), keeping the channel axis (no ReduceMean, a copy in onnxruntime, for one
-    channel).
-
-    Example:
-        >>> grey(torch.ones(1, 3, 4, 5)).shape
-        torch.Size([1, 1, 4, 5])
-    """
-    return x if x.shape[1] == 1 else x.mean(1, keepdim=True)
-
-
 def window_moments(x: torch.Tensor, window: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Window mean and variance (clamped at 0) of every plane of (B, K, H, W), each (B, K, H, W).
 
@@ -181,7 +171,7 @@ def reference_moments(reference: torch.Tensor, window: int) -> tuple[torch.Tenso
         >>> float(mean[0, 0, 1, 1]), float(var[0, 0, 1, 1])
         (0.25, 0.0)
     """
-    return window_moments(grey(reference) - 0.5, window)
+    return window_moments(to_grey(reference, dim=1) - 0.5, window)
 
 
 def zncc_cost(reference: torch.Tensor, views: torch.Tensor, window: int,
@@ -196,8 +186,8 @@ def zncc_cost(reference: torch.Tensor, views: torch.Tensor, window: int,
         (torch.Size([1, 2, 8, 8]), True, True)
     """
     # both centred on 0.5, as reference_moments
-    ref = grey(reference) - 0.5  # (B, 1, H, W)
-    view = grey(views).squeeze(1) - 0.5  # (B, D, H, W)
+    ref = to_grey(reference, dim=1) - 0.5  # (B, 1, H, W)
+    view = to_grey(views, dim=1).squeeze(1) - 0.5  # (B, D, H, W)
     mean_r, var_r = window_moments(ref, window) if moments is None else moments
     mean_v, var_v = window_moments(view, window)
     cross = box_filter(view * ref, window) - mean_v * mean_r
@@ -255,9 +245,9 @@ def sweep_cost(
 
 
 def _x_gradient(image: torch.Tensor) -> torch.Tensor:
-    """(B, 1, ..., W) central difference along W of the channel mean (axis 1; edges replicated: one-sided
-    halves)."""
-    grey = image.mean(1, keepdim=True)
+    """(B, 1, ..., W) central difference along W of the grey image (channels on axis 1; edges replicated:
+    one-sided halves)."""
+    grey = to_grey(image, dim=1)
     grey = torch.cat([grey[..., :1], grey, grey[..., -1:]], -1)
     return 0.5 * (grey[..., 2:] - grey[..., :-2])
 

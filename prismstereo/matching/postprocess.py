@@ -155,7 +155,7 @@ def robust_mean(values: torch.Tensor, weight: torch.Tensor, window: int, toleran
     structures narrower than the window (a thin rod in front of a wall) keep their own values. On a plane the
     mean of a centred window is unbiased (x linear in the pixel coordinates; the sweep coordinate of a plane
     is nearly so), so sub-pixel noise averages out. Gradients reach ``values`` (the weights and the agreement
-    test are constants of the pass). Used by :class:`~prismstereo.model.PrismStereo` (``smoothing``) on the
+    test are constants of the pass). Used by :class:`~prismstereo.classical.model.PrismStereo` (``smoothing``) on the
     sweep coordinate with the confidence as weight.
 
     Args:
@@ -169,7 +169,7 @@ def robust_mean(values: torch.Tensor, weight: torch.Tensor, window: int, toleran
     Returns:
         :class:`RobustMean` (values, agreement, support), (B, 1, H, W) each in the dtype of ``values``; the
         agreement and the support describe the evidence around each pixel (features of the confidence of
-        :class:`~prismstereo.model.PrismStereo`).
+        :class:`~prismstereo.classical.model.PrismStereo`).
 
     Raises:
         ShapeError: bad shapes. OptionError: bad window or tolerance.

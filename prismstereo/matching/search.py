@@ -1,4 +1,4 @@
-"""The coarse searches: the whole depth range at one level, as swappable modules, and how a rig's search is built.
+"""The coarse searches: the whole depth range at one level, as swappable modules.
 
 A *search* covers the whole depth range at one pyramid level and returns each pixel's sweep coordinate s
 (linear in 1/Z, -1 at z_min, +1 at z_max), validity and confidence; two implementations share that interface,
@@ -12,36 +12,31 @@ confidence, uniqueness):
   :func:`~prismstereo.matching.sweep_cost.shift_cost`); the winning shift becomes s exactly
   (:func:`~prismstereo.epipolar.sweep_table.column_to_sweep`), resampled onto the unrectified pixels.
 
-:func:`build_search` builds a rig's search from its resolved config; the fine band that follows a search is
-:mod:`prismstereo.matching.band`'s.
+:func:`~prismstereo.classical.search.build_search` builds a rig's search from a level's resolved options; the fine
+band that follows a search is :mod:`prismstereo.matching.band`'s.
 """
 
 from __future__ import annotations
 
-import math
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo.epipolar.row_rectify import RectifiedLevel, fit_row_rectification, level_coverage, rectified_level
-from prismstereo.epipolar.sweep import SweepFit, sweep_coefficients, sweep_hypotheses
+from prismstereo.conventions import to_grey
+from prismstereo.epipolar.row_rectify import RectifiedLevel
 from prismstereo.epipolar.sweep_table import column_to_sweep
-from prismstereo.errors import OptionError, check_option
-from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.errors import OptionError
 from prismstereo.matching.aggregate import box_filter, guided_filter, sgm_aggregate, sgm_aggregate_guided
-from prismstereo.matching.cost import grey, sweep_cost, worst_cost
+from prismstereo.matching.cost import sweep_cost, worst_cost
+from prismstereo.matching.options import DecisionOptions
 from prismstereo.matching.select import left_right_check, refine, uniqueness, winner_take_all
 from prismstereo.matching.sweep_cost import sample_slices, shift_cost
-from prismstereo.matching.sweep_sampler import SweepSampler, block_centres, sweep_sampler
+from prismstereo.matching.sweep_sampler import SweepSampler
 from prismstereo.runtime import fill_invalid, sample_grid
 
-if TYPE_CHECKING:
-    from prismstereo.config import StereoConfig
-
-__all__ = ["BuiltSearch", "Decision", "LevelResult", "RectifiedSearch", "SweepSearch", "build_search", "decide",
-           "similarity"]
+__all__ = ["Decision", "LevelResult", "RectifiedSearch", "SweepSearch", "decide", "similarity"]
 
 # the cost of an entry of the rectified shift volume that is not a real sample, as a share of the worst cost (ZNCC:
 # 1.5, between uncorrelated and anti-correlated): the worst cost made the shifts whose windows reach past the other
@@ -96,7 +91,7 @@ class Decision(NamedTuple):
     total: torch.Tensor
 
 
-def decide(volume: torch.Tensor, config: StereoConfig, channels: int, final: bool,
+def decide(volume: torch.Tensor, options: DecisionOptions, channels: int, final: bool,
            guide: torch.Tensor | None = None) -> Decision:
     """A cost volume's winners: box (``box``), then semi-global (``'sgm'``: ``directions``, ``p1``, ``p2``, ``p2_edge``)
     or guided (``'guided'``: ``guided_radius``, ``guided_eps``, ``guided_subsample``) aggregation or none,
@@ -104,11 +99,12 @@ def decide(volume: torch.Tensor, config: StereoConfig, channels: int, final: boo
     confidence and uniqueness (``min_uniqueness``).
 
     The one decision of the depth model's searches and of the rectified-pair matcher
-    (:func:`~prismstereo.matching.rectified.match_rectified`).
+    (:func:`~prismstereo.classical.rectified.match_rectified`).
 
     Args:
-        volume: (B, D, H, W) cost of ``config.cost.cost``, lower is better.
-        config: the level's resolved options.
+        volume: (B, D, H, W) cost of ``options.cost.cost``, lower is better.
+        options: the cost, aggregation, final fit and uniqueness (a level's:
+            :meth:`~prismstereo.classical.config.StereoConfig.decision_options`).
         channels: the images' channels (the worst census cost counts bits per channel).
         final: the search's estimate is the level's (a single level), not a placement of a band.
         guide: (B or 1, C, H, W) the reference image in the volume's layout (the depth model's searches pass the
@@ -124,12 +120,12 @@ def decide(volume: torch.Tensor, config: StereoConfig, channels: int, final: boo
         OptionError: the guided filter or an edge-aware P2 without a guide.
 
     Example:
-        >>> from prismstereo.config import StereoConfig
+        >>> from prismstereo.matching.options import AggregationConfig, CostConfig
         >>> volume = torch.rand(1, 8, 12, 16)
-        >>> decide(volume, StereoConfig(), 1, final=False).refined.shape
+        >>> decide(volume, DecisionOptions(CostConfig(), AggregationConfig()), 1, final=False).refined.shape
         torch.Size([1, 1, 12, 16])
     """
-    cost, aggregation = config.cost.cost, config.aggregation
+    cost, aggregation = options.cost.cost, options.aggregation
     guided = aggregation.aggregation == "guided"
     local = box_filter(volume, aggregation.box)
     edges = aggregation.aggregation == "sgm" and aggregation.p2_edge is not None
@@ -147,14 +143,14 @@ def decide(volume: torch.Tensor, config: StereoConfig, channels: int, final: boo
         total = local
     index, _ = winner_take_all(total.detach())
     scored = total if guided else local  # the cost the sub-pixel fit and the confidence read
-    method = config.refinement.refinement if final and config.refinement.refinement else (
+    method = options.refinement if final and options.refinement else (
         "parabola" if cost == "zncc" else "equiangular")
     refined = refine(scored, total, index, method, cost)
-    confidence = similarity(scored.gather(1, index), cost, channels, config.cost.window)
+    confidence = similarity(scored.gather(1, index), cost, channels, options.cost.window)
     if guided and not final:  # a placement: the band after it judges it (the filtered cost is flat in weak
         unique = torch.ones_like(index, dtype=torch.bool)  # texture, where the ratio test rejects right winners)
     else:  # costs >= 0
-        unique = uniqueness(total.detach(), index, 1.0, nonnegative=True)[1] >= config.validity.min_uniqueness
+        unique = uniqueness(total.detach(), index, 1.0, nonnegative=True)[1] >= options.min_uniqueness
     return Decision(index, refined, confidence, unique, total)
 
 
@@ -164,30 +160,30 @@ class SweepSearch(nn.Module):
     uses too), cost, aggregation, winner.
 
     Args:
-        config: the level's resolved options (:func:`~prismstereo.defaults.resolve_level`).
+        options: what the search decides with (:func:`decide`).
         sampler: the level's sampler (:func:`~prismstereo.matching.sweep_sampler.sweep_sampler`).
 
     Example:
-        >>> from prismstereo.config import StereoConfig
+        >>> from prismstereo.matching.options import AggregationConfig, CostConfig
         >>> from prismstereo.matching.sweep_sampler import SweepSampler
         >>> sampler = SweepSampler(torch.zeros(3, 8, 6, 2), 4, other_valid=torch.ones(8, 6, dtype=torch.bool))
-        >>> search = SweepSearch(StereoConfig(), sampler)
+        >>> search = SweepSearch(DecisionOptions(CostConfig(), AggregationConfig()), sampler)
         >>> search(torch.rand(1, 1, 8, 6), torch.rand(1, 1, 8, 6), final=False).s.shape
         torch.Size([1, 1, 8, 6])
     """
 
-    def __init__(self, config: StereoConfig, sampler: SweepSampler) -> None:
+    def __init__(self, options: DecisionOptions, sampler: SweepSampler) -> None:
         super().__init__()
-        self.config, self.sampler = config, sampler
+        self.options, self.sampler = options, sampler
         self.num_hypotheses = sampler.num_hypotheses
 
     def forward(self, reference: torch.Tensor, other: torch.Tensor, final: bool) -> LevelResult:
         """Search the level images ``reference`` (B, C, H, W) and ``other`` (B, C, H_o, W_o)."""
         warped = self.sampler(other)
-        cost = self.config.cost
+        cost = self.options.cost
         volume = sweep_cost(reference, warped, cost.cost, cost.window, cost.census_threshold)
-        index, refined, confidence, unique, _ = decide(volume, self.config, reference.shape[1], final,
-                                                       grey(reference))
+        index, refined, confidence, unique, _ = decide(volume, self.options, reference.shape[1], final,
+                                                       to_grey(reference, dim=1))
         ok = warped.valid.gather(1, index) & unique
         return LevelResult(-1.0 + refined * (2.0 / (self.num_hypotheses - 1)), ok, confidence)
 
@@ -202,28 +198,30 @@ class RectifiedSearch(nn.Module):
     pixel's own sweep and is resampled onto the unrectified level pixels (bilinear; validity nearest).
 
     Args:
-        config: the level's resolved options (:func:`~prismstereo.defaults.resolve_level`; ``lr_threshold``: the
-            left-right check, level px).
+        options: what the search decides with (:func:`decide`).
         level: :func:`~prismstereo.epipolar.row_rectify.rectified_level` of this level.
         factor: the level's downsampling f.
         split: the other half's first full-sensor column.
+        lr_threshold: the left-right check: the other half's winners must agree with the reference's to this many
+            level pixels; None: no check.
 
     Example:
         >>> from prismstereo.epipolar.row_rectify import fit_row_rectification, rectified_level
         >>> from prismstereo.epipolar.sweep import fit_sweep
         >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 900.0))
         >>> level = rectified_level(fit_row_rectification(rig, fit), fit, 2, torch.ones(96, 64, dtype=torch.bool))
-        >>> from prismstereo.config import StereoConfig
-        >>> search = RectifiedSearch(StereoConfig(), level, 2, rig.reference_width)
+        >>> from prismstereo.matching.options import AggregationConfig, CostConfig
+        >>> search = RectifiedSearch(DecisionOptions(CostConfig(), AggregationConfig()), level, 2, rig.reference_width)
         >>> search(torch.rand(1, 1, 48, 32), torch.rand(1, 1, 48, 32), final=False).s.shape
         torch.Size([1, 1, 48, 32])
     """
 
-    def __init__(self, config: StereoConfig, level: RectifiedLevel, factor: int, split: int) -> None:
+    def __init__(self, options: DecisionOptions, level: RectifiedLevel, factor: int, split: int,
+                 lr_threshold: float | None = None) -> None:
         super().__init__()
-        self.config, self.factor, self.split = config, factor, split
-        self.lr_threshold = lr_threshold = config.search.lr_threshold
-        aggregation = config.aggregation
+        self.options, self.factor, self.split = options, factor, split
+        self.lr_threshold = lr_threshold
+        aggregation = options.aggregation
         self.transposed = not (aggregation.aggregation == "sgm" and aggregation.directions == 2)
         for name in ("reference_grid", "other_grid", "shifts", "back_grid", "table"):
             self.register_buffer(name, getattr(level, name).float())
@@ -247,7 +245,7 @@ class RectifiedSearch(nn.Module):
 
     def forward(self, reference: torch.Tensor, other: torch.Tensor, final: bool) -> LevelResult:
         """Search the level images ``reference`` (B, C, H, W) and ``other`` (B, C, H_o, W_o)."""
-        b, cost, t = reference.shape[0], self.config.cost, self.transposed
+        b, cost, t = reference.shape[0], self.options.cost, self.transposed
         ref_r = sample_slices(reference, self.reference_grid.to(reference)[None, None], shared=True)[:, :, 0]
         oth_r = sample_slices(other, self.other_grid.to(other)[None, None], shared=True)[:, :, 0]
         # 'ad_gradient' saturates at its worst on mismatches (truncated): a fill below it would win there
@@ -255,8 +253,8 @@ class RectifiedSearch(nn.Module):
                                                                                cost.window)
         volume = shift_cost(ref_r, oth_r, self.index, self.valid.unsqueeze(0), cost.cost, cost.window,
                             cost.census_threshold, transposed=t, fill=fill)
-        guide = grey(ref_r).transpose(-1, -2) if t else grey(ref_r)
-        index, refined, confidence, unique, total = decide(volume, self.config, reference.shape[1], final, guide)
+        guide = to_grey(ref_r, dim=1).transpose(-1, -2) if t else to_grey(ref_r, dim=1)
+        index, refined, confidence, unique, total = decide(volume, self.options, reference.shape[1], final, guide)
         ok = self.valid.unsqueeze(0).expand(b, -1, -1, -1).gather(1, index) & unique
         if t:
             refined, ok, confidence = refined.transpose(-1, -2), ok.transpose(-1, -2), confidence.transpose(-1, -2)
@@ -280,71 +278,3 @@ class RectifiedSearch(nn.Module):
         # validity: the nearest rectified pixel's (no blend of valid and invalid ones), none beyond the level
         ok = F.grid_sample(ok.to(reference.dtype), grid, mode="nearest", padding_mode="zeros", align_corners=False)
         return LevelResult(s, ok > 0.5, confidence)
-
-
-class BuiltSearch(NamedTuple):
-    """A rig's coarse (or single) level search (:func:`build_search`).
-
-    Attributes:
-        search: :class:`RectifiedSearch` or :class:`SweepSearch`.
-        rectification_residual_px: the row rectification's largest residual (px) for 'rectified', else None.
-    """
-
-    search: nn.Module
-    rectification_residual_px: float | None
-
-
-def build_search(rig: BiPrismRig, fit: SweepFit, fine: torch.Tensor, config: StereoConfig,
-                 other_valid: torch.Tensor) -> BuiltSearch:
-    """The search over a rig's whole range at its coarse level (or, with ``coarse_factor`` 1, its single level).
-
-    'rectified': a 1-D shift volume on halves row-rectified for this rig and sweep
-    (:func:`~prismstereo.epipolar.row_rectify.fit_row_rectification`). 'sweep': the exact per-pixel sweep, at full
-    resolution with ``num_hypotheses`` (``fine``, the polynomials of every reference pixel) or, with
-    ``coarse_factor`` f > 1, at the f x f box-downsampled level with hypotheses <= 1 level pixel apart and each
-    sample's validity fixed in advance (the level's grid is).
-
-    Args:
-        rig: the rig (full resolution of the level's input).
-        fit: its sweep fit (:func:`~prismstereo.epipolar.sweep.fit_sweep`).
-        fine: (N, H, W_ref, 2) sweep polynomials of every reference pixel, full-sensor pixels.
-        config: the level's resolved options (:func:`~prismstereo.defaults.resolve_level`): ``sampling``,
-            ``coarse_factor`` f, ``num_hypotheses`` (D of a single full-resolution level), the matching options.
-        other_valid: (H, W_o) bool, the other half's pixels that see through the prism.
-
-    Returns:
-        BuiltSearch.
-
-    Raises:
-        OptionError: unknown sampling.
-
-    Example:
-        >>> from prismstereo.config import StereoConfig
-        >>> from prismstereo.defaults import resolve_level
-        >>> from prismstereo.epipolar.sweep import fit_sweep
-        >>> rig = thesis_setup1().downscaled(8); fit = fit_sweep(rig, (400.0, 700.0))
-        >>> uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1).double()
-        >>> fine = sweep_coefficients(fit, uv).permute(2, 0, 1, 3)
-        >>> config = resolve_level(rig, (400.0, 700.0), StereoConfig())
-        >>> built = build_search(rig, fit, fine, config, torch.ones(96, 64, dtype=torch.bool))
-        >>> built.search.num_hypotheses, built.rectification_residual_px
-        (15, None)
-    """
-    search = config.search
-    sampling, factor = check_option(search.sampling, ("rectified", "sweep"), "sampling"), search.coarse_factor
-    h, w_ref = rig.image_height, rig.reference_width
-    if sampling == "rectified":  # a 1-D shift volume on row-rectified halves
-        rect = fit_row_rectification(rig, fit)
-        level = rectified_level(rect, fit, factor, other_valid)
-        return BuiltSearch(RectifiedSearch(config, level, factor, w_ref), rect.max_residual_px)
-    if factor == 1:
-        sampler = sweep_sampler(fit, search.num_hypotheses, other_start=w_ref, other_valid=other_valid,
-                                precompute=False, dtype=torch.float32, coefficients=fine)
-        return BuiltSearch(SweepSearch(config, sampler), None)
-    # the coarse grid is fixed, so is the validity of its samples: (D_c, H_c, W_c) bool
-    coarse = sweep_coefficients(fit, block_centres(math.ceil(h / factor), math.ceil(w_ref / factor), factor,
-                                                   fit.coefficients)).permute(2, 0, 1, 3)
-    sampler = sweep_sampler(fit, sweep_hypotheses(coarse / factor), factor=factor, other_start=w_ref,
-                            other_valid=level_coverage(other_valid, factor) > 0.999, dtype=torch.float32,
-                            coefficients=coarse)
-    return BuiltSearch(SweepSearch(config, sampler), None)

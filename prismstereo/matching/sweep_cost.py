@@ -15,6 +15,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from prismstereo.conventions import to_grey
 from prismstereo.errors import OptionError, ShapeError, check_odd, check_option, check_shape
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.cost import (
@@ -23,7 +24,6 @@ from prismstereo.matching.cost import (
     Warped,
     _x_gradient,
     ad_gradient_cost,
-    grey,
     ncc_cost,
     sweep_cost,
     window_moments,
@@ -233,8 +233,8 @@ def shift_cost(
         return volume if transposed else volume.transpose(-1, -2)
     check_odd(window, "window")
     r = window // 2
-    ref = grey(ref_t) - 0.5
-    oth = grey(other_t) - 0.5
+    ref = to_grey(ref_t, dim=1) - 0.5
+    oth = to_grey(other_t, dim=1) - 0.5
     mean_r, var_r = window_moments(ref, window)
     # the gather clamps columns, i.e. replicates the edge columns: so do the moments' windows
     mean_o, var_o = (m[..., r:r + oth.shape[-2], :] for m in window_moments(F.pad(oth, (0, 0, r, r), mode="replicate"),

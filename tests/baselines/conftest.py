@@ -5,12 +5,12 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import pytest
-import torch
 
 from prismstereo import thesis_setup1
 from prismstereo.baselines import checkerboard_corners, reference_points
 from prismstereo.calibration import detect_board, parse_target
 from prismstereo.synthetic import ImageFormation, calibration_views, render
+from prismstereo.threads import torch_threads
 
 BOARD = parse_target("checkerboard:4x7:6")
 RIG = thesis_setup1().downscaled(4)  # 256 x 192
@@ -27,13 +27,9 @@ class BoardViews(NamedTuple):
 def board_views() -> BoardViews:
     """Eight 4 x 7-corner boards (550-850 mm, tilted up to 45 deg), detected in both halves, with their true
     real-frame corners by id."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with torch_threads(1):
         scenes = calibration_views(8, seed=0)
         caps = render(RIG, scenes, ImageFormation(supersample=3, noise_sigma=1 / 255, seed=0))
         dets = [detect_board(image, RIG, BOARD) for image in caps.image]
         refs = [reference_points(RIG, checkerboard_corners(s), d, BOARD) for s, d in zip(scenes, dets, strict=True)]
-    finally:
-        torch.set_num_threads(threads)
     return BoardViews(scenes, dets, refs)

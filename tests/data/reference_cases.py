@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from prismstereo import thesis_setup1, thesis_setup2
-from prismstereo.model import PrismStereo
+from prismstereo.classical.model import PrismStereo
 from prismstereo.synthetic import ImageFormation, render, slanted_plane, step_scene
 from prismstereo.threads import torch_threads
 

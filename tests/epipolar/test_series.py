@@ -2,11 +2,11 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError, thesis_setup1, thesis_setup2
+from prismstereo.classical.model import PrismStereo
 from prismstereo.epipolar.series import series_at, series_band, sweep_series
 from prismstereo.epipolar.sweep import chebyshev_basis, fit_sweep, sweep_coefficients
 from prismstereo.epipolar.sweep_table import column_to_sweep, cubic_at, local_cubic, tabulate_sweep, valid_interval
 from prismstereo.matching.sweep_cost import warp_slices
-from prismstereo.model import PrismStereo
 
 F64 = torch.float64
 

@@ -1,5 +1,7 @@
 """The request index of the ONNX cache: a graph found from what was asked, without building the model."""
 
+import pytest
+
 from prismstereo import thesis_setup1
 from prismstereo.export import recall, remember, request_key
 
@@ -17,15 +19,46 @@ def test_request_key_remember_and_recall(tmp_path):
     graph.write_bytes(b"graph")
     index = remember(key, graph, "a model", cache_dir=tmp_path / "onnx")
     assert index.parent.name == "requests" and not list(index.parent.glob(".*partial*"))
-    assert recall(key, cache_dir=tmp_path / "onnx") == (graph, "a model", None)
+    assert recall(key, cache_dir=tmp_path / "onnx") == (graph, "a model", None, True)
     # a sequence's request: the per-frame graph and the temporal graph that tracks between its key frames
     tracker = graph.with_name("4567.onnx")
     tracker.write_bytes(b"temporal graph")
     remember("seq", graph, "a model, tracked", temporal=tracker, cache_dir=tmp_path / "onnx")
-    assert recall("seq", cache_dir=tmp_path / "onnx") == (graph, "a model, tracked", tracker)
+    assert recall("seq", cache_dir=tmp_path / "onnx") == (graph, "a model, tracked", tracker, True)
     tracker.unlink()  # either graph gone: not served
     assert recall("seq", cache_dir=tmp_path / "onnx") is None
     graph.unlink()  # a graph removed from the cache: the request is not served
     assert recall(key, cache_dir=tmp_path / "onnx") is None
     index.write_text("{not json")
     assert recall(key, cache_dir=tmp_path / "onnx") is None
+
+
+def test_cached_graphs_export_once_and_serve_a_request_without_a_model(tmp_path, monkeypatch):
+    """A built model's graphs are exported once into the cache (keyed by its description and options); a model asked
+    for by its spec is exported the first time and remembered, then served from the cache without being built; the
+    temporal graph is the band's, and a model without a band has none."""
+    from prismstereo.classical import PrismStereo, TemporalOptions
+    from prismstereo.export import OnnxDepth, cache_path, cached_graphs
+    from prismstereo.models import ModelSpec
+    from prismstereo.predictor import Predictor
+
+    rig = thesis_setup1().downscaled(16)
+    model = PrismStereo(rig, (400.0, 700.0), {"coarse_factor": 2})
+    files = cached_graphs(model, cache_dir=tmp_path)
+    assert files == cached_graphs(model, cache_dir=tmp_path) and not files.cached and files.temporal is None
+    assert files.path == cache_path(model, cache_dir=tmp_path) and len(list(tmp_path.glob("*.onnx"))) == 1
+    other = PrismStereo(rig, (300.0, 900.0), {"coarse_factor": 2})
+    assert cached_graphs(other, cache_dir=tmp_path).path != files.path  # another range: another graph
+    tracked = cached_graphs(model, temporal=TemporalOptions(), cache_dir=tmp_path)
+    assert tracked.path == files.path and OnnxDepth(tracked.temporal).temporal.downsample == 1
+    assert "temporal prior on sequences" in tracked.summary
+    single = PrismStereo(rig, (400.0, 700.0))  # one level: no band to track with
+    assert cached_graphs(single, temporal=TemporalOptions(), cache_dir=tmp_path).temporal is None
+    spec = ModelSpec(rig=rig, kind="classical", z_range=(400.0, 700.0), config={"coarse_factor": 2})
+    first = cached_graphs(spec, cache_dir=tmp_path)
+    assert not first.cached and first.path == files.path  # the same model: the same graph
+    monkeypatch.setattr(PrismStereo, "__init__", lambda *a, **k: pytest.fail("a model was built"))
+    again = cached_graphs(spec, cache_dir=tmp_path)
+    assert again.cached and again.path == files.path and again.summary == first.summary
+    predictor = Predictor(spec, backend="onnx", cache_dir=tmp_path)
+    assert predictor.cached and predictor.rig == rig and predictor.z_range == (400.0, 700.0)

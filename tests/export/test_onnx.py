@@ -10,9 +10,9 @@ import pytest
 import torch
 
 from prismstereo import StereoConfig, __version__, thesis_setup1
+from prismstereo.classical.model import PrismStereo
 from prismstereo.errors import OptionError, ShapeError
-from prismstereo.export import DepthGraph, ExportError, OnnxDepth, describe, export_onnx, onnx_session, source_digest
-from prismstereo.model import PrismStereo
+from prismstereo.export import DepthGraph, ExportError, OnnxDepth, describe_graph, export_onnx, source_digest
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render, step_scene
 
 DEPTHS = (320.0, 450.0, 610.0, 830.0)
@@ -62,7 +62,7 @@ def test_metadata(exported, model):
     assert config["model"] == "PrismStereo" and config["config"]["search"]["coarse_factor"] == 2
     rebuilt = PrismStereo(model.rig, config["z_range_mm"], StereoConfig.from_dict(config["config"]))
     assert rebuilt.resolved == model.resolved  # the metadata rebuilds the model
-    assert "input (B, 1, 96, 128)" in describe(meta)
+    assert "input (B, 1, 96, 128)" in describe_graph(meta)
 
 
 @pytest.mark.parametrize("batch", [1, 4])
@@ -204,21 +204,8 @@ def test_export_errors(model, tmp_path):
         export_onnx(model, tmp_path / "m.onnx", channels=2)
     with pytest.raises(ExportError, match="opset must be"):
         export_onnx(model, tmp_path / "m.onnx", opset=13)
-    with pytest.raises(ExportError, match="must be a PrismStereo"):
+    with pytest.raises(ExportError, match="must be a depth model"):
         export_onnx(DepthGraph(model), tmp_path / "m.onnx")
-
-
-def test_session_cache(exported, model, tmp_path, monkeypatch):
-    monkeypatch.setenv("PRISMSTEREO_CACHE", str(tmp_path))
-    first = onnx_session(model)
-    assert first is onnx_session(model)  # same process: same session
-    sleeping = onnx_session(model, spinning=False)  # another session of the same file
-    assert sleeping is not first and sleeping.path == first.path
-    files = list((tmp_path / "onnx").glob("*.onnx"))
-    assert len(files) == 1 and first.path == files[0]
-    other = PrismStereo(model.rig, (300.0, 900.0), dict(coarse_factor=2, min_confidence=0.6))
-    assert onnx_session(other).path != first.path  # other options: another graph
-    assert first.path.read_bytes()[:64] == exported.read_bytes()[:64]  # same model, same export
 
 
 @pytest.mark.parametrize("downsample", [1, 2, 3])
@@ -226,7 +213,8 @@ def test_temporal_graph_matches_torch_and_checks_its_prior(model, captures, expo
     """The temporal graph (image and the band's prior in, the outputs and the next frame's prior out) against
     TemporalDepth.track in torch, with the band at full resolution and on the 2 x 2- and 3 x 3-binned capture; its
     runner's key-frame prior is torch's; the runners refuse a prior they do not take and want one they do."""
-    from prismstereo.depth.temporal import TemporalDepth, TemporalOptions
+    from prismstereo.classical.prior import TemporalOptions
+    from prismstereo.classical.temporal import TemporalDepth
 
     options = TemporalOptions(band=2, downsample=downsample)
     path = export_onnx(model, tmp_path / "temporal.onnx", temporal=options)
@@ -266,7 +254,7 @@ def test_temporal_graph_matches_torch_and_checks_its_prior(model, captures, expo
         OnnxDepth(exported).band_prior(*first[:3])
     with pytest.raises(ShapeError, match="prior_inverse_depth must have shape"):
         runner.track(captures[:1], prior)  # a prior of 2 images for 1
-    with pytest.raises(ExportError, match="temporal must be None or TemporalOptions"):
+    with pytest.raises(ExportError, match="temporal must be None, TemporalOptions or a TemporalDepth"):
         export_onnx(model, tmp_path / "bad.onnx", temporal={"band": 1})
     single = PrismStereo(model.rig, (300.0, 900.0), {"coarse_factor": 1})
     with pytest.raises(ExportError, match="no temporal graph for this model"):

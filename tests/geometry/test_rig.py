@@ -130,7 +130,7 @@ def test_invalid_values(changes, match):
 
 def _assert_geometry_rejected(rig, match):
     """Construction checks fields only; the explicit check, the validating loader and the model reject the rig."""
-    from prismstereo.model import PrismStereo
+    from prismstereo.classical.model import PrismStereo
 
     with pytest.raises(RigError, match=match):
         check_rig_images(rig)

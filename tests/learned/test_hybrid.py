@@ -8,7 +8,8 @@ import torch
 
 from prismstereo import thesis_setup1
 from prismstereo.cli import main
-from prismstereo.depth.level import upsample
+from prismstereo.depth.resample import upsample
+from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import evaluate_sweep, fit_sweep, sweep_coefficients
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.learned import HYBRID_WEIGHTS, HybridArchitecture, HybridStereo, WeightsError
@@ -22,7 +23,6 @@ from prismstereo.learned.hybrid import (
 )
 from prismstereo.learned.hybrid_data import hybrid_set, photo_scene, photographs, training_rigs
 from prismstereo.learned.hybrid_train import hybrid_loss, train_hybrid, validity_threshold
-from prismstereo.model import DepthResult
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 
 pytestmark = pytest.mark.usefixtures("one_thread")

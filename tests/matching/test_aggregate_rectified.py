@@ -2,8 +2,8 @@ import pytest
 import torch
 
 from prismstereo import OptionError, ShapeError
+from prismstereo.classical.rectified import MatchOptions, match_rectified
 from prismstereo.matching import box_filter, box_std, sgm_aggregate, sgm_aggregate_guided
-from prismstereo.matching.rectified import MatchOptions, match_rectified
 from tests.matching.test_cost_select import shifted_pair
 
 F64 = torch.float64

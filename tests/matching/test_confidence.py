@@ -194,7 +194,7 @@ def test_clamped_band_models_have_their_own_weights():
     """A final band that clamps its edges (the 'fast' preset) takes CLAMPED_WEIGHTS; the default, a dense model
     and 'reject' bands the default weights."""
     from prismstereo import thesis_setup1
-    from prismstereo.model import PrismStereo
+    from prismstereo.classical.model import PrismStereo
 
     rig = thesis_setup1().downscaled(4)
     fast = PrismStereo(rig, (400.0, 800.0), dict(coarse_factor=2, band_edges="clamp"))

@@ -1,24 +1,25 @@
+import dataclasses
+
 import pytest
 import torch
 
 from prismstereo import OptionError, PrismStereo, ShapeError, StereoConfig, thesis_setup1
-from prismstereo.defaults import resolve_level
+from prismstereo.classical.defaults import resolve_level
+from prismstereo.conventions import to_grey
 from prismstereo.epipolar.series import series_at
-from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients
+from prismstereo.epipolar.sweep import depth_to_sweep
 from prismstereo.matching import (
-    BuiltSearch,
     FineBand,
     LevelResult,
     RectifiedSearch,
     SweepSearch,
     box_filter,
-    build_search,
     decide,
     extend_estimate,
     shift_cost,
 )
 from prismstereo.matching.band import STRIP_VOXELS, texture_of
-from prismstereo.matching.cost import grey, reference_moments
+from prismstereo.matching.cost import reference_moments
 from prismstereo.matching.search import similarity
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 from tests.conftest import scaled_rig
@@ -86,12 +87,14 @@ def test_fine_band_strips_give_the_whole_image(plane, monkeypatch):
     assert (whole.match - exact).abs().amax(1, keepdim=True)[whole.valid].max() < 1e-3
     # without the match (a smoothing model computes it after moving s): the same estimate, whole or in strips
     fine = model.final.fine
-    bare = FineBand(fine.config, fine.band, fine.step, fine.split, with_match=False)
+    bare = FineBand(fine.options, fine.band, fine.step, fine.split, with_match=False)
     for bad in (0.0, 1.5):
         with pytest.raises(OptionError, match=r"vertex_limit must be a number in \(0, 1\]"):
-            FineBand(fine.config, fine.band, fine.step, fine.split, vertex_limit=bad)
-    with pytest.raises(OptionError, match="FineBand needs a resolved config"):
-        FineBand(model.config, fine.band, fine.step, fine.split)  # band_edges and refinement still None
+            FineBand(fine.options, fine.band, fine.step, fine.split, vertex_limit=bad)
+    with pytest.raises(OptionError, match="a fine band needs resolved options"):
+        model.config.band_options()  # band_edges and refinement still None
+    with pytest.raises(OptionError, match="Unknown band_edges 'edge'"):
+        FineBand(fine.options._replace(band_edges="edge"), fine.band, fine.step, fine.split)
     assert PrismStereo(rig, (450.0, 900.0), dict(coarse_factor=2)).final.fine.with_match is False
     with torch.no_grad():
         for voxels in (10**9, 1):
@@ -213,7 +216,8 @@ def test_fine_band_wide_box_blends_only_in_weak_texture(plane):
 
     def band(**changes):
         band = model.final.fine
-        fine = FineBand(band.config.with_options(**changes), band.band, band.step, model.final.fine.split)
+        options = band.options._replace(aggregation=dataclasses.replace(band.options.aggregation, **changes))
+        fine = FineBand(options, band.band, band.step, model.final.fine.split)
         with torch.no_grad():
             return fine(ref, other, s0, ok0, model.final.series, model.final.interval)
 
@@ -267,7 +271,8 @@ def test_guided_aggregation_carries_a_shift_through_a_flat_band_and_stops_at_edg
     volume = shift_cost(reference, other, index, valid, "ad_gradient")
     for aggregation, expect_band in (("guided", True), ("box", False)):
         config = resolve_level(thesis_setup1().downscaled(8), (400.0, 700.0), guided_options(aggregation))
-        index_w, _, confidence, unique, _ = decide(volume, config, 1, final=False, guide=grey(reference))
+        options = config.decision_options()
+        index_w, _, confidence, unique, _ = decide(volume, options, 1, final=False, guide=to_grey(reference))
         band = index_w[0, 0, 20:28, 14:w // 2 - 14]
         assert bool((band == 5).all()) == expect_band, band
         if aggregation == "guided":
@@ -276,7 +281,7 @@ def test_guided_aggregation_carries_a_shift_through_a_flat_band_and_stops_at_edg
             right_half = index_w[0, 0, :, w // 2 + 14:w - 3]
             assert float((right_half == 2).float().mean()) > 0.95
             assert float(confidence.min()) >= 0 and float(confidence.max()) <= 1
-            _, _, _, unique_final, _ = decide(volume, config, 1, final=True, guide=grey(reference))
+            _, _, _, unique_final, _ = decide(volume, options, 1, final=True, guide=to_grey(reference))
             assert not bool(unique_final.all())
 
 
@@ -284,9 +289,9 @@ def test_decide_reads_the_guided_filter_and_edge_aware_p2_options():
     """decide's aggregation is the aggregate module's under the config's options: the guided filter's radius, eps
     and subsampling, SGM's edge-aware P2 (``p2_edge``), a colour guide; the defaults are the depth model's constant
     P2 and the GUIDED_* constants."""
-    from prismstereo.config import AggregationConfig
     from prismstereo.matching import box_filter, guided_filter, sgm_aggregate, sgm_aggregate_guided
     from prismstereo.matching.aggregate import GUIDED_EPS, GUIDED_RADIUS, GUIDED_SUBSAMPLE
+    from prismstereo.matching.options import AggregationConfig
 
     default = AggregationConfig()
     assert default.p2_edge is None
@@ -297,58 +302,21 @@ def test_decide_reads_the_guided_filter_and_edge_aware_p2_options():
     guide = torch.rand(1, 3, 20, 24, generator=gen)
     guided = StereoConfig().with_options(aggregation="guided", box=3, guided_radius=4, guided_eps=1e-3,
                                          guided_subsample=1)
-    total = decide(volume, guided, 1, final=True, guide=guide).total
+    total = decide(volume, guided.decision_options(), 1, final=True, guide=guide).total
     assert torch.equal(total, guided_filter(box_filter(volume, 3), guide, 4, 1e-3, 1))
     for p2_edge in (None, 0.05):
         config = StereoConfig().with_options(directions=8, p1=0.1, p2=0.9, p2_edge=p2_edge)
-        total = decide(volume, config, 1, final=True, guide=guide).total
+        total = decide(volume, config.decision_options(), 1, final=True, guide=guide).total
         local = box_filter(volume, config.aggregation.box)
         expected = (sgm_aggregate(local, 0.1, 0.9, 8) if p2_edge is None
                     else sgm_aggregate_guided(local, guide, 0.1, 0.9, 0.05, 8))
         assert torch.equal(total, expected)
     with pytest.raises(OptionError, match="edge-aware P2 .p2_edge. needs a guide image"):
-        decide(volume, StereoConfig().with_options(p2_edge=0.05), 1, final=True)
+        decide(volume, StereoConfig().with_options(p2_edge=0.05).decision_options(), 1, final=True)
     with pytest.raises(OptionError, match="the guided filter needs a guide image"):
-        decide(volume, guided, 1, final=True)
+        decide(volume, guided.decision_options(), 1, final=True)
 
 
 def guided_options(aggregation: str) -> StereoConfig:
     """The options of a per-pixel cost aggregated by ``aggregation``."""
     return StereoConfig().with_options(cost="ad_gradient", aggregation=aggregation, box=1)
-
-
-@pytest.fixture(scope="module")
-def sweep_setup():
-    rig = thesis_setup1().downscaled(8)  # 128 x 96, reference half 64 wide
-    fit = fit_sweep(rig, (400.0, 900.0))
-    uv = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(96.0), indexing="xy"), -1).double()
-    fine = sweep_coefficients(fit, uv).permute(2, 0, 1, 3)
-    return rig, fit, fine, torch.ones(96, 64, dtype=torch.bool)
-
-
-@pytest.mark.parametrize("sampling, factor, kind", [("sweep", 1, SweepSearch), ("sweep", 2, SweepSearch),
-                                                    ("rectified", 2, RectifiedSearch)])
-def test_build_search_gives_the_level_the_model_uses(sweep_setup, sampling, factor, kind):
-    rig, fit, fine, other_valid = sweep_setup
-    options = dict(num_hypotheses=30, sampling=sampling, coarse_factor=factor)
-    config = resolve_level(rig, (400.0, 900.0), StereoConfig().with_options(**options))
-    built = build_search(rig, fit, fine, config, other_valid)
-    assert isinstance(built, BuiltSearch) and isinstance(built.search, kind)
-    model = PrismStereo(rig, (400.0, 900.0), options)
-    assert type(model.final.search) is kind and model.final.search.num_hypotheses == built.search.num_hypotheses
-    if factor == 1:
-        assert built.search.num_hypotheses == 30  # a single level keeps the requested hypotheses
-    else:  # the coarse level: hypotheses <= 1 level pixel apart, fewer than the full level's
-        assert 2 <= built.search.num_hypotheses < 30
-    if sampling == "rectified":  # setup 1's non-central rays leave ~1e-4 px (row_rectify's measurement)
-        assert 0 <= built.rectification_residual_px < 1e-3
-        assert built.rectification_residual_px == model.final.rectification_residual_px
-    else:
-        assert built.rectification_residual_px is None
-
-
-def test_build_search_rejects_an_unknown_or_unresolved_sampling(sweep_setup):
-    rig, fit, fine, other_valid = sweep_setup
-    config = resolve_level(rig, (400.0, 900.0), StereoConfig())
-    with pytest.raises(OptionError, match="sampling.*'rectified'.*'sweep'"):
-        build_search(rig, fit, fine, config.replace(search={"sampling": None}), other_valid)

@@ -89,7 +89,7 @@ def test_gradcheck_image(rig, fit):
 
 
 def test_one_sampler_for_the_classical_search_and_the_volume():
-    from prismstereo.model import PrismStereo
+    from prismstereo.classical.model import PrismStereo
     from prismstereo.nn import PrismCostVolume
 
     rig = thesis_setup1().downscaled(8)

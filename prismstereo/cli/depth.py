@@ -1,0 +1,184 @@
+"""``prismstereo depth``: depth maps (and point clouds) of bi-prism captures, image sequences and videos.
+
+It parses its own arguments and only calls the library: the model the flags ask for
+(:func:`~prismstereo.cli.model_flags.model_spec`) in a :class:`~prismstereo.predictor.Predictor` (torch, or its
+graphs from the ONNX cache without building the model when the same request was exported before), the job's
+outputs checked before any work (:func:`~prismstereo.jobs.plan`, its errors named by the flags) and the pipelined
+run over captures, sequences and videos (:func:`~prismstereo.jobs.run`) on the executor the flags choose.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import torch
+
+from prismstereo.cli.model_flags import add_model_arguments, flag_errors, model_spec, range_note
+from prismstereo.errors import PrismStereoError
+from prismstereo.geometry.presets import load_rig
+from prismstereo.io import DEPTH_FILE_FORMATS
+from prismstereo.predictor import BACKENDS
+
+__all__ = ["add_parser"]
+
+# the plan's arguments by their flags (its errors name its arguments: prismstereo.jobs.PlanError)
+PLAN_FLAGS = {"out": "--out", "format": "--format", "every": "--every", "start": "--start", "stop": "--stop",
+              "preview_video": "--preview-video", "skip_existing": "--skip-existing"}
+
+
+def _camera_to_world(path: str) -> torch.Tensor:
+    """A (4, 4) rigid camera-to-world transform from a JSON file: a 4 x 4 list, or {"camera_to_world": ...}."""
+    import json
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise PrismStereoError(f"cannot read --camera-to-world {path}: {exc}") from exc
+    if isinstance(data, dict):
+        data = data.get("camera_to_world")
+    try:
+        pose = torch.tensor(data, dtype=torch.float64)
+    except (TypeError, ValueError):
+        pose = None
+    if pose is None or pose.shape != (4, 4) or not bool(torch.isfinite(pose).all()):
+        raise PrismStereoError(f"--camera-to-world {path} must hold a finite 4 x 4 matrix")
+    rot = pose[:3, :3]
+    rigid = torch.allclose(rot.T @ rot, torch.eye(3, dtype=torch.float64), atol=1e-6) and abs(
+        float(torch.linalg.det(rot)) - 1) < 1e-6 and pose[3].tolist() == [0.0, 0.0, 0.0, 1.0]
+    if not rigid:
+        raise PrismStereoError(f"--camera-to-world {path} is not a rigid transform (rotation, translation, last row "
+                               "0 0 0 1)")
+    return pose
+
+
+def _check_flags(args: argparse.Namespace) -> torch.Tensor | None:
+    """The flags' own checks, before anything is read or built; returns the ``--camera-to-world`` pose."""
+    if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
+        raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
+    for flag, value in (("--batch-size", args.batch_size), ("--workers", args.workers),
+                        ("--temporal-binning", args.temporal_binning)):
+        if value is not None and value < 1:
+            raise PrismStereoError(f"{flag} must be >= 1, got {value}")
+    if args.temporal_binning is not None and not args.temporal:
+        raise PrismStereoError("--temporal-binning places the temporal prior's band: not with --no-temporal")
+    if args.ray is not None and args.workers > 1:
+        raise PrismStereoError("--ray and --workers exclude each other (Ray places the workers)")
+    pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
+    if pose is not None and not args.ply:
+        raise PrismStereoError("--camera-to-world transforms the --ply point clouds: add --ply")
+    return pose
+
+
+def _tasks(args: argparse.Namespace, pose: torch.Tensor | None):
+    """The job's tasks and write options (:func:`~prismstereo.jobs.plan`, its errors naming the flags)."""
+    from prismstereo.jobs import Selection, WriteOptions, plan
+
+    options = WriteOptions(args.format, args.ply, args.dense, args.png_scale, pose,
+                           Path(args.preview_video) if args.preview_video else None, args.preview_fps)
+    tasks = plan(args.images, Path(args.out), options, Selection(args.every, args.start, args.stop),
+                 skip_existing=args.skip_existing, names=PLAN_FLAGS)
+    if len(tasks) == 1 and tasks[0].error is not None:
+        raise PrismStereoError(tasks[0].error)  # one input: its error is the command's
+    return tasks, options
+
+
+def _executor(args: argparse.Namespace):
+    """Where the job runs: Ray actors (``--ray``), worker processes (``--workers``) or this process."""
+    from prismstereo.jobs import InProcess, WorkerProcesses
+
+    if args.ray is not None:
+        from prismstereo.jobs.ray_executor import RayCluster
+
+        return RayCluster(args.ray), f", on Ray ({args.ray})"
+    if args.workers > 1:
+        return WorkerProcesses(args.workers), f", {args.workers} worker processes"
+    return InProcess(), ""
+
+
+def _cmd_depth(args: argparse.Namespace) -> int:
+    from prismstereo.classical import TemporalOptions
+    from prismstereo.jobs import Pipeline, run
+    from prismstereo.predictor import Predictor
+
+    rig = load_rig(args.rig)
+    spec = model_spec(args, rig)  # the model's flags fail early, and set args.dense for the outputs
+    pose = _check_flags(args)
+    tasks, options = _tasks(args, pose)
+    runnable = [t for t in tasks if t.error is None and t.first < len(t.outputs)]
+    tracked = any(t.sequence for t in runnable) and args.temporal
+    temporal = TemporalOptions(downsample=args.temporal_binning) if tracked else None
+    with flag_errors(args):
+        predictor = Predictor(spec, backend=args.backend, temporal=temporal, spinning=False)
+    if tracked and predictor.temporal is None and args.temporal_binning is not None:
+        raise PrismStereoError("--temporal-binning: this model has no full-resolution band for the temporal prior")
+    executor, where = _executor(args)
+    cached = (" (cached graphs)" if tracked else " (cached graph)") if predictor.cached else ""
+    outputs = sum(len(t.outputs) - t.first for t in runnable)
+    print(f"{range_note(args, predictor.z_range)}, {predictor.summary}{cached}, backend {args.backend}{where}; "
+          f"{outputs} depth maps to write from {len(runnable)} of {len(tasks)} inputs")
+    result = run(tasks, Pipeline(predictor, options=options), executor=executor, batch_size=args.batch_size)
+    print(result.describe())
+    if len(tasks) == 1 and result.failed:
+        raise PrismStereoError(result.failed[0].error)
+    for failure in result.failed:
+        print(f"prismstereo: failed: {failure.source}: {failure.error}", file=sys.stderr)
+    return 1 if result.failed else 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``prismstereo depth`` on the main parser's subcommands."""
+    depth = sub.add_parser("depth", help="metric depth of the reference (left) half of bi-prism captures")
+    depth.add_argument("images", metavar="IMAGE", nargs="+",
+                       help="full sensor image(s): 8/16-bit grey or RGB PNG/TIFF/JPEG of the rig's size; or one "
+                            "video file (.mp4, .avi, .mkv, ...), directory of images or quoted glob ('frames/*.png'),"
+                            " written as OUT/<stem>_000000.<format>, ... numbered from 0 in frame order")
+    depth.add_argument("--rig", required=True, help="rig JSON file or preset name")
+    depth.add_argument("--out", required=True,
+                       help="OUT.npy or OUT.tiff (float32 mm, NaN invalid) or OUT.png (16-bit mm x scale, 0 "
+                            "invalid, plus OUT_preview.png and OUT.json with the scale) for one image; a directory "
+                            "(created) of <stem>.npy/.png/.tiff otherwise")
+    add_model_arguments(depth)
+    depth.add_argument("--backend", choices=BACKENDS, default="torch",
+                       help="inference backend: the model in torch, or its graphs in onnxruntime (exported once "
+                            "into the cache, prismstereo.export.cached_graphs: the same request again runs without "
+                            "building the model)")
+    depth.add_argument("--batch-size", type=int, default=1, metavar="B", help="images processed together")
+    depth.add_argument("--workers", type=int, default=1, metavar="N",
+                       help="spread the inputs (batches of images, whole videos or sequences) over N processes, each "
+                            "with its share of the cores (default 1: this process, reading and writing on threads "
+                            "beside the model)")
+    depth.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                       help="run the inputs on Ray actors (pip install 'prismstereo[ray]'): a local instance, or the "
+                            "cluster at ADDRESS ('auto', 'ray://head:10001'); a dead worker is restarted and its "
+                            "inputs retried")
+    depth.add_argument("--skip-existing", action="store_true",
+                       help="resume a job: skip the images whose outputs exist, and continue each video or sequence "
+                            "at its first missing frame (a key frame)")
+    depth.add_argument("--format", choices=DEPTH_FILE_FORMATS, default=None,
+                       help="output format when --out is a directory (default npy)")
+    depth.add_argument("--png-scale", type=float, default=None, metavar="S",
+                       help="16-bit PNG levels per mm (default: 256, the endoscopy convention, where every depth "
+                            "is <= 255.996 mm, else the largest power of two that fits; stored in the PNG)")
+    depth.add_argument("--every", type=int, default=1, metavar="N", help="video / sequence: every N-th frame")
+    depth.add_argument("--start", type=int, default=0, metavar="I", help="video / sequence: first frame (0-based)")
+    depth.add_argument("--stop", type=int, default=None, metavar="J", help="video / sequence: end frame (exclusive)")
+    depth.add_argument("--preview-video", default=None, metavar="OUT.mp4",
+                       help="video / sequence: also write the colour-mapped depth as a video (mp4v)")
+    depth.add_argument("--preview-fps", type=float, default=10.0, help="frame rate of --preview-video")
+    depth.add_argument("--no-temporal", dest="temporal", action="store_false",
+                       help="video / sequence: every frame on its own (default: the temporal prior, a narrow band "
+                            "around the previous frame's depth between key frames; prismstereo.classical.temporal)")
+    depth.add_argument("--temporal-binning", type=int, default=None, metavar="K",
+                       help="video / sequence: the temporal prior's band on the K x K-binned frame (default: 2 for a "
+                            "pyramid, 1 for a one-level model; a coarser binning tracks faster and less accurately: "
+                            "docs/benchmarks.md, Video)")
+    depth.add_argument("--ply", action="store_true",
+                       help="also write <stem>.ply point clouds (camera frame, mm, coloured by the reference half, "
+                            "with each point's confidence as a 'confidence' property)")
+    depth.add_argument("--camera-to-world", default=None, metavar="POSE.json",
+                       help="write the --ply points in a world frame: a JSON 4 x 4 rigid transform (a list, or "
+                            "{\"camera_to_world\": [[...], ...]}) from the camera frame")
+    depth.set_defaults(func=_cmd_depth)

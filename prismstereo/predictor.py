@@ -1,0 +1,297 @@
+"""One depth model run in either runtime: :class:`Predictor`, a model in torch or its exported graphs in onnxruntime
+behind one set of calls.
+
+A predictor computes the depth of batches (:meth:`Predictor.depth`) and, for videos, tracks it between key frames
+with the band the model offers (:meth:`Predictor.track` around a :class:`~prismstereo.classical.BandPrior`, which
+:meth:`Predictor.band_prior` makes of a key frame's result). In torch the band is the model's ``tracker``
+(:class:`~prismstereo.classical.TemporalDepth`); in onnxruntime it is that band's exported graph. The ONNX backend
+takes its graphs from the cache (:func:`~prismstereo.export.cached_graphs`): a model asked for by its
+:class:`~prismstereo.models.ModelSpec` is then served without building the torch model. Deployed graph files open
+with :meth:`Predictor.from_graphs`.
+
+A predictor pickles as what it runs (the torch model, or the graphs' paths): a worker process or a Ray actor opens
+its own sessions (:meth:`Predictor.for_process`). :class:`~prismstereo.stream.DepthStream` and the jobs
+(:class:`~prismstereo.jobs.Pipeline`) each hold one predictor; its threads come from
+:func:`~prismstereo.threads.thread_plan`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+import torch
+
+from prismstereo.conventions import to_grey
+from prismstereo.errors import OptionError, ShapeError, check_int, check_option
+from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.models import DepthModel, ModelSpec
+from prismstereo.threads import thread_plan, torch_threads
+
+if TYPE_CHECKING:
+    from prismstereo.classical import BandPrior, TemporalOptions, TrackedDepth
+    from prismstereo.export import GraphFiles, OnnxDepth
+
+__all__ = ["BACKENDS", "Backend", "Predictor"]
+
+Backend = Literal["torch", "onnx"]
+BACKENDS: tuple[str, ...] = ("torch", "onnx")
+
+
+class Predictor:
+    """A depth model in torch, or its exported graphs in onnxruntime, behind one set of calls.
+
+    Args:
+        model: a depth model (:class:`~prismstereo.models.DepthModel`), or what to build
+            (:class:`~prismstereo.models.ModelSpec`: with the ONNX backend a cached request runs without building
+            the model).
+        backend: 'torch' (the module, in inference mode) or 'onnx' (its exported graphs from the cache).
+        temporal: for videos, the temporal band's options: the band the model offers
+            (:meth:`~prismstereo.models.DepthModel.tracker`, or its graph) tracks between key frames; None: every
+            frame on its own. A model without a band tracks nothing (:attr:`temporal` None; the summary says so).
+        threads: the cores this predictor runs on: torch's intra-op threads around its calls, and its graphs'
+            threads by :func:`~prismstereo.threads.thread_plan`; None: the caller's torch threads, and the
+            machine's cores for the graphs.
+        spinning: onnxruntime's idle threads spin (see :class:`~prismstereo.export.OnnxDepth`; False where the
+            graph shares the cores with other work).
+        cache_dir: the ONNX cache (default :func:`~prismstereo.export.cache_directory`).
+
+    Attributes:
+        backend: 'torch' or 'onnx'.
+        rig: the sensor's rig. z_range: (z_min, z_max) mm.
+        temporal: the band's :class:`~prismstereo.classical.TemporalOptions` (``downsample`` resolved) when the
+            predictor can track, else None.
+        summary: one line: the model and how it tracks videos (:func:`~prismstereo.models.describe_model`).
+        cached: its graphs were served by a request the cache remembered (no model was built).
+        channels: the input channels a graph takes (1 or 3), None in torch (either).
+
+    Raises:
+        OptionError: an unknown backend, bad threads or temporal options, a model that is not a depth model.
+
+    Example:
+        >>> from prismstereo.models import build_model
+        >>> predictor = Predictor(build_model(thesis_setup1().downscaled(16), z_range=(400.0, 700.0)))
+        >>> predictor.depth(torch.rand(2, 1, 48, 64)).depth.shape, predictor.backend
+        (torch.Size([2, 1, 48, 32]), 'torch')
+    """
+
+    def __init__(self, model: DepthModel | ModelSpec, *, backend: Backend = "torch",
+                 temporal: TemporalOptions | None = None, threads: int | None = None, spinning: bool = True,
+                 cache_dir: str | Path | None = None) -> None:
+        from prismstereo.classical import TemporalOptions
+
+        check_option(backend, BACKENDS, "backend")
+        check_int(threads, "threads", 1, none=True)
+        if temporal is not None and not isinstance(temporal, TemporalOptions):
+            raise OptionError(f"temporal must be None or TemporalOptions, got {type(temporal).__name__}")
+        if not isinstance(model, (ModelSpec, DepthModel)):
+            raise OptionError(f"model must be a depth model (prismstereo.models.DepthModel) or a ModelSpec, got "
+                              f"{type(model).__name__}")
+        self.backend, self.threads, self.spinning = backend, threads, bool(spinning)
+        self._model = self._tracker = None
+        self._files: GraphFiles | None = None
+        self._sessions: dict[str, OnnxDepth] = {}
+        if backend == "onnx":
+            from prismstereo.export import cached_graphs
+
+            self._attach_graphs(cached_graphs(model, temporal=temporal, cache_dir=cache_dir))
+            return
+        from prismstereo.models import describe_model
+
+        built = model.build() if isinstance(model, ModelSpec) else model.eval()
+        self._model = built
+        self._tracker = None if temporal is None else built.tracker(temporal)
+        if self._tracker is not None:
+            self._tracker.eval()
+        self.summary = describe_model(built, temporal, self._tracker)
+        self.rig, self.z_range = built.rig, tuple(float(z) for z in built.z_range)
+        self.temporal = None if self._tracker is None else self._tracker.options
+        self.channels, self.cached = None, False
+
+    @classmethod
+    def from_graphs(cls, graph: str | Path | OnnxDepth, temporal_graph: str | Path | OnnxDepth | None = None, *,
+                    threads: int | None = None, spinning: bool = True) -> Predictor:
+        """A predictor of deployed graph files (written by :func:`~prismstereo.export.export_onnx`): the per-frame
+        graph and, for videos, the temporal graph of the same sensor.
+
+        Raises:
+            OptionError: a temporal graph as ``graph``, a per-frame one as ``temporal_graph``, or graphs of two
+                sensors. ExportError: a file that is not a prismstereo graph.
+
+        Example:
+            >>> from prismstereo.export import export_onnx
+            >>> from prismstereo.models import build_model
+            >>> import tempfile; path = Path(tempfile.mkdtemp()) / "m.onnx"
+            >>> model = build_model(thesis_setup1().downscaled(16), z_range=(400.0, 700.0))
+            >>> Predictor.from_graphs(export_onnx(model, path)).depth(torch.rand(1, 1, 48, 64)).depth.shape
+            torch.Size([1, 1, 48, 32])
+        """
+        from prismstereo.export import GraphFiles, OnnxDepth, describe_graph
+
+        check_int(threads, "threads", 1, none=True)
+        self = cls.__new__(cls)
+        self.backend, self.threads, self.spinning = "onnx", threads, bool(spinning)
+        self._model = self._tracker = None
+        self._sessions = {}
+        paths = []
+        for name, item in (("graph", graph), ("temporal", temporal_graph)):
+            if isinstance(item, OnnxDepth):
+                self._sessions[name] = item
+            paths.append(None if item is None else Path(item.path if isinstance(item, OnnxDepth) else item))
+        self._files = GraphFiles(paths[0], "", paths[1])
+        self._attach_graphs(self._files._replace(summary=describe_graph(self._session("graph").metadata)))
+        return self
+
+    def _attach_graphs(self, files: GraphFiles) -> None:
+        """Open the graphs (their sessions kept) and read what the predictor is from their metadata."""
+        self._files = files
+        graph = self._session("graph")
+        if graph.temporal is not None:
+            raise OptionError(f"{files.path.name} is a temporal graph: pass it as temporal_graph")
+        self.summary, self.cached = files.summary, files.cached
+        self.rig = BiPrismRig.from_dict(json.loads(graph.metadata["prismstereo.rig"]))
+        self.z_range = graph.z_range
+        self.channels = graph.input_shape[0]
+        self.temporal = None
+        if files.temporal is not None:
+            band = self._session("temporal")
+            if band.temporal is None:
+                raise OptionError(f"{files.temporal.name} is a per-frame graph, not a temporal one")
+            if band.input_shape[1:] != graph.input_shape[1:]:
+                raise OptionError(f"the temporal graph takes {band.input_shape}, the graph {graph.input_shape}")
+            self.temporal = band.temporal
+
+    def _session(self, name: str) -> OnnxDepth:
+        """The graph ``name`` ('graph' or 'temporal') in onnxruntime, opened on first use in this process."""
+        if name not in self._sessions:
+            from prismstereo.export import OnnxDepth
+
+            plan = thread_plan(cores=self.threads)
+            path = self._files.path if name == "graph" else self._files.temporal
+            count = plan.graph if name == "graph" else plan.temporal_graph
+            self._sessions[name] = OnnxDepth(path, threads=count, spinning=self.spinning)
+        return self._sessions[name]
+
+    @property
+    def model(self) -> DepthModel:
+        """The torch model (torch backend only)."""
+        if self._model is None:
+            raise OptionError("an ONNX predictor has graphs, not a torch model (graph, temporal_graph)")
+        return self._model
+
+    @property
+    def graph(self) -> OnnxDepth:
+        """The per-frame graph's session (ONNX backend only)."""
+        if self._files is None:
+            raise OptionError("a torch predictor has a model, not graphs")
+        return self._session("graph")
+
+    @property
+    def temporal_graph(self) -> OnnxDepth | None:
+        """The temporal graph's session (ONNX backend with a band), else None."""
+        return None if self._files is None or self._files.temporal is None else self._session("temporal")
+
+    @property
+    def prior_size(self) -> tuple[int, int] | None:
+        """(h, w) of the band's :class:`~prismstereo.classical.BandPrior` when the predictor can track, else None."""
+        if self.temporal is None:
+            return None
+        return self._tracker.prior_size if self._tracker is not None else self.temporal_graph.prior_size
+
+    def _torch(self):
+        """Around a torch run: inference mode, and the predictor's threads if it has its own."""
+        stack = contextlib.ExitStack()
+        stack.enter_context(torch.inference_mode())
+        if self.threads is not None:
+            stack.enter_context(torch_threads(self.threads))
+        return stack
+
+    def _input(self, image: torch.Tensor) -> torch.Tensor:
+        """A graph's input: a colour image converted to grey for a one-channel graph (the models' rule)."""
+        if self.channels == 1 and isinstance(image, torch.Tensor) and image.dim() == 4 and image.shape[1] == 3:
+            return to_grey(image)
+        return image
+
+    def depth(self, image: torch.Tensor) -> Any:
+        """Depth of a batch of captures ``image`` (B, C, H, W) in [0, 1] (colour: its
+        :func:`~prismstereo.conventions.to_grey`).
+
+        Returns:
+            ``depth``, ``valid``, ``confidence`` (B, 1, H, W_ref) each: the model's
+            :class:`~prismstereo.depth.result.DepthResult`, or the graph's
+            :class:`~prismstereo.export.OnnxDepthResult`.
+
+        Raises:
+            ShapeError: an image of another sensor or channel count, or not floating point.
+        """
+        if self._model is None:
+            return self.graph(self._input(image))
+        with self._torch():
+            return self._model(image)
+
+    def _band(self) -> Any:
+        if self.temporal is None:
+            raise OptionError("this predictor has no temporal band: Predictor(model, temporal=TemporalOptions()) "
+                              "of a model that offers one (model.tracker)")
+        return self._tracker if self._tracker is not None else self.temporal_graph
+
+    def track(self, image: torch.Tensor, prior: BandPrior) -> TrackedDepth:
+        """Depth of ``image`` (B, C, H, W) searched around ``prior`` by the temporal band, and the prior it leaves
+        for the next frame (:meth:`~prismstereo.classical.TemporalDepth.track`).
+
+        Raises:
+            OptionError: a predictor without a band. ShapeError: an image or prior of another size.
+        """
+        band = self._band()
+        if self._model is None:
+            return band.track(self._input(image), prior)
+        with self._torch():
+            return band.track(image, prior)
+
+    def band_prior(self, result: Any) -> BandPrior:
+        """A full-resolution result (a key frame's ``depth``, ``valid``, ``confidence``) as the band's prior.
+
+        Raises:
+            OptionError: a predictor without a band.
+        """
+        band = self._band()
+        with torch.inference_mode():
+            return band.band_prior(result.depth, result.valid, result.confidence)
+
+    def for_process(self, threads: int | None = None) -> Predictor:
+        """This predictor for another process (a worker's, after fork or unpickling): the same model, or the same
+        graphs in sessions of its own, on ``threads`` cores.
+
+        Example:
+            >>> from prismstereo.models import build_model
+            >>> predictor = Predictor(build_model(thesis_setup1().downscaled(16), z_range=(400.0, 700.0)))
+            >>> predictor.for_process(1).threads
+            1
+        """
+        twin = Predictor.__new__(Predictor)
+        twin.__dict__.update(self.__getstate__())
+        twin.threads = threads
+        return twin
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled as what it runs: the torch model, or the graphs' paths (a process opens its own sessions)."""
+        state = dict(self.__dict__)
+        state["_sessions"] = {}
+        return state
+
+    def __repr__(self) -> str:
+        return f"Predictor({self.backend}: {self.summary})"
+
+    def check_image_size(self, height: int, width: int) -> None:
+        """Raise a ShapeError unless the predictor's sensor is ``width`` x ``height`` px.
+
+        Example:
+            >>> from prismstereo.models import build_model
+            >>> Predictor(build_model(thesis_setup1().downscaled(16), z_range=(400.0, 700.0))).check_image_size(48, 64)
+        """
+        rig = self.rig
+        if (width, height) != (rig.image_width, rig.image_height):
+            raise ShapeError(f"the image is {width}x{height} px but the rig's sensor is {rig.image_width}x"
+                             f"{rig.image_height} px")
