@@ -44,8 +44,9 @@ from prismstereo.calibration.solver import unobservable
 from prismstereo.calibration.targets import to_gray_u8
 from prismstereo.errors import CalibrationError
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.projection import solve_projection
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
 __all__ = ["Correspondences", "find_correspondences", "gate", "SelfProblem", "calibrate_self"]

@@ -32,7 +32,8 @@ from prismstereo.conventions import HALVES as _HALVES
 from prismstereo.conventions import Half
 from prismstereo.errors import RigError, check_floating, check_option, check_shape
 from prismstereo.geometry.distortion import round_trip_px, undistort
-from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig, as_parameters
 from prismstereo.runtime import tracing
 
 __all__ = [

@@ -26,7 +26,8 @@ import torch
 
 from prismstereo.errors import check_floating, check_shape
 from prismstereo.geometry.optics import RayBundle, euler_rotation
-from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig, as_parameters
 from prismstereo.synthetic.textures import SceneError
 
 __all__ = [
