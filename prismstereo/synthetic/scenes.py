@@ -23,8 +23,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from prismstereo.geometry.optics import euler_rotation
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.geometry.surfaces import euler_rotation
 from prismstereo.synthetic.textures import (
     ImageTexture,
     NoiseTexture,
