@@ -2,8 +2,9 @@
 
 Every closed form of the thesis sits next to the exact ray-traced model it approximates:
 
-* :mod:`~prismstereo.analysis.fov` (ch. 5): phi_2, phi_4, gamma, epsilon, FOV type and alpha_1 / alpha_2,
-  the Ray 1 / Ray 2 lines (with prism offsets), and the exact FOV by tracing a sensor row.
+* :mod:`~prismstereo.analysis.fov_formulas` (ch. 5): phi_2, phi_4, gamma, epsilon, FOV type and alpha_1 /
+  alpha_2; :mod:`~prismstereo.analysis.fov`: a rig's Ray 1 / Ray 2 lines (with prism offsets) and extents;
+  :mod:`~prismstereo.analysis.fov_exact`: the exact FOV by tracing a sensor row.
 * :mod:`~prismstereo.analysis.error` (ch. 6.1-6.2): depth from disparity (eq. 6.15, the general form 6.9,
   the exact model), sensitivities (eq. 6.20-6.35 vs autograd), error budgets, where eq. 6.15 fails.
 * :mod:`~prismstereo.analysis.design` (ch. 6.3): the f / pixel count, T, alpha or T_o that meets a target
@@ -52,25 +53,7 @@ from prismstereo.analysis.error import (
     exact_sensitivities,
     small_angle_check,
 )
-from prismstereo.analysis.fov import (
-    FOV_TYPES,
-    BoundaryAngles,
-    FOVClosedForm,
-    FOVExtent,
-    FOVType,
-    RayLine,
-    boundary_angles,
-    common_fov_angle,
-    fov_closed_form,
-    fov_coefficient,
-    fov_extent,
-    fov_type,
-    offset_shift,
-    ray1_angle,
-    ray1_intercept,
-    ray2_angle,
-    ray2_intercept,
-)
+from prismstereo.analysis.fov import FOVClosedForm, FOVExtent, RayLine, fov_closed_form, fov_extent
 from prismstereo.analysis.fov_exact import (
     FOVComparison,
     FOVSweep,
@@ -78,6 +61,20 @@ from prismstereo.analysis.fov_exact import (
     exact_fov_extent,
     exact_fov_type,
     fov_alpha_sweep,
+)
+from prismstereo.analysis.fov_formulas import (
+    FOV_TYPES,
+    BoundaryAngles,
+    FOVType,
+    boundary_angles,
+    common_fov_angle,
+    fov_coefficient,
+    fov_type,
+    offset_shift,
+    ray1_angle,
+    ray1_intercept,
+    ray2_angle,
+    ray2_intercept,
 )
 
 __all__ = [

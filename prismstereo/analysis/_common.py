@@ -9,7 +9,8 @@ from typing import Any
 import torch
 
 from prismstereo.errors import PrismStereoError
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["AnalysisError", "as_tensor", "check_positive", "check_rig", "depths_beyond", "brent", "check_untilted"]
 

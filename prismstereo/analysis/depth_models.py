@@ -15,8 +15,9 @@ import torch
 from prismstereo.analysis._common import as_tensor
 from prismstereo.errors import check_shape
 from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.projection import project_points
-from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
+from prismstereo.geometry.rig import BiPrismRig, as_parameters
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
 __all__ = [

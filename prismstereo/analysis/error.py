@@ -61,7 +61,8 @@ from prismstereo.analysis.depth_models import (
 )
 from prismstereo.analysis.fov_exact import exact_fov_extent
 from prismstereo.errors import check_option
-from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig, as_parameters
 
 __all__ = [
     "Sensitivities",

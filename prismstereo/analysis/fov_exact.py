@@ -1,8 +1,9 @@
 """The exact field of view by ray tracing, and its comparison with the chapter 5 closed forms.
 
-Companion of :mod:`prismstereo.analysis.fov`: :func:`exact_fov_extent` traces a sensor row through the real
-prism (truncation by the prism's edge and total internal reflection included), :func:`compare_fov` and
-:func:`fov_alpha_sweep` report the difference to the closed forms.
+Companion of :mod:`prismstereo.analysis.fov` and :mod:`prismstereo.analysis.fov_formulas`:
+:func:`exact_fov_extent` traces a sensor row through the real prism (truncation by the prism's edge and total
+internal reflection included), :func:`compare_fov` and :func:`fov_alpha_sweep` report the difference to the closed
+forms.
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ from typing import Literal, NamedTuple
 import torch
 
 from prismstereo.analysis._common import AnalysisError, as_tensor, check_rig, depths_beyond
-from prismstereo.analysis.fov import FOVExtent, FOVType, fov_closed_form, fov_extent, fov_type_from_epsilon
+from prismstereo.analysis.fov import FOVExtent, fov_closed_form, fov_extent
+from prismstereo.analysis.fov_formulas import FOVType, fov_type_from_epsilon
 from prismstereo.errors import check_option
 from prismstereo.geometry.optics import apex_ray, points_at_depth, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig

@@ -13,14 +13,9 @@ from typing import Any
 import torch
 
 from prismstereo.analysis._common import AnalysisError
-from prismstereo.analysis.fov import (
-    boundary_angles,
-    fov_closed_form,
-    fov_extent,
-    ray1_angle,
-    ray2_angle,
-)
+from prismstereo.analysis.fov import fov_closed_form, fov_extent
 from prismstereo.analysis.fov_exact import exact_fov_extent
+from prismstereo.analysis.fov_formulas import boundary_angles, ray1_angle, ray2_angle
 from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["new_axes", "plot_fov_top_view", "plot_fov_angles", "plot_curves"]

@@ -160,12 +160,38 @@ def calibrate_zhang(
     if reference_points is not None and len(reference_points) != len(detections):
         raise CalibrationError(f"reference_points must have one entry per detection ({len(detections)}), got "
                                f"{len(reference_points)}")
+    views = _usable_views(detections, min_views, min_common)
+    pts = board.points()
+    per_half, common, (rms, k1, d1, k2, d2, r, t, _, _, rvecs, tvecs, _) = _calibrate_opencv(
+        detections, views, pts, size, flags, stereo)
+    r, t = torch.from_numpy(r).to(F64), torch.from_numpy(t).to(F64).reshape(3)
+    rot_w, centre_w, reg_rms, frame = torch.eye(3, dtype=F64), torch.zeros(3, dtype=F64), float("nan"), "left"
+    if reference_points is not None:
+        rot_w, centre_w, reg_rms = _register(common, rvecs, tvecs, views, reference_points, board, pts)
+        frame = "real"
+    left = Pinhole(torch.from_numpy(k1).to(F64), torch.from_numpy(d1).to(F64).reshape(-1)[:5], rot_w, centre_w)
+    right_rot = rot_w @ r.T  # X_L = R^T (X_R - T): the right camera's axes in the world
+    right = Pinhole(torch.from_numpy(k2).to(F64), torch.from_numpy(d2).to(F64).reshape(-1)[:5], right_rot,
+                    centre_w - right_rot @ t)
+    rms_all = torch.tensor([per_half[0][0], per_half[1][0], float(rms)], dtype=F64)
+    return ZhangResult(PinholePair(left, right), frame, rms_all, r, t, reg_rms, tuple(views))
+
+
+def _usable_views(detections: Sequence[ViewDetection], min_views: int, min_common: int) -> list[int]:
+    """The captures with at least ``min_common`` corners seen in both halves; at least ``min_views`` of them."""
     views = [i for i, d in enumerate(detections) if d.left is not None and d.right is not None
              and len(set(d.left.ids.tolist()) & set(d.right.ids.tolist())) >= min_common]
     if len(views) < min_views:
         raise CalibrationError(f"Zhang's method needs the board in both halves of at least {min_views} views, got "
                                f"{len(views)} of {len(detections)}")
-    pts = board.points()
+    return views
+
+
+def _calibrate_opencv(detections: Sequence[ViewDetection], views: list[int], pts: torch.Tensor,
+                      size: tuple[int, int], flags: int, stereo: Stereo) -> tuple[list, list, tuple]:
+    """Steps 1 and 2 of the module docstring: ``calibrateCamera`` per half ((rms, K, distortion) each), then
+    ``stereoCalibrateExtended`` on the corners both halves see (:func:`_common` per view). Returns those two lists and
+    OpenCV's stereo result tuple."""
     per_half = []
     try:
         for half in ("left", "right"):
@@ -176,38 +202,38 @@ def calibrate_zhang(
         common = [_common(detections[i]) for i in views]
         obj = [_f32(pts[ids], 3) for ids, _, _ in common]
         stereo_flags = cv2.CALIB_FIX_INTRINSIC if stereo == "fix_intrinsic" else flags | cv2.CALIB_USE_INTRINSIC_GUESS
-        (rms, k1, d1, k2, d2, r, t, _, _, rvecs, tvecs, _) = cv2.stereoCalibrateExtended(
+        result = cv2.stereoCalibrateExtended(
             obj, [_f32(uv, 2) for _, uv, _ in common], [_f32(uv, 2) for _, _, uv in common],
             per_half[0][1], per_half[0][2], per_half[1][1], per_half[1][2], size, None, None,
             flags=stereo_flags, criteria=_CRITERIA)
     except cv2.error as exc:
         raise CalibrationError(f"OpenCV rejected the calibration: {exc}") from exc
-    r, t = torch.from_numpy(r).to(F64), torch.from_numpy(t).to(F64).reshape(3)
-    rot_w, centre_w, reg_rms, frame = torch.eye(3, dtype=F64), torch.zeros(3, dtype=F64), float("nan"), "left"
-    if reference_points is not None:
-        src, dst = [], []
-        for (ids, _, _), rv, tv, i in zip(common, rvecs, tvecs, views, strict=True):
-            ref = reference_points[i]
-            if ref is None:
-                continue
-            if not isinstance(ref, torch.Tensor) or tuple(ref.shape) != (board.num_points, 3):
-                raise CalibrationError(f"reference_points[{i}] must be a ({board.num_points}, 3) tensor, got "
-                                       f"{getattr(ref, 'shape', type(ref).__name__)}")
-            known = torch.isfinite(ref[ids]).all(dim=1)
-            rot = torch.from_numpy(cv2.Rodrigues(np.asarray(rv, dtype=np.float64))[0])
-            in_left = pts[ids] @ rot.T + torch.from_numpy(np.asarray(tv, dtype=np.float64)).reshape(1, 3)
-            src.append(in_left[known])
-            dst.append(ref[ids][known].to(F64))
-        src_all, dst_all = (torch.cat(src), torch.cat(dst)) if src else (torch.zeros(0, 3), torch.zeros(0, 3))
-        if src_all.shape[0] < 3 or torch.linalg.matrix_rank(src_all - src_all.mean(0)) < 2:
-            raise CalibrationError("reference_points must give at least 3 non-collinear known board points over "
-                                   "the views to register the real frame")
-        rot_w, centre_w = rigid_fit(src_all, dst_all)
-        reg_rms = float((src_all @ rot_w.T + centre_w - dst_all).norm(dim=1).square().mean().sqrt())
-        frame = "real"
-    left = Pinhole(torch.from_numpy(k1).to(F64), torch.from_numpy(d1).to(F64).reshape(-1)[:5], rot_w, centre_w)
-    right_rot = rot_w @ r.T  # X_L = R^T (X_R - T): the right camera's axes in the world
-    right = Pinhole(torch.from_numpy(k2).to(F64), torch.from_numpy(d2).to(F64).reshape(-1)[:5], right_rot,
-                    centre_w - right_rot @ t)
-    rms_all = torch.tensor([per_half[0][0], per_half[1][0], float(rms)], dtype=F64)
-    return ZhangResult(PinholePair(left, right), frame, rms_all, r, t, reg_rms, tuple(views))
+    return per_half, common, result
+
+
+def _register(common: list, rvecs: Sequence[np.ndarray], tvecs: Sequence[np.ndarray], views: list[int],
+              reference_points: Sequence[torch.Tensor | None], board: Board,
+              pts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, float]:
+    """Step 3 of the module docstring: the rigid transform (rotation (3, 3), translation (3,)) that best maps the
+    board points ``pts`` in the left camera's frame (stereo poses ``rvecs``, ``tvecs``) onto their known real-frame
+    positions, and its RMS (mm)."""
+    src, dst = [], []
+    for (ids, _, _), rv, tv, i in zip(common, rvecs, tvecs, views, strict=True):
+        ref = reference_points[i]
+        if ref is None:
+            continue
+        if not isinstance(ref, torch.Tensor) or tuple(ref.shape) != (board.num_points, 3):
+            raise CalibrationError(f"reference_points[{i}] must be a ({board.num_points}, 3) tensor, got "
+                                   f"{getattr(ref, 'shape', type(ref).__name__)}")
+        known = torch.isfinite(ref[ids]).all(dim=1)
+        rot = torch.from_numpy(cv2.Rodrigues(np.asarray(rv, dtype=np.float64))[0])
+        in_left = pts[ids] @ rot.T + torch.from_numpy(np.asarray(tv, dtype=np.float64)).reshape(1, 3)
+        src.append(in_left[known])
+        dst.append(ref[ids][known].to(F64))
+    src_all, dst_all = (torch.cat(src), torch.cat(dst)) if src else (torch.zeros(0, 3), torch.zeros(0, 3))
+    if src_all.shape[0] < 3 or torch.linalg.matrix_rank(src_all - src_all.mean(0)) < 2:
+        raise CalibrationError("reference_points must give at least 3 non-collinear known board points over "
+                               "the views to register the real frame")
+    rot_w, centre_w = rigid_fit(src_all, dst_all)
+    reg_rms = float((src_all @ rot_w.T + centre_w - dst_all).norm(dim=1).square().mean().sqrt())
+    return rot_w, centre_w, reg_rms

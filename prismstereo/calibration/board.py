@@ -22,8 +22,9 @@ from prismstereo.calibration.problem import RigProblem
 from prismstereo.calibration.targets import Board, ViewDetection
 from prismstereo.errors import CalibrationError
 from prismstereo.geometry.optics import trace_pixels
+from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.projection import solve_projection
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
 __all__ = ["Observations", "gather_observations", "initial_poses", "rigid_fit", "BoardProblem"]

@@ -104,6 +104,29 @@ def refine_corners(
         >>> out.uv.round(decimals=3), bool(out.converged)
         (tensor([[20.5000, 17.5000]]), True)
     """
+    image = _check(image, uv, sigma_px, step_px, iterations)
+    n = uv.shape[0]
+    if n == 0:
+        return CornerRefinement(uv.clone(), torch.zeros(0, dtype=torch.bool, device=uv.device))
+    dtype = torch.float64
+    img = image.to(device=uv.device, dtype=dtype) / (255.0 if image.dtype == torch.uint8 else 1.0)
+    radius = _radius(uv, radius_px, dtype)
+    img, stack = _smoothed(img, sigma_px)
+    d, weight = _disk(radius, step_px, dtype, uv.device)
+    c, a = _gauss_newton(stack, uv.to(dtype).clone(), d, weight, iterations)
+    moved = (c - uv.to(dtype)).norm(dim=-1)
+    # A corner has strong symmetric-difference gradients in two directions: an edge or a flat patch has not.
+    eig = torch.linalg.eigvalsh(a[:, :2, :2])
+    structure = (eig[:, 1] > 1e-4 * weight.sum(-1)) & (eig[:, 0] > 0.05 * eig[:, 1])
+    h, w = img.shape
+    inside_image = (c[:, 0] >= radius) & (c[:, 0] <= w - 1 - radius) & (c[:, 1] >= radius) & (c[:, 1] <= h - 1 - radius)
+    converged = (moved <= radius) & structure & inside_image & torch.isfinite(c).all(-1)
+    out = torch.where(converged[:, None], c, uv.to(dtype))
+    return CornerRefinement(out.to(uv.dtype), converged)
+
+
+def _check(image: torch.Tensor, uv: torch.Tensor, sigma_px: float, step_px: float, iterations: int) -> torch.Tensor:
+    """The (H, W) image, after checking the shapes and options of :func:`refine_corners`."""
     if image.ndim == 3 and image.shape[0] == 1:
         image = image[0]
     if image.ndim != 2:
@@ -113,18 +136,23 @@ def refine_corners(
     if not (sigma_px >= 0 and step_px > 0 and iterations >= 1):
         raise CalibrationError(f"need sigma_px >= 0, step_px > 0, iterations >= 1; got {sigma_px}, {step_px}, "
                                f"{iterations}")
+    return image
+
+
+def _radius(uv: torch.Tensor, radius_px: float | torch.Tensor | None, dtype: torch.dtype) -> torch.Tensor:
+    """(N,) disk radii: ``radius_px``, or 0.15 x each corner's spacing clamped to [2, 10] px (4 px for one corner)."""
     n = uv.shape[0]
-    if n == 0:
-        return CornerRefinement(uv.clone(), torch.zeros(0, dtype=torch.bool, device=uv.device))
-    dtype = torch.float64
-    img = image.to(device=uv.device, dtype=dtype) / (255.0 if image.dtype == torch.uint8 else 1.0)
     if radius_px is None:
         radius = (0.15 * corner_spacing(uv.to(dtype))).clamp(2.0, 10.0) if n >= 2 else uv.new_full((1,), 4.0)
     else:
         radius = torch.as_tensor(radius_px, dtype=dtype, device=uv.device).expand(n)
     if not bool((radius > 0).all()):
         raise CalibrationError("radius_px must be > 0")
-    radius = radius.to(dtype)
+    return radius.to(dtype)
+
+
+def _smoothed(img: torch.Tensor, sigma_px: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The (H, W) image J smoothed by a Gaussian of ``sigma_px`` (none at 0), and (3, H, W) J with its d/du, d/dv."""
     if sigma_px > 0:
         k = 2 * math.ceil(3 * sigma_px) + 1
         # kornia imported where used: a cached graph's depth run never loads it
@@ -132,20 +160,29 @@ def refine_corners(
 
         img = gaussian_blur2d(img[None, None], (k, k), (sigma_px, sigma_px), border_type="replicate")[0, 0]
     grad = torch.stack([torch.gradient(img, dim=1)[0], torch.gradient(img, dim=0)[0]])  # (2, H, W): d/du, d/dv
-    stack = torch.cat([img[None], grad])  # (3, H, W)
+    return img, torch.cat([img[None], grad])  # (3, H, W)
 
-    # Half a disk of offsets (d and -d give the same residual), on a grid scaled to each corner's radius.
+
+def _disk(radius: torch.Tensor, step_px: float, dtype: torch.dtype,
+          device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """Half a disk of offsets d (K, 2) (d and -d give the same residual) on a grid of ``step_px``, and their (N, K)
+    Gaussian weights within each corner's radius (0 outside)."""
     m = math.ceil(float(radius.max()) / step_px)
-    g = torch.arange(-m, m + 1, dtype=dtype, device=uv.device) * step_px
+    g = torch.arange(-m, m + 1, dtype=dtype, device=device) * step_px
     dy, dx = torch.meshgrid(g, g, indexing="ij")
     half = (dy > 0) | ((dy == 0) & (dx > 0))
     d = torch.stack([dx[half], dy[half]], dim=-1)  # (K, 2)
     dist2 = d.pow(2).sum(-1)
     inside = dist2[None] <= radius[:, None] ** 2  # (N, K)
     weight = torch.exp(-dist2[None] / (2 * (radius[:, None] / 2) ** 2)) * inside
+    return d, weight
 
-    c = uv.to(dtype).clone()
-    h, w = img.shape
+
+def _gauss_newton(stack: torch.Tensor, c: torch.Tensor, d: torch.Tensor, weight: torch.Tensor,
+                  iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``iterations`` Gauss-Newton steps on (c, g) from the (N, 2) corners ``c`` (each step clamped to 0.5 px).
+    Returns the corners and the last (N, 4, 4) normal matrix."""
+    n = c.shape[0]
     for _ in range(iterations):
         plus = _sample(stack, c[:, None] + d[None])
         minus = _sample(stack, c[:, None] - d[None])
@@ -155,14 +192,7 @@ def refine_corners(
         jac = torch.cat([jc, jg], dim=-1)  # (N, K, 4)
         a = torch.einsum("nk,nki,nkj->nij", weight, jac, jac)
         b = torch.einsum("nk,nki,nk->ni", weight, jac, res)
-        a = a + 1e-12 * torch.eye(4, dtype=dtype, device=uv.device)
+        a = a + 1e-12 * torch.eye(4, dtype=c.dtype, device=c.device)
         step = -torch.linalg.solve(a, b)[:, :2]
         c = c + step.clamp(-0.5, 0.5)
-    moved = (c - uv.to(dtype)).norm(dim=-1)
-    # A corner has strong symmetric-difference gradients in two directions: an edge or a flat patch has not.
-    eig = torch.linalg.eigvalsh(a[:, :2, :2])
-    structure = (eig[:, 1] > 1e-4 * weight.sum(-1)) & (eig[:, 0] > 0.05 * eig[:, 1])
-    inside_image = (c[:, 0] >= radius) & (c[:, 0] <= w - 1 - radius) & (c[:, 1] >= radius) & (c[:, 1] <= h - 1 - radius)
-    converged = (moved <= radius) & structure & inside_image & torch.isfinite(c).all(-1)
-    out = torch.where(converged[:, None], c, uv.to(dtype))
-    return CornerRefinement(out.to(uv.dtype), converged)
+    return c, a

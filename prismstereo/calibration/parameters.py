@@ -3,7 +3,7 @@
 Every parameter is a field (or an entry of a field) of :class:`~prismstereo.geometry.rig.BiPrismRig`; the
 names are the rig file's, with the tilt and distortion entries spelled out. A calibration works on a float64
 vector of all of them in internal units (radians for angles) and frees a subset; :func:`rig_parameters` turns
-that vector into the :class:`~prismstereo.geometry.rig.RigParameters` the differentiable optics consume, and
+that vector into the :class:`~prismstereo.geometry.parameters.RigParameters` the differentiable optics consume, and
 :func:`vector_to_rig` writes it back to a rig file. The pixel size is never estimated: only f / pixel size
 is observable in pixels, so the focal length is estimated with the pixel pitch held at its nominal value.
 """
@@ -17,7 +17,8 @@ from typing import NamedTuple
 import torch
 
 from prismstereo.errors import CalibrationError
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["NAMES", "ANGLES", "ParameterInfo", "INFO", "TOLERANCES", "rig_vector", "rig_parameters",
            "vector_to_rig", "tolerance_vector", "to_display", "check_names"]

@@ -24,7 +24,8 @@ import torch
 from torch.func import jacfwd
 
 from prismstereo.calibration.parameters import NAMES, check_names, rig_parameters, rig_vector
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["RigProblem"]
 

@@ -34,6 +34,7 @@ from prismstereo.calibration.board import Observations
 from prismstereo.calibration.fit import (
     DEFAULT_FIXED,
     CalibrationResult,
+    SolvedProblem,
     solve_rig_problem,
     view_depth_uncertainty,
     view_outliers,
@@ -44,8 +45,9 @@ from prismstereo.calibration.solver import unobservable
 from prismstereo.calibration.targets import to_gray_u8
 from prismstereo.errors import CalibrationError
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.projection import solve_projection
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.geometry.virtual_camera import ray_midpoint
 
 __all__ = ["Correspondences", "find_correspondences", "gate", "SelfProblem", "calibrate_self"]
@@ -238,6 +240,20 @@ def calibrate_self(
     if not captures:
         raise CalibrationError("no captures to self-calibrate from")
     fixed = set(check_names(fix)) | (set(DEFAULT_FIXED) - set(check_names(free)))
+    corr = _matches(rig, captures, gate_px, min_correspondences, max_correspondences, progress)
+    names = [n for n in NAMES if n not in fixed]
+    tol = tolerance_vector(rig, tolerances)
+    names, unobservable_names = _observable(rig, corr, names, tol, observability_threshold)
+    corr, problem, solved = _fit(rig, corr, names, tol, min_correspondences=min_correspondences,
+                                 outlier_sigma=outlier_sigma, max_iterations=max_iterations, max_rms_px=max_rms_px,
+                                 progress=progress)
+    return _result(rig, corr, problem, solved, unobservable_names)
+
+
+def _matches(rig: BiPrismRig, captures: Sequence[torch.Tensor | np.ndarray | Correspondences], gate_px: float,
+             min_correspondences: int, max_correspondences: int, progress: bool) -> Correspondences:
+    """The captures' gated correspondences: at least ``min_correspondences``, at most ``max_correspondences`` (a
+    seeded random subset, kept in capture order)."""
     found = [gate(rig, c, gate_px) if isinstance(c, Correspondences) else find_correspondences(c, rig, view=i,
                                                                                                gate_px=gate_px)
              for i, c in enumerate(tqdm(captures, desc="match", disable=not progress, leave=False))]
@@ -249,13 +265,26 @@ def calibrate_self(
         keep = torch.randperm(corr.left.shape[0], generator=torch.Generator().manual_seed(0))[:max_correspondences]
         keep = keep.sort().values
         corr = Correspondences(corr.left[keep], corr.right[keep], corr.view[keep])
-    names = [n for n in NAMES if n not in fixed]
-    tol = tolerance_vector(rig, tolerances)
+    return corr
+
+
+def _observable(rig: BiPrismRig, corr: Correspondences, names: list[str], tol: torch.Tensor,
+                threshold: float) -> tuple[list[str], tuple[str, ...]]:
+    """The free parameters the matches determine (variance inflation of their Jacobian columns at the nominal rig
+    up to ``threshold``), and the others, which stay at nominal."""
     problem = SelfProblem(rig, corr, names, tol)
     data_rows = 2 * corr.left.shape[0]
-    lost = unobservable(problem.jacobian(problem.x0)[:data_rows], range(problem.num_rig), observability_threshold)
+    lost = unobservable(problem.jacobian(problem.x0)[:data_rows], range(problem.num_rig), threshold)
     unobservable_names = tuple(names[i] for i in lost)
-    names = [n for n in names if n not in unobservable_names]
+    return [n for n in names if n not in unobservable_names], unobservable_names
+
+
+def _fit(rig: BiPrismRig, corr: Correspondences, names: list[str], tol: torch.Tensor, *, min_correspondences: int,
+         outlier_sigma: float, max_iterations: int, max_rms_px: float,
+         progress: bool) -> tuple[Correspondences, SelfProblem, SolvedProblem]:
+    """Fit ``names``; then drop the matches whose residual exceeds ``outlier_sigma`` sigma and fit again from the
+    first fit (the priors stay on the nominal rig), unless fewer than ``min_correspondences`` would remain.
+    Returns the matches used, the last problem and its solution."""
     problem = SelfProblem(rig, corr, names, tol)
     solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)
     off = solved.residuals.norm(dim=-1) > outlier_sigma * problem.sigma_px
@@ -264,6 +293,13 @@ def calibrate_self(
         problem = SelfProblem(solved.rig, corr, names, tol, problem.sigma_px)
         problem.base = rig_vector(rig)  # the priors stay on the nominal rig
         solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)
+    return corr, problem, solved
+
+
+def _result(rig: BiPrismRig, corr: Correspondences, problem: SelfProblem, solved: SolvedProblem,
+            unobservable_names: tuple[str, ...]) -> CalibrationResult:
+    """The fit as a :class:`CalibrationResult`: per-capture right-half RMS, the matches' depths as poses and their
+    points as observations."""
     views = tuple(sorted(set(corr.view.tolist())))
     rms = torch.full((len(views), 2), float("nan"), dtype=F64)
     for k, v in enumerate(views):

@@ -15,8 +15,9 @@ import torch
 
 from prismstereo.errors import RigError, check_shape
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.projection import project_points
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["index_to_depth", "depth_to_index", "depth_to_disparity", "disparity_to_depth"]
 

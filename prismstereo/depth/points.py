@@ -22,7 +22,8 @@ import torch
 
 from prismstereo.errors import PrismStereoError, ShapeError, check_floating, check_shape
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.io import replacing
 
 __all__ = ["PointCloud", "PointCloudError", "depth_to_points", "write_ply", "read_ply"]

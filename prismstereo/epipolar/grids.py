@@ -26,8 +26,9 @@ import torch
 
 from prismstereo.errors import OptionError, RigError, check_option, check_shape
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.projection import project_points
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = [
     "SamplingGrid",

@@ -21,8 +21,9 @@ import torch
 
 from prismstereo.errors import RigError, check_floating, check_shape
 from prismstereo.geometry.optics import points_at_depth, trace_pixels
+from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.projection import Projection, project_points
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.geometry.virtual_camera import VirtualCamera, VirtualCameraPair, virtual_cameras
 
 __all__ = [

@@ -22,7 +22,7 @@ the right half's field of view): the projection uses the prism face's infinite p
 real is decided where it is used: inside the right half, on a right pixel whose own ray is valid.
 
 Everything is differentiable w.r.t. the rig parameters (pass
-:class:`~prismstereo.geometry.rig.RigParameters` requiring grad) and evaluation is plain arithmetic
+:class:`~prismstereo.geometry.parameters.RigParameters` requiring grad) and evaluation is plain arithmetic
 (Chebyshev recurrences and sums), so it exports to ONNX.
 """
 
@@ -37,8 +37,9 @@ import torch
 
 from prismstereo.errors import OptionError, RigError, check_int, check_shape
 from prismstereo.geometry.optics import pixel_directions, points_at_depth, trace_rays
+from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.projection import solve_projection
-from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
+from prismstereo.geometry.rig import BiPrismRig, as_parameters
 from prismstereo.runtime import tracing
 
 __all__ = [

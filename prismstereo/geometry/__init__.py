@@ -3,19 +3,19 @@
 from prismstereo.geometry.optics import (
     Half,
     RayBundle,
-    Refraction,
     apex_ray,
     check_rig_images,
     half_of_pixels,
     pixel_directions,
     points_at_depth,
-    refract,
     trace_directions,
     trace_pixels,
 )
+from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.presets import load_rig, thesis_setup1, thesis_setup2
 from prismstereo.geometry.projection import Projection, project_points, solve_projection
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.geometry.surfaces import Refraction, refract
 from prismstereo.geometry.virtual_camera import (
     VirtualCamera,
     VirtualCameraPair,

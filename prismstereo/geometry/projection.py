@@ -21,7 +21,8 @@ from prismstereo.conventions import Half
 from prismstereo.errors import RigError, check_floating, check_option, check_shape
 from prismstereo.geometry.distortion import distort
 from prismstereo.geometry.optics import RayBundle, apex_direction, trace_pixel_rays, trace_rays
-from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig, as_parameters
 
 __all__ = ["Projection", "project_points", "solve_projection"]
 

@@ -369,6 +369,15 @@ def virtual_camera(
         )
     else:  # pragma: no cover - check_option above
         raise OptionError(method)
+    return _measured(rig, half, method, (fx, fy, cx, cy), rotation, centre, depth_range_mm, grid_step, depths)
+
+
+def _measured(rig: BiPrismRig, half: Half, method: Method, intrinsics: tuple[torch.Tensor, ...],
+              rotation: torch.Tensor, centre: torch.Tensor, depth_range_mm: tuple[float, float], grid_step: int,
+              depths: int) -> VirtualCamera:
+    """The camera of ``intrinsics`` (fx, fy, cx, cy), ``rotation`` (3, 3) and ``centre`` (3,) with its
+    non-centrality and reprojection error against the exact optics on the samples of :func:`virtual_camera`."""
+    fx, fy, cx, cy = intrinsics
     camera = _camera(fx, fy, cx, cy, rotation, centre, rig)
     _, rays = _half_grid(rig, half, grid_step)
     dist = _line_distances(rays, centre)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -154,6 +155,40 @@ def train_hybrid(
     arch = architecture or HybridArchitecture()
     out_path = Path(out_path)
     torch.manual_seed(seed)
+    models = _models(sets, arch)
+    if sets is None:
+        sets = training_sets(captures, seed=seed, cache=cache, models=models, progress=progress)
+    stages = nn.ModuleList([models[0].stages, models[0].quarter_stages])
+    optimiser = torch.optim.Adam(stages.parameters(), lr=learning_rate)
+    run = _Run(stages, optimiser, warmup_cosine(optimiser, steps, max(1, min(50, steps // 10))),
+               torch.Generator().manual_seed(seed), out_path.with_suffix(".ckpt"))
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    losses, first, seconds = _resume(run, steps, arch)
+    seconds = _optimise(run, models, sets, losses, first, seconds, arch=arch, batch_size=batch_size, crop=crop,
+                        checkpoint_every=checkpoint_every, progress=progress)
+    valid_confidence = validity_threshold(models, sets)
+    curve = [float(chunk.mean()) for chunk in losses.chunk(min(10, steps))]
+    path = models[0].save(out_path, steps=steps, seed=seed, batch_size=batch_size, crop=list(crop),
+                          captures=[int(d.s.shape[0]) for d in sets], variants=[d.name for d in sets],
+                          final_loss=float(losses[-50:].mean()), loss_curve=curve, seconds=round(seconds, 1),
+                          valid_confidence=valid_confidence)
+    run.checkpoint.unlink(missing_ok=True)
+    return TrainResult(losses, seconds, path)
+
+
+class _Run(NamedTuple):
+    """A training run's state that a checkpoint saves (besides the losses and the time), and the checkpoint's path."""
+
+    stages: nn.ModuleList
+    optimiser: torch.optim.Optimizer
+    schedule: torch.optim.lr_scheduler.LRScheduler
+    gen: torch.Generator
+    checkpoint: Path
+
+
+def _models(sets: list[HybridSet] | None, arch: HybridArchitecture) -> list[HybridStereo]:
+    """One untrained model per rig variant (of ``sets``, else :func:`~prismstereo.learned.hybrid_data.training_rigs`),
+    all sharing the first one's refinement stages."""
     models: list[HybridStereo] = []
     variants = [(d.name, d.rig, d.z_range_mm) for d in sets] if sets is not None else training_rigs()
     for _, rig, z_range in variants:
@@ -161,55 +196,55 @@ def train_hybrid(
         if models:
             model.stages, model.quarter_stages = models[0].stages, models[0].quarter_stages
         models.append(model)
-    if sets is None:
-        sets = training_sets(captures, seed=seed, cache=cache, models=models, progress=progress)
-    stages = nn.ModuleList([models[0].stages, models[0].quarter_stages])
-    optimiser = torch.optim.Adam(stages.parameters(), lr=learning_rate)
-    schedule = warmup_cosine(optimiser, steps, max(1, min(50, steps // 10)))
-    gen = torch.Generator().manual_seed(seed)
+    return models
+
+
+def _resume(run: _Run, steps: int, arch: HybridArchitecture) -> tuple[torch.Tensor, int, float]:
+    """The (steps,) losses, the first step to run and the seconds spent: from the run's checkpoint when it is of the
+    same steps and architecture (its states are loaded into ``run``), else zeros, 0 and 0."""
     losses = torch.zeros(steps, dtype=torch.float64)
     first, seconds = 0, 0.0
-    checkpoint = out_path.with_suffix(".ckpt")
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    if checkpoint.is_file():
-        state = torch.load(checkpoint, weights_only=True)
+    if run.checkpoint.is_file():
+        state = torch.load(run.checkpoint, weights_only=True)
         if state["steps"] == steps and state["architecture"] == dataclasses.asdict(arch):
-            stages.load_state_dict(state["stages"])
-            optimiser.load_state_dict(state["optimiser"])
-            schedule.load_state_dict(state["schedule"])
-            gen.set_state(state["generator"])
+            run.stages.load_state_dict(state["stages"])
+            run.optimiser.load_state_dict(state["optimiser"])
+            run.schedule.load_state_dict(state["schedule"])
+            run.gen.set_state(state["generator"])
             losses, first, seconds = state["losses"], state["step"], state["seconds"]
+    return losses, first, seconds
+
+
+def _optimise(run: _Run, models: list[HybridStereo], sets: list[HybridSet], losses: torch.Tensor, first: int,
+              seconds: float, *, arch: HybridArchitecture, batch_size: int, crop: tuple[int, int],
+              checkpoint_every: int, progress: bool) -> float:
+    """Steps ``first`` to the last of :func:`train_hybrid` (module docstring), each on a rig variant drawn by its
+    number of captures, writing ``losses`` and a checkpoint every ``checkpoint_every`` steps. Returns ``seconds`` plus
+    this run's wall time."""
+    steps = losses.shape[0]
     weights = torch.tensor([float(d.s.shape[0]) for d in sets])
-    stages.train()
+    run.stages.train()
     start = time.perf_counter()
     bar = tqdm(range(first, steps), desc="train hybrid", disable=not progress, initial=first, total=steps)
     for step in bar:
-        v = int(torch.multinomial(weights, 1, generator=gen))
+        v = int(torch.multinomial(weights, 1, generator=run.gen))
         data, model = sets[v], models[v]
-        pick = torch.randint(data.s.shape[0], (batch_size,), generator=gen)
-        inputs, truth, window, size = _batch(model, data, pick, crop, gen)
+        pick = torch.randint(data.s.shape[0], (batch_size,), generator=run.gen)
+        inputs, truth, window, size = _batch(model, data, pick, crop, run.gen)
         loss = hybrid_loss(model, inputs, *truth, window, size)
-        optimiser.zero_grad()
+        run.optimiser.zero_grad()
         loss.backward()
-        torch.nn.utils.clip_grad_norm_(stages.parameters(), 1.0)
-        optimiser.step()
-        schedule.step()
+        torch.nn.utils.clip_grad_norm_(run.stages.parameters(), 1.0)
+        run.optimiser.step()
+        run.schedule.step()
         losses[step] = loss.item()
         bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
         if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
-            torch.save({"steps": steps, "architecture": dataclasses.asdict(arch), "stages": stages.state_dict(),
-                        "optimiser": optimiser.state_dict(), "schedule": schedule.state_dict(),
-                        "generator": gen.get_state(), "losses": losses, "step": step + 1,
-                        "seconds": seconds + time.perf_counter() - start}, checkpoint)
-    seconds += time.perf_counter() - start
-    valid_confidence = validity_threshold(models, sets)
-    curve = [float(chunk.mean()) for chunk in losses.chunk(min(10, steps))]
-    path = models[0].save(out_path, steps=steps, seed=seed, batch_size=batch_size, crop=list(crop),
-                          captures=[int(d.s.shape[0]) for d in sets], variants=[d.name for d in sets],
-                          final_loss=float(losses[-50:].mean()), loss_curve=curve, seconds=round(seconds, 1),
-                          valid_confidence=valid_confidence)
-    checkpoint.unlink(missing_ok=True)
-    return TrainResult(losses, seconds, path)
+            torch.save({"steps": steps, "architecture": dataclasses.asdict(arch), "stages": run.stages.state_dict(),
+                        "optimiser": run.optimiser.state_dict(), "schedule": run.schedule.state_dict(),
+                        "generator": run.gen.get_state(), "losses": losses, "step": step + 1,
+                        "seconds": seconds + time.perf_counter() - start}, run.checkpoint)
+    return seconds + time.perf_counter() - start
 
 
 def validity_threshold(models: list[HybridStereo], sets: list[HybridSet], bad: float = VALID_BAD) -> float:

@@ -211,9 +211,24 @@ def train(
     model = LearnedStereo(small, z_range_mm, num_hypotheses=num_hypotheses, scale=arch.scale, weights=None,
                           architecture=arch, with_match=False)
     searches = _searches(model, small, tuple(float(z) for z in z_range_mm), num_hypotheses)
+    losses, seconds = _optimise(model, searches, data, small.reference_width, steps=steps, batch_size=batch_size,
+                                learning_rate=learning_rate, gen=gen, progress=progress)
+    curve = [float(chunk.mean()) for chunk in losses.chunk(min(10, steps))]  # the loss curve, in 10 chunks
+    path = model.save(out_path, rig=rig_name, steps=steps, seed=seed, batch_size=batch_size,
+                      z_range_mm=tuple(float(z) for z in z_range_mm), num_hypotheses=num_hypotheses,
+                      downscale=downscale, captures=int(data.image.shape[0]), final_loss=float(losses[-20:].mean()),
+                      loss_curve=curve, seconds=round(seconds, 1))
+    return TrainResult(losses, seconds, path)
+
+
+def _optimise(model: LearnedStereo, searches: list[_Search], data: TrainingSet, w_ref: int, *, steps: int,
+              batch_size: int, learning_rate: float, gen: torch.Generator,
+              progress: bool) -> tuple[torch.Tensor, float]:
+    """The optimisation of :func:`train` (module docstring): Adam with :func:`warmup_cosine`, each step a random
+    search, ``batch_size`` random captures cropped to its rows and jittered. Returns the (steps,) float64 losses and
+    the loop's wall time (s)."""
     optimiser = torch.optim.Adam(model.parameters(), lr=learning_rate)
     schedule = warmup_cosine(optimiser, steps, max(1, min(20, steps // 10)))
-    w_ref = small.reference_width
     losses = torch.zeros(steps, dtype=torch.float64)
     model.train()
     start = time.perf_counter()
@@ -231,10 +246,4 @@ def train(
         schedule.step()
         losses[step] = loss.item()
         bar.set_postfix(loss=f"{losses[max(0, step - 19):step + 1].mean():.3f}")
-    seconds = time.perf_counter() - start
-    curve = [float(chunk.mean()) for chunk in losses.chunk(min(10, steps))]  # the loss curve, in 10 chunks
-    path = model.save(out_path, rig=rig_name, steps=steps, seed=seed, batch_size=batch_size,
-                      z_range_mm=tuple(float(z) for z in z_range_mm), num_hypotheses=num_hypotheses,
-                      downscale=downscale, captures=int(data.image.shape[0]), final_loss=float(losses[-20:].mean()),
-                      loss_curve=curve, seconds=round(seconds, 1))
-    return TrainResult(losses, seconds, path)
+    return losses, time.perf_counter() - start

@@ -240,15 +240,8 @@ def weighted_median(
         [2.0, 2.0, 2.0, 8.0, 8.0, 8.0]
     """
     mask = _check_mask(disparity, valid)
-    check_shape(guide, ["B", "C", "H", "W"], "guide")
+    _check_weighted_median(disparity, guide, radius, step, sigma_space, sigma_colour)
     b, _, h, w = disparity.shape
-    if guide.shape[-2:] != (h, w) or guide.shape[0] not in (1, b):
-        raise ShapeError(f"guide {tuple(guide.shape)} must match the disparity {tuple(disparity.shape)} in H, W "
-                         "and batch")
-    for name, value in (("radius", radius), ("step", step)):
-        check_int(value, name, 1)
-    if not (sigma_space > 0 and sigma_colour > 0):
-        raise OptionError(f"sigma_space and sigma_colour must be > 0, got {sigma_space}, {sigma_colour}")
     r = radius
     hp, wp = h + 2 * r, w + 2 * r
     guide = (guide.to(disparity.dtype) / sigma_colour).expand(b, -1, -1, -1)
@@ -267,15 +260,36 @@ def weighted_median(
     out = disparity.reshape(-1).clone()
     chunk = max(1, (1 << 22) // len(taps))
     for start in range(0, len(pixels), chunk):
-        centre = centres[start:start + chunk]
-        index = centre[:, None] + offsets  # (N, T)
-        distance = (colours[:, index] - colours[:, centre].unsqueeze(-1)).abs_().amax(0)
-        weight = (spatial - distance.square_()).exp_().mul_(inside[index])
-        ordered, order = values[index].sort(dim=1)
-        cumulative = weight.gather(1, order).cumsum_(1)
-        total = cumulative[:, -1:]
-        k = (cumulative < 0.5 * total).sum(1, keepdim=True).clamp_max(len(taps) - 1)
-        median = ordered.gather(1, k).squeeze(1)
+        median, total = _weighted_medians(values, inside, colours, centres[start:start + chunk], offsets, spatial)
         keep = pixels[start:start + chunk]
-        out[keep] = torch.where(total.squeeze(1) > 0, median, out[keep])
+        out[keep] = torch.where(total > 0, median, out[keep])
     return out.view(b, 1, h, w)
+
+
+def _check_weighted_median(disparity: torch.Tensor, guide: torch.Tensor, radius: int, step: int, sigma_space: float,
+                           sigma_colour: float) -> None:
+    """:func:`weighted_median`'s checks of the guide and the options (the disparity and mask checked already)."""
+    check_shape(guide, ["B", "C", "H", "W"], "guide")
+    b, _, h, w = disparity.shape
+    if guide.shape[-2:] != (h, w) or guide.shape[0] not in (1, b):
+        raise ShapeError(f"guide {tuple(guide.shape)} must match the disparity {tuple(disparity.shape)} in H, W "
+                         "and batch")
+    for name, value in (("radius", radius), ("step", step)):
+        check_int(value, name, 1)
+    if not (sigma_space > 0 and sigma_colour > 0):
+        raise OptionError(f"sigma_space and sigma_colour must be > 0, got {sigma_space}, {sigma_colour}")
+
+
+def _weighted_medians(values: torch.Tensor, inside: torch.Tensor, colours: torch.Tensor, centre: torch.Tensor,
+                      offsets: torch.Tensor, spatial: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The weighted medians (N,) of the taps ``offsets`` (T,) around the flat padded indices ``centre`` (N,), and
+    each pixel's total weight (N,) (0: every tap weighs 0). ``values``, ``inside`` and ``colours`` (C, P) are the
+    padded disparities, mask and guide / sigma_colour; ``spatial`` (T,) the taps' -|q - p|^2 / sigma_space^2."""
+    index = centre[:, None] + offsets  # (N, T)
+    distance = (colours[:, index] - colours[:, centre].unsqueeze(-1)).abs_().amax(0)
+    weight = (spatial - distance.square_()).exp_().mul_(inside[index])
+    ordered, order = values[index].sort(dim=1)
+    cumulative = weight.gather(1, order).cumsum_(1)
+    total = cumulative[:, -1:]
+    k = (cumulative < 0.5 * total).sum(1, keepdim=True).clamp_max(offsets.shape[0] - 1)
+    return ordered.gather(1, k).squeeze(1), total.squeeze(1)

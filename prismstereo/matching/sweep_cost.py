@@ -199,6 +199,29 @@ def shift_cost(
         >>> int(vol[..., :10].mean((0, 2, 3)).argmin())
         2
     """
+    valid_t = _transposed_valid(reference, other, index, valid, cost, transposed)
+    ref_t, other_t = reference.transpose(-1, -2), other.transpose(-1, -2)  # (B, C, W, H): columns as rows
+    if fill is not None and not (isinstance(fill, (int, float)) and fill >= 0):
+        raise OptionError(f"fill must be a number >= 0 or None, got {fill!r}")
+    # image_t[:, :, index] gathers the slices: (B, C, W_o, H) -> (B, C, D, W, H)
+    if cost == "ad_gradient":  # its gradients along W, taken on the images before the gather
+        grad_r, grad_o = (_x_gradient(x).transpose(-1, -2) for x in (reference, other))
+        colour = (ref_t.unsqueeze(2) - other_t[:, :, index]).abs().mean(1)  # (B, D, W, H)
+        volume = ad_gradient_cost(colour, (grad_r.unsqueeze(2) - grad_o[:, :, index]).abs()[:, 0])
+        value = worst_cost(cost, 1, window) if fill is None else float(fill)
+        volume = fill_invalid(volume, valid_t, value, bounded=value >= worst_cost(cost, 1, window))
+    elif cost != "zncc":
+        volume = sweep_cost(ref_t, Warped(other_t[:, :, index], valid_t), cost, window, census_threshold)
+        if fill is not None:  # sweep_cost filled the worst cost
+            volume = fill_invalid(volume, valid_t, float(fill))
+    else:
+        volume = _zncc_shift(ref_t, other_t, index, valid_t, window, fill)
+    return volume if transposed else volume.transpose(-1, -2)
+
+
+def _transposed_valid(reference: torch.Tensor, other: torch.Tensor, index: torch.Tensor, valid: torch.Tensor,
+                      cost: Cost, transposed: bool) -> torch.Tensor:
+    """:func:`shift_cost`'s checks of its inputs; its mask as (B, D, W, H)."""
     check_option(cost, COSTS, "cost")
     check_shape(reference, ["B", "C", "H", "W"], "reference")
     check_shape(other, ["B", "C", "H", "W"], "other")
@@ -211,27 +234,15 @@ def shift_cost(
     expected = (d, w, h) if transposed else (d, h, w)
     if valid.dim() != 4 or tuple(valid.shape[1:]) != expected or valid.shape[0] not in (1, b):
         raise ShapeError(f"valid must be (B or 1, {', '.join(map(str, expected))}), got {tuple(valid.shape)}")
-    valid_t = (valid if transposed else valid.transpose(-1, -2)).expand(b, -1, -1, -1)
-    ref_t, other_t = reference.transpose(-1, -2), other.transpose(-1, -2)  # (B, C, W, H): columns as rows
+    return (valid if transposed else valid.transpose(-1, -2)).expand(b, -1, -1, -1)
 
-    def gather(image_t: torch.Tensor) -> torch.Tensor:  # (B, C, W_o, H) -> (B, C, D, W, H)
-        return image_t[:, :, index]
 
-    if fill is not None and not (isinstance(fill, (int, float)) and fill >= 0):
-        raise OptionError(f"fill must be a number >= 0 or None, got {fill!r}")
-    if cost == "ad_gradient":  # its gradients along W, taken on the images before the gather
-        grad_r, grad_o = (_x_gradient(x).transpose(-1, -2) for x in (reference, other))
-        colour = (ref_t.unsqueeze(2) - gather(other_t)).abs().mean(1)  # (B, D, W, H)
-        volume = ad_gradient_cost(colour, (grad_r.unsqueeze(2) - gather(grad_o)).abs()[:, 0])
-        value = worst_cost(cost, 1, window) if fill is None else float(fill)
-        volume = fill_invalid(volume, valid_t, value, bounded=value >= worst_cost(cost, 1, window))
-        return volume if transposed else volume.transpose(-1, -2)
-    if cost != "zncc":
-        volume = sweep_cost(ref_t, Warped(gather(other_t), valid_t), cost, window, census_threshold)
-        if fill is not None:  # sweep_cost filled the worst cost
-            volume = fill_invalid(volume, valid_t, float(fill))
-        return volume if transposed else volume.transpose(-1, -2)
+def _zncc_shift(ref_t: torch.Tensor, other_t: torch.Tensor, index: torch.Tensor, valid_t: torch.Tensor, window: int,
+                fill: float | None) -> torch.Tensor:
+    """:func:`shift_cost`'s ZNCC on the transposed (B, C, W, H) images: ``other``'s window moments taken once and
+    gathered, the edge columns from the gathered slices as :func:`sweep_cost` computes them. Returns (B, D, W, H)."""
     check_odd(window, "window")
+    w = ref_t.shape[-2]
     r = window // 2
     ref = to_grey(ref_t, dim=1) - 0.5
     oth = to_grey(other_t, dim=1) - 0.5
@@ -250,5 +261,4 @@ def shift_cost(
         volume = torch.cat([left, volume[..., r:w - r, :], right], -2)
     worst = worst_cost("zncc", 1, window)
     value = worst if fill is None else float(fill)  # ZNCC lies in [0, worst]: a fill >= worst is max(volume, fill)
-    volume = fill_invalid(volume, valid_t, value, bounded=value >= worst)
-    return volume if transposed else volume.transpose(-1, -2)
+    return fill_invalid(volume, valid_t, value, bounded=value >= worst)

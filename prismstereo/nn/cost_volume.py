@@ -30,7 +30,8 @@ from prismstereo.epipolar.row_rectify import level_coverage
 from prismstereo.epipolar.sweep import fit_sweep, positions_at, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, RigError, ShapeError, check_int, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
-from prismstereo.geometry.rig import BiPrismRig, RigParameters
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.sweep_sampler import SweepSampler, block_centres, sweep_sampler
 
 __all__ = ["MODES", "Mode", "PrismCostVolume", "SweepGrid", "sweep_grid"]
@@ -181,7 +182,7 @@ class PrismCostVolume(nn.Module):
     The sampling is the classical model's (:class:`~prismstereo.matching.sweep_sampler.SweepSampler`, the per-pixel
     sweep polynomials as a buffer, evaluated at the D hypotheses in each forward; it moves with ``.to()``, the
     volume takes the features' dtype).
-    Gradients reach the features. With ``rig`` given as :class:`~prismstereo.geometry.rig.RigParameters`
+    Gradients reach the features. With ``rig`` given as :class:`~prismstereo.geometry.parameters.RigParameters`
     whose tensors require grad (e.g. ``rig.parameters(dtype=torch.float64, requires_grad=True)``) the grid is
     recomputed from them in every forward (a sweep fit, slow next to the sampling), so gradients also reach the rig
     parameters (self-calibration through a network); :attr:`valid` is then updated each forward (a mask,

@@ -7,18 +7,15 @@ from prismstereo.synthetic.lens import (
     fresnel_transmittance,
     prism_transmittance,
 )
+from prismstereo.synthetic.photo_scenes import HeightField, disparity_scene, height_field_scene, middlebury_scene
 from prismstereo.synthetic.render import Capture, ImageFormation, render, render_radiance
 from prismstereo.synthetic.scenes import (
-    HeightField,
     Hit,
     Plane,
     Scene,
     Sphere,
     Surface,
-    disparity_scene,
     fronto_parallel_plane,
-    height_field_scene,
-    middlebury_scene,
     slanted_plane,
     sphere_scene,
     step_scene,

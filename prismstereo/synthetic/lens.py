@@ -25,8 +25,10 @@ import numpy as np
 import torch
 
 from prismstereo.errors import check_floating, check_shape
-from prismstereo.geometry.optics import RayBundle, euler_rotation
-from prismstereo.geometry.rig import BiPrismRig, RigParameters, as_parameters
+from prismstereo.geometry.optics import RayBundle
+from prismstereo.geometry.parameters import RigParameters
+from prismstereo.geometry.rig import BiPrismRig, as_parameters
+from prismstereo.geometry.surfaces import euler_rotation
 from prismstereo.synthetic.textures import SceneError
 
 __all__ = [

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import cv2
 import torch
 
-from prismstereo.geometry.optics import euler_rotation
+from prismstereo.geometry.surfaces import euler_rotation
 from prismstereo.synthetic.scenes import Plane, Scene, vector3
 from prismstereo.synthetic.textures import CheckerTexture, CircleGridTexture, ImageTexture, SceneError, Texture
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from prismstereo import BiPrismRig, RigError, load_rig, thesis_setup1, thesis_setup2
-from prismstereo.geometry import RigParameters, check_rig_images
+from prismstereo.geometry import check_rig_images
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.presets import RIG_PRESETS
 
@@ -168,12 +168,14 @@ def test_check_rig_images_rejects_other_types():
         check_rig_images(thesis_setup1(), samples=1)
 
 
-def test_rig_module_does_not_import_optics():
-    """rig.py imports nothing of the ray tracer, not even inside a function (the optics build on it)."""
+@pytest.mark.parametrize("module", ["rig", "parameters"])
+def test_rig_modules_do_not_import_optics(module):
+    """rig.py and parameters.py import nothing of the ray tracer, not even inside a function (the optics build on
+    them)."""
     import ast
+    import importlib
 
-    import prismstereo.geometry.rig as rig_module
-
+    rig_module = importlib.import_module(f"prismstereo.geometry.{module}")
     tree = ast.parse(Path(rig_module.__file__).read_text())
     imported = set()
     for node in ast.walk(tree):
@@ -225,26 +227,6 @@ def test_bad_rig_files(tmp_path, text, match):
 def test_missing_rig_file(tmp_path):
     with pytest.raises(RigError, match="rig file not found"):
         BiPrismRig.from_json(tmp_path / "nope.json")
-
-
-def test_parameters(dtype):
-    p = thesis_setup1().replace(prism_offset_x_mm=2.0, prism_tilt_deg=(1.0, 0.0, 0.0)).parameters(dtype=dtype)
-    assert isinstance(p, RigParameters)
-    assert p.alpha.dtype == dtype and p.alpha.shape == ()
-    assert p.alpha.item() == pytest.approx(math.radians(6.4))
-    assert p.tilt.shape == (3,) and p.tilt[0].item() == pytest.approx(math.radians(1.0))
-    assert p.d.item() == 2.0 and (p.width, p.height) == (1024, 768)
-    q = p.to(torch.zeros(1, dtype=torch.float64))
-    assert q.n.dtype == torch.float64 and q.width == 1024
-
-
-def test_parameters_requires_grad():
-    p = thesis_setup1().parameters(dtype=torch.float64, requires_grad=True)
-    assert all(t.requires_grad for t in p if isinstance(t, torch.Tensor))
-    # .to keeps the autograd graph
-    q = p.to(torch.zeros(1, dtype=torch.float32))
-    q.alpha.backward()
-    assert p.alpha.grad is not None and p.alpha.grad.item() == 1.0
 
 
 def test_downscaled_keeps_the_field_of_view():

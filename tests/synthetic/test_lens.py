@@ -7,7 +7,7 @@ import torch
 
 from prismstereo import ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.geometry import apex_ray, trace_pixels
-from prismstereo.geometry.optics import euler_rotation
+from prismstereo.geometry.surfaces import euler_rotation
 from prismstereo.synthetic import (
     ConstantTexture,
     ImageFormation,
