@@ -226,13 +226,7 @@ def match_rectified(
         True
     """
     options = options or MatchOptions()
-    check_shape(left, ["B", "C", "H", "W"], "left")
-    check_shape(right, ["B", "C", "H", "W"], "right")
-    if left.shape != right.shape:
-        raise ShapeError(f"left {tuple(left.shape)} and right {tuple(right.shape)} must have the same shape")
-    if isinstance(num_disparities, bool) or not isinstance(num_disparities, int) or not (
-            2 <= num_disparities < left.shape[-1]):
-        raise OptionError(f"num_disparities must be an int in [2, W), got {num_disparities!r}")
+    _check_pair(left, right, num_disparities)
     config = options.config
     b, _, h, w = left.shape
     matched = options.grey and config.cost.cost in ("census", "sad")
@@ -273,6 +267,17 @@ def match_rectified(
         disparity = torch.where(filled & occluded, torch.minimum(smoothed, disparity), smoothed)
     confidence = torch.where(valid, decision.confidence, torch.zeros_like(decision.confidence))
     return MatchResult(disparity, valid, confidence, filled)
+
+
+def _check_pair(left: torch.Tensor, right: torch.Tensor, num_disparities: int) -> None:
+    """:func:`match_rectified`'s input checks."""
+    check_shape(left, ["B", "C", "H", "W"], "left")
+    check_shape(right, ["B", "C", "H", "W"], "right")
+    if left.shape != right.shape:
+        raise ShapeError(f"left {tuple(left.shape)} and right {tuple(right.shape)} must have the same shape")
+    if isinstance(num_disparities, bool) or not isinstance(num_disparities, int) or not (
+            2 <= num_disparities < left.shape[-1]):
+        raise OptionError(f"num_disparities must be an int in [2, W), got {num_disparities!r}")
 
 
 def _shifts(num: int, h: int, w: int, sign: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:

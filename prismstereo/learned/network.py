@@ -31,15 +31,16 @@ from torch import nn
 from prismstereo.conventions import to_grey
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, evaluate_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
-from prismstereo.errors import OptionError, PrismStereoError, ShapeError, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.learned.weights import WeightsError, read_weights, write_weights
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.nn import PrismCostVolume, depth_regression
 from prismstereo.runtime import exporting
 
-__all__ = ["LEARNED_WEIGHTS", "FORMAT", "HYPOTHESIS_SPACING_PX", "Architecture", "LearnedStereo", "WeightsError",
-           "learned_hypotheses", "load_weights", "read_weights", "write_weights"]
+__all__ = ["LEARNED_WEIGHTS", "FORMAT", "HYPOTHESIS_SPACING_PX", "Architecture", "LearnedStereo",
+           "learned_hypotheses", "load_weights"]
 
 LEARNED_WEIGHTS = Path(__file__).resolve().parent / "weights" / "thesis_setup1.pt"
 """The shipped weights of :class:`LearnedStereo` (the hybrid's: :data:`~prismstereo.learned.hybrid.HYBRID_WEIGHTS`)."""
@@ -49,10 +50,6 @@ LEARNED_WEIGHTS = Path(__file__).resolve().parent / "weights" / "thesis_setup1.p
 HYPOTHESIS_SPACING_PX = 0.69
 FORMAT = "prismstereo.learned/1"
 SCALES = (2, 4, 8)
-
-
-class WeightsError(PrismStereoError, ValueError):
-    """A weights file that cannot be read or does not fit the model's architecture."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,55 +162,6 @@ def load_weights(path: str | Path) -> tuple[Architecture, dict[str, torch.Tensor
         (4, 'thesis_setup1')
     """
     return read_weights(path, FORMAT, Architecture, "LearnedStereo")
-
-
-def write_weights(path: str | Path, fmt: str, architecture: Any, state: dict[str, torch.Tensor],
-                  metadata: dict[str, Any]) -> Path:
-    """Write a weights file that :func:`read_weights` reads: the format tag ``fmt``, the ``architecture`` dataclass's
-    fields, ``state`` (float32 CPU copies) and ``metadata`` (small, plain values); parent folders are created.
-
-    Example:
-        >>> import tempfile
-        >>> with tempfile.TemporaryDirectory() as tmp:
-        ...     path = write_weights(Path(tmp) / "w.pt", FORMAT, Architecture(), {}, {"note": "example"})
-        ...     read_weights(path, FORMAT, Architecture, "LearnedStereo")[2]
-        {'note': 'example'}
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    state = {k: v.detach().float().cpu().clone() for k, v in state.items()}
-    torch.save({"format": fmt, "architecture": dataclasses.asdict(architecture), "state_dict": state,
-                "metadata": metadata}, path)
-    return path
-
-
-def read_weights(path: str | Path, fmt: str, architecture: type, model: str) -> tuple[Any, dict[str, torch.Tensor],
-                                                                                     dict[str, Any]]:
-    """A weights file of ``model`` (format tag ``fmt``): (``architecture`` (**its stored fields), state_dict,
-    metadata), loaded safely (``weights_only``).
-
-    Raises:
-        WeightsError: missing or unreadable file, another format, or an invalid architecture.
-
-    Example:
-        >>> read_weights(LEARNED_WEIGHTS, FORMAT, Architecture, "LearnedStereo")[0].scale
-        4
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise WeightsError(f"weights file {path} does not exist")
-    try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a file it cannot read: say what the file is not
-        raise WeightsError(f"{path} is not a {model} weights file (torch.load cannot read it safely: "
-                           f"{type(exc).__name__})") from exc
-    if not isinstance(blob, dict) or blob.get("format") != fmt or not isinstance(blob.get("state_dict"), dict):
-        raise WeightsError(f"{path} is not a {model} weights file (format {fmt!r})")
-    try:
-        arch = architecture(**blob["architecture"])
-    except (TypeError, PrismStereoError) as exc:
-        raise WeightsError(f"{path} holds an invalid architecture {blob.get('architecture')!r}: {exc}") from exc
-    return arch, blob["state_dict"], dict(blob.get("metadata", {}))
 
 
 def learned_hypotheses(rig: BiPrismRig, z_range_mm: tuple[float, float], scale: int = 4,

@@ -340,8 +340,7 @@ def test_hybrid_model_from_the_cli(scene, tmp_path, capsys, backend):
     assert _run(scene, scene / "far.png", "--out", tmp_path / "x.npy", "--model", "hybrid", "--hypotheses", 10) == 2
     assert "--hypotheses set the classical model's options, not --model hybrid's" in capsys.readouterr().err
     if backend == "torch":  # --weights alone: a hybrid weights file
-        from prismstereo.learned import HybridStereo
-        from prismstereo.learned.hybrid import HybridArchitecture
+        from prismstereo.learned import HybridArchitecture, HybridStereo
 
         torch.manual_seed(0)
         rig = thesis_setup1().downscaled(8)

@@ -1,0 +1,90 @@
+"""The hybrid's learned refinement stage: its hyper-parameters (:class:`HybridArchitecture`, stored beside the
+weights) and its CNN (:class:`RefinementCNN`), a dilated 3 x 3 network in the manner of StereoNet's and HITNet's
+refinements that reads the reference image, the cost curve around the estimate on the exact sweep, the estimate's
+relief and the classical confidence, and predicts a residual and a confidence logit
+(:class:`~prismstereo.learned.hybrid.HybridStereo` composes them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from prismstereo.errors import OptionError
+
+__all__ = ["DILATIONS", "HybridArchitecture", "RefinementCNN"]
+
+DILATIONS = (1, 2, 4, 8, 1, 1, 1, 1)
+"""The dilations of a CNN's 3 x 3 convolutions, layer by layer (the receptive field doubles over the first four)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class HybridArchitecture:
+    """The hyper-parameters that shape the weights (stored beside them).
+
+    Attributes:
+        block: k, the binning of the classical level (2 or 4).
+        channels: C, channels of each refinement CNN.
+        layers: 3 x 3 convolutions per CNN (2-8, dilations 1, 2, 4, 8, 1, ...), the output head included.
+        offsets: the cost curve is sampled at s + o steps for o = -offsets ... +offsets.
+        iterations: refinement stages at 1/2, each with its own CNN.
+        quarter: refinement stages at 1/4 before them (block 4 only: on the classical level's own grid, with twice
+            the reach per layer).
+
+    Example:
+        >>> HybridArchitecture().block, HybridArchitecture(offsets=1).inputs
+        (4, 8)
+    """
+
+    block: int = 4
+    channels: int = 16
+    layers: int = 5
+    offsets: int = 2
+    iterations: int = 1
+    quarter: int = 1
+
+    def __post_init__(self) -> None:
+        if self.block not in (2, 4):
+            raise OptionError(f"Unknown block {self.block!r}. Choose from: 2, 4")
+        for name, low, high in (("channels", 1, 256), ("layers", 2, len(DILATIONS)), ("offsets", 0, 8),
+                                ("iterations", 1, 4), ("quarter", 0, 4)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise OptionError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+        if self.quarter and self.block != 4:
+            raise OptionError(f"quarter stages need block 4 (the classical level's grid), got block {self.block}")
+
+    @property
+    def inputs(self) -> int:
+        """Input channels of a CNN: 2 image, 2 offsets + 1 costs, relief, confidence, coverage."""
+        return 2 + 2 * self.offsets + 1 + 3
+
+
+def _conv(cin: int, cout: int, dilation: int = 1) -> nn.Conv2d:
+    return nn.Conv2d(cin, cout, 3, padding=dilation, dilation=dilation)
+
+
+class RefinementCNN(nn.Module):
+    """One stage's CNN: (B, inputs, h, w) -> (B, 2, h, w), the residual in steps and the confidence logit; the head
+    starts at zero, so an untrained stage keeps the classical estimate.
+
+    Example:
+        >>> RefinementCNN(HybridArchitecture())(torch.rand(1, 10, 8, 8)).abs().max().item()
+        0.0
+    """
+
+    def __init__(self, arch: HybridArchitecture) -> None:
+        super().__init__()
+        c = arch.channels
+        self.convs = nn.ModuleList([_conv(arch.inputs, c)] + [_conv(c, c, d) for d in DILATIONS[1:arch.layers - 1]])
+        self.head = _conv(c, 2)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        for conv in self.convs:
+            x = F.leaky_relu(conv(x), 0.1)
+        return self.head(x)
