@@ -4,7 +4,7 @@ The moving sequence of ``benchmarks/video_speed.py`` (30 frames of a slanted pla
 ``thesis_setup1`` at 1024 x 768, range 228-1374 mm) played back and forth to ``--frames`` frames, through a
 :class:`~prismstereo.stream.DepthStream` as ``prismstereo depth`` runs it: key frames by the sensor's default model
 (the hybrid's exported graph, 2 intra-op threads), tracked by the classical model's temporal graph (one thread,
-:func:`~prismstereo.threads.session_threads`), with ``TemporalOptions(keyframe_interval=K)`` for each
+:func:`~prismstereo.threads.thread_plan`), with ``TemporalOptions(keyframe_interval=K)`` for each
 ``--intervals`` K.
 Printed per K: the key frames, the mean and median per-frame time of the stream, the mean relative depth error over
 the co-visible valid pixels (mean over frames, and the worst frame) and the coverage (mean and lowest frame).
@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from video_speed import Z_RANGE, _pingpong, sensor, sequences  # noqa: E402
 
 from prismstereo import PrismStereo  # noqa: E402
-from prismstereo.classical.temporal import TemporalOptions  # noqa: E402
+from prismstereo.classical import TemporalOptions  # noqa: E402
 from prismstereo.export import export_onnx  # noqa: E402
 from prismstereo.learned import HybridStereo  # noqa: E402
 from prismstereo.predictor import Predictor  # noqa: E402

@@ -11,7 +11,7 @@ static scene.
    * ``cut``: the moving plane for the first half, then a cut to another texture on a plane at 800 -> 780 mm.
 
    Every frame goes through the ``DepthStream`` s of the default ``PrismStereo`` over 228-1374 mm, exported once
-   (onnxruntime, 2 intra-op threads, a temporal graph 1: ``threads.session_threads``): per frame, with the temporal
+   (onnxruntime, 2 intra-op threads, a temporal graph 1: ``threads.thread_plan``): per frame, with the temporal
    prior (its own temporal graph, ``TemporalOptions()``, whose band runs on the 2 x 2-binned frame for the 1024 x 768
    pyramid and at full resolution for the one-level 640 x 480 model; key frames by its rules) and with the band at
    the other of the two resolutions (``temporal k=1`` / ``k=2``) and, for the pyramid, on the 3 x 3-binned frame

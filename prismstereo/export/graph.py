@@ -103,9 +103,9 @@ class TemporalGraph(nn.Module):
 
 @functools.cache
 def source_digest() -> str:
-    """sha256 (16 hex digits) of the package's Python sources: which code built a graph (stored in its metadata
-    and part of :func:`onnx_session`'s cache key, so that a changed algorithm or fitted constant is exported
-    again instead of served from the cache under an unchanged version number).
+    """sha256 (16 hex digits) of the package's Python sources: which code built a graph (stored in its metadata and
+    part of the cache's keys, :mod:`prismstereo.export.cache`, so that a changed algorithm or fitted constant is
+    exported again instead of served from the cache under an unchanged version number).
 
     Example:
         >>> len(source_digest())
