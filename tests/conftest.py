@@ -84,9 +84,7 @@ XDIST_GROUPS = {
     "tests/export/test_onnx.py": "exported graph and captures",
     "tests/learned/test_hybrid.py": "hybrid model",
     "tests/cli/test_calibrate.py": "calibration bench",
-    **{f"tests/jobs/test_jobs.py::{name}": "local ray" for name in (
-        "test_ray_writes_the_same_files_and_survives_a_dead_worker",
-        "test_depth_mapper_maps_the_model_over_a_ray_dataset")},
+    "tests/jobs/test_jobs.py::test_ray_writes_the_same_files_and_survives_a_dead_worker": "local ray",
     "tests/classical/test_dense.py": "weak-texture models (weak)",
 }
 

@@ -171,3 +171,17 @@ def test_tests_mirror_the_package(package):
                 re.search(rf"\b{re.escape(name)}\b" if name[0] != '"' else re.escape(name), tests) for name in names):
             untested.append(module.stem)
     assert untested == []
+
+
+def test_top_level_modules_have_their_tests():
+    """Each top-level module with public names has ``tests/test_<module>.py``, or its names in the top-level tests."""
+    tests = "\n".join(p.read_text() for p in (ROOT / "tests").glob("test_*.py"))
+    untested = []
+    for module in sorted(PACKAGE.glob("[!_]*.py")):
+        tree = ast.parse(module.read_text())
+        public = [n.name for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))
+                  and not n.name.startswith("_")]
+        if public and not (ROOT / "tests" / f"test_{module.stem}.py").is_file() and not any(
+                re.search(rf"\b{re.escape(name)}\b", tests) for name in public):
+            untested.append(module.stem)
+    assert untested == []

@@ -230,24 +230,32 @@ def test_ray_writes_the_same_files_and_survives_a_dead_worker(inputs, tmp_path, 
         np.testing.assert_allclose(a, b, rtol=1e-5, equal_nan=True)
 
 
-def test_depth_mapper_maps_the_model_over_a_ray_dataset(inputs, local_ray):
-    """``DepthMapper`` in ``Dataset.map_batches``: the depth of each row's image, as the pipeline computes it."""
+def test_depth_mapper_maps_the_model_over_batches_as_ray_data_hands_them(inputs):
+    """``DepthMapper``, what ``Dataset.map_batches(DepthMapper, fn_constructor_kwargs={"pipeline": ...})`` calls: built
+    from an unpickled pipeline (as Ray ships it), called on dict batches of uint8 grey rows and of an object
+    column of RGB rows (``read_images`` of mixed files): the depth of each row's image as the pipeline computes it
+    (NaN where invalid), the other columns passed through. (Ray Data's own scheduling of it is Ray's.)"""
+    import pickle
+
     from prismstereo.io import read_image
     from prismstereo.jobs.ray_executor import DepthMapper
 
     rig = thesis_setup1().downscaled(8)
     pipeline = Pipeline(Predictor(PrismStereo(rig, (400.0, 700.0))))
+    mapper = DepthMapper(pickle.loads(pickle.dumps(pipeline)))
     images = [(read_image(inputs / f"cap{k}.png")[:1, :, :].numpy()[0] * 255).round().astype(np.uint8)
               for k in range(3)]
-    rows = local_ray.data.from_items([{"name": f"cap{k}", "image": im} for k, im in enumerate(images)])
-    out = rows.map_batches(DepthMapper, fn_constructor_kwargs={"pipeline": pipeline}, batch_size=2,
-                           concurrency=1).take_all()
-    assert sorted(r["name"] for r in out) == ["cap0", "cap1", "cap2"]
-    for row in out:
-        k = int(row["name"][-1])
-        res = pipeline.depth(torch.from_numpy(images[k]).float()[None, None] / 255)
-        expected = torch.where(res.valid, res.depth, torch.full_like(res.depth, float("nan")))[0, 0].numpy()
-        assert row["depth"].shape == (rig.image_height, rig.reference_width)
-        np.testing.assert_allclose(row["depth"], expected, rtol=1e-5, equal_nan=True)
+    rgb = np.empty(2, dtype=object)
+    rgb[:] = [np.repeat(im[..., None], 3, -1) for im in images[:2]]
+    for batch in ({"name": np.array(["cap0", "cap1", "cap2"]), "image": np.stack(images)},
+                  {"name": np.array(["cap0", "cap1"]), "image": rgb}):
+        out = mapper(batch)
+        assert list(out["name"]) == list(batch["name"]) and out["depth"].dtype == np.float32
+        for k in range(len(batch["name"])):
+            res = pipeline.depth(torch.from_numpy(images[k]).float()[None, None] / 255)
+            expected = torch.where(res.valid, res.depth, torch.full_like(res.depth, float("nan")))[0, 0].numpy()
+            assert out["depth"][k].shape == (rig.image_height, rig.reference_width)
+            np.testing.assert_allclose(out["depth"][k], expected, rtol=1e-5, equal_nan=True)
+            np.testing.assert_allclose(out["confidence"][k], res.confidence[0, 0].numpy(), atol=1e-5)
     with pytest.raises(PrismStereoError, match="rig's sensor is 128x96 px"):
-        DepthMapper(pipeline)({"image": np.zeros((1, 10, 10), np.uint8)})
+        mapper({"image": np.zeros((1, 10, 10), np.uint8)})
