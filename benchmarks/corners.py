@@ -87,6 +87,9 @@ def main() -> None:
             t0 = time.perf_counter()
             e = errors(rig, scenes, caps.image, board, args.board, method)
             dt = time.perf_counter() - t0
+            if e.numel() == 0:  # the board not found in any view under this formation (small sensors, strong blur)
+                print(f"{name:<38} {method:<10} {0:>7}  no corners found {dt:>19.1f}", flush=True)
+                continue
             print(f"{name:<38} {method:<10} {e.numel():>7} {float(e.pow(2).mean().sqrt()):>7.4f} "
                   f"{float(e.quantile(0.95)):>6.3f} {float(e.max()):>6.3f} {dt:>5.1f}", flush=True)
 
