@@ -81,7 +81,7 @@ XDIST_GROUPS = {
         "test_result_report_and_plot", "test_outlier_view_is_flagged", "test_initial_poses_triangulate_the_boards",
         "test_diverged_fit_is_an_error", "test_board_jacobian_matches_finite_differences")},
     "tests/classical/test_temporal.py": "temporal model and sequences",
-    "tests/export/test_onnx.py": "exported graph and captures",
+    "tests/export/test_graph.py": "exported graph and captures",
     "tests/learned/test_hybrid.py": "hybrid model",
     "tests/cli/test_calibrate.py": "calibration bench",
     "tests/jobs/test_jobs.py::test_ray_writes_the_same_files_and_survives_a_dead_worker": "local ray",
@@ -132,10 +132,10 @@ def one_thread_per_worker():
 
 @pytest.fixture(scope="session", autouse=True)
 def onnx_cache(tmp_path_factory) -> Path:
-    """:func:`~prismstereo.export.onnx_session`'s cache (``$PRISMSTEREO_CACHE``) in a directory of this session:
-    no test reads or writes the user's ``~/.cache/prismstereo``, so a run here exports what one on a clean CI
-    machine does, and tests of the same graph export it once (see ``export_once``). Under pytest-xdist the
-    workers share one directory of this run (the parent of their base temp dirs): a graph one worker exported,
+    """The cache of exported graphs (:func:`~prismstereo.export.cached_graphs`, ``$PRISMSTEREO_CACHE``) in a
+    directory of this session: no test reads or writes the user's ``~/.cache/prismstereo``, so a run here exports what
+    one on a clean CI machine does, and tests of the same graph export it once (see ``export_once``). Under pytest-xdist
+    the workers share one directory of this run (the parent of their base temp dirs): a graph one worker exported,
     another loads; both write a graph to a temporary name and rename it, so none reads half a file."""
     if _xdist_worker():
         root = tmp_path_factory.getbasetemp().parent / "prismstereo_cache"
@@ -151,10 +151,10 @@ def onnx_cache(tmp_path_factory) -> Path:
 def export_once(onnx_cache):
     """``export_once(model)``: the path of ``model``'s ONNX graph (1 channel, default opset), exported once per
     session for each rig, range and options, under the name and in the directory where
-    :func:`~prismstereo.export.onnx_session` looks for it (the key is the graph's metadata, which rebuilds the
+    :func:`~prismstereo.export.cached_graphs` looks for it (:func:`~prismstereo.export.cache_path`, the key of the
     model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export. A file lock
     per graph makes a second xdist worker wait for the first one's export instead of exporting it again; the
-    graph appears under its name only once complete (atomic rename, as in ``onnx_session``)."""
+    graph appears under its name only once complete (atomic rename, as in ``export_cached``)."""
     from prismstereo.export import cache_path, export_cached
 
     def export(model) -> Path:

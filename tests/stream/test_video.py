@@ -402,7 +402,8 @@ def test_depth_cli_runs_cached_graphs_of_a_video_without_a_torch_model(clip, tmp
     for k in range(len(DEPTHS)):
         name = f"clip_{k:06d}.npy"
         np.testing.assert_array_equal(np.load(tmp_path / "a" / name), np.load(tmp_path / "b" / name))
-    monkeypatch.undo()  # a request without the temporal prior is another request (as a capture's: see test_cli_depth)
+    # a request without the temporal prior is another request (as a capture's: see tests/cli/test_depth.py)
+    monkeypatch.undo()
     monkeypatch.setenv("PRISMSTEREO_CACHE", str(tmp_path / "cache"))
     assert _depth(clip / "clip.avi", "--out", tmp_path / "c", *common, "--no-temporal") == 0
     assert "(cached graph" not in capsys.readouterr().out

@@ -1,5 +1,6 @@
-"""ONNX export of PrismStereo: checker, metadata, onnxruntime parity with torch (batch 1 and 4), errors and
-the session cache. One small coarse-to-fine model (128 x 96 sensor, coarse factor 2) exported once."""
+"""ONNX export of a depth model (:mod:`prismstereo.export.graph`) and its session (:mod:`prismstereo.export.session`):
+checker, metadata, onnxruntime parity with torch (batch 1 and 4), the temporal graph, errors. One small
+coarse-to-fine model (128 x 96 sensor, coarse factor 2) exported once; the cache: test_cache.py."""
 
 import json
 from pathlib import Path
