@@ -171,17 +171,19 @@ def export_once(onnx_cache):
     """``export_once(model)``: the path of ``model``'s ONNX graph (1 channel, default opset), exported once per
     session for each rig, range and options, under the name and in the directory where
     :func:`~prismstereo.export.onnx_session` looks for it (the key is the graph's metadata, which rebuilds the
-    model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export. A file lock
-    per graph makes a second xdist worker wait for the first one's export instead of exporting it again; the
-    graph appears under its name only once complete (atomic rename, as in ``onnx_session``)."""
+    model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export;
+    ``export_once(model, temporal=options)``: the graph of the model's temporal band, where
+    :func:`~prismstereo.export.cached_graphs` keeps it (an ONNX predictor of the session's cache shares it too). A
+    file lock per graph makes a second xdist worker wait for the first one's export instead of exporting it again;
+    the graph appears under its name only once complete (atomic rename, as in ``onnx_session``)."""
     from prismstereo.export import cache_path, export_cached
 
-    def export(model) -> Path:
-        path = cache_path(model, cache_dir=onnx_cache / "onnx")
+    def export(model, temporal=None) -> Path:
+        path = cache_path(model, temporal=temporal, cache_dir=onnx_cache / "onnx")
         if not path.is_file():
             path.parent.mkdir(parents=True, exist_ok=True)
             with FileLock(path.with_suffix(".lock")):
-                export_cached(model.eval(), path)
+                export_cached(model.eval(), path, temporal=None if temporal is None else model.tracker(temporal))
         return path
 
     return export
