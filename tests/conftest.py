@@ -86,6 +86,7 @@ XDIST_GROUPS = {
     "tests/cli/test_calibrate.py": "calibration bench",
     "tests/jobs/test_jobs.py::test_ray_writes_the_same_files_and_survives_a_dead_worker": "local ray",
     "tests/classical/test_dense.py": "weak-texture models (weak)",
+    "tests/classical/test_config.py": "the presets' models (_preset_model)",
     # one notebook kernel (its start and the imports of the first notebook are paid once, not once per worker)
     "tests/test_notebooks.py": "notebook kernel",
     # the captures of reference_cases (rendered once per process: the 1024 x 768 one in ~5 s, three 512 x 384 ones
