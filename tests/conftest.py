@@ -86,6 +86,12 @@ XDIST_GROUPS = {
     "tests/cli/test_calibrate.py": "calibration bench",
     "tests/jobs/test_jobs.py::test_ray_writes_the_same_files_and_survives_a_dead_worker": "local ray",
     "tests/classical/test_dense.py": "weak-texture models (weak)",
+    "tests/classical/test_config.py": "the presets' models (_preset_model)",
+    # one notebook kernel (its start and the imports of the first notebook are paid once, not once per worker)
+    "tests/test_notebooks.py": "notebook kernel",
+    # the captures of reference_cases (rendered once per process: the 1024 x 768 one in ~5 s, three 512 x 384 ones
+    # in ~1 s each; each worker rendered those of its cases)
+    "tests/test_reference_outputs.py": "reference captures",
 }
 
 
@@ -98,19 +104,33 @@ def pytest_xdist_make_scheduler(config, log):
 
     class SharedFixtureScheduling(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            module, _, test = nodeid.partition("::")
-            group = XDIST_GROUPS.get(module) or XDIST_GROUPS.get(f"{module}::{test.split('[')[0]}")
+            group = _group(nodeid)
             return f"group: {group}" if group else nodeid
 
     return SharedFixtureScheduling(config, log)
 
 
+def _group(nodeid: str) -> str | None:
+    module, _, test = nodeid.partition("::")
+    return XDIST_GROUPS.get(module) or XDIST_GROUPS.get(f"{module}::{test.split('[')[0]}")
+
+
+# The groups handed out first, longest first (~65 s and ~30 s of a worker on a quiet 2-core AMD EPYC); the other
+# groups (5-15 s each) follow them, then the single tests.
+FIRST = ("notebook kernel", "reference captures")
+
+
 def pytest_collection_modifyitems(config, items):
-    """Under pytest-xdist the executed notebooks, the longest single tests (20-50 s each on a quiet machine), are
-    handed out first (in collection order): the tail of the run is then many short tests, not one worker finishing
-    a notebook while the other idles. The order within each group stays the collection order."""
+    """Under pytest-xdist the longest units of work are handed out first (the groups of :data:`FIRST`, then the
+    other groups of :data:`XDIST_GROUPS`, in collection order): the tail of the run is then many short tests, not
+    one worker finishing the notebooks while the other idles. The order within each group stays the collection
+    order."""
     if _xdist_worker():  # (collection runs on the workers, where xdist sets numprocesses to None)
-        items.sort(key=lambda item: not item.nodeid.startswith("tests/test_notebooks.py::test_notebook_executes"))
+        def rank(item) -> int:
+            group = _group(item.nodeid)
+            return FIRST.index(group) if group in FIRST else len(FIRST) + (group is None)
+
+        items.sort(key=rank)
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -152,17 +172,19 @@ def export_once(onnx_cache):
     """``export_once(model)``: the path of ``model``'s ONNX graph (1 channel, default opset), exported once per
     session for each rig, range and options, under the name and in the directory where
     :func:`~prismstereo.export.cached_graphs` looks for it (:func:`~prismstereo.export.cache_path`, the key of the
-    model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export. A file lock
-    per graph makes a second xdist worker wait for the first one's export instead of exporting it again; the
-    graph appears under its name only once complete (atomic rename, as in ``export_cached``)."""
+    model): tests that check the same graph, and the CLI's ``--backend onnx``, share one export;
+    ``export_once(model, temporal=options)``: the graph of the model's temporal band, where
+    :func:`~prismstereo.export.cached_graphs` keeps it (an ONNX predictor of the session's cache shares it too). A
+    file lock per graph makes a second xdist worker wait for the first one's export instead of exporting it again;
+    the graph appears under its name only once complete (atomic rename, as in ``export_cached``)."""
     from prismstereo.export import cache_path, export_cached
 
-    def export(model) -> Path:
-        path = cache_path(model, cache_dir=onnx_cache / "onnx")
+    def export(model, temporal=None) -> Path:
+        path = cache_path(model, temporal=temporal, cache_dir=onnx_cache / "onnx")
         if not path.is_file():
             path.parent.mkdir(parents=True, exist_ok=True)
             with FileLock(path.with_suffix(".lock")):
-                export_cached(model.eval(), path)
+                export_cached(model.eval(), path, temporal=None if temporal is None else model.tracker(temporal))
         return path
 
     return export

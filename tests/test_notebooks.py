@@ -23,13 +23,13 @@ def test_notebooks_exist():
 
 @pytest.fixture(scope="module")
 def kernel():
-    """One kernel per test process for all the notebooks it runs, each notebook after ``%reset -f`` (an empty
-    namespace: a name a notebook uses without defining or importing it still fails), so that the imports and
-    the library's first-call work are paid once per process, not once per notebook. The kernel runs from
-    notebooks/, so relative paths (e.g. ../../shared/data) resolve as they do for a reader, and inherits this
-    process' environment (PYTHONPATH included) with the notebooks' reduced runs: smaller sensors, fewer views,
-    frames, timing runs and training steps (the same calls on less data; a reader's run keeps the sizes its
-    stored outputs show)."""
+    """One kernel for all the notebooks (under pytest-xdist they run on one worker: tests/conftest.py's
+    XDIST_GROUPS), each notebook after ``%reset -f`` (an empty namespace: a name a notebook uses without defining
+    or importing it still fails), so that the imports and the library's first-call work are paid once, not once
+    per notebook. The kernel runs from notebooks/, so relative paths (e.g. ../../shared/data) resolve as they do
+    for a reader, and inherits this process' environment (PYTHONPATH included) with the notebooks' reduced runs:
+    smaller sensors, fewer views, frames, timing runs and training steps, one of several like inputs (the same
+    calls on less data; a reader's run keeps the sizes and inputs its stored outputs show)."""
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("PRISMSTEREO_NOTEBOOK_QUICK", "1")
         manager = KernelManager(kernel_name="python3")

@@ -81,11 +81,11 @@ def test_a_predictor_pickles_as_what_it_runs_and_opens_its_own_sessions(model, i
     assert eager.threads == 1 and torch.equal(eager.depth(image).depth, Predictor(model).depth(image).depth)
 
 
-def test_deployed_graph_files_run_behind_the_same_calls(model, image, tmp_path):
-    from prismstereo.export import export_onnx
-
-    path = export_onnx(model, tmp_path / "m.onnx")
-    band = export_onnx(model, tmp_path / "t.onnx", temporal=TemporalOptions())
+def test_deployed_graph_files_run_behind_the_same_calls(model, image, export_once):
+    # graph files as export_onnx writes them: the session's exports of the model and its band (the graphs the ONNX
+    # predictor of test_torch_and_onnx_predictors_answer_the_same_calls_alike runs, exported once for both)
+    path = export_once(model)
+    band = export_once(model, temporal=TemporalOptions(band=2))
     files = Predictor.from_graphs(path, band, threads=1)
     assert files.temporal is not None and "input (B, 1, 96, 128)" in files.summary
     res = files.depth(image)

@@ -1,3 +1,4 @@
+import functools
 import json
 
 import numpy as np
@@ -6,16 +7,29 @@ import torch
 
 from prismstereo import PRESETS, OptionError, PrismStereo, StereoConfig, preset, thesis_setup1
 from prismstereo.classical.config import as_config
+from prismstereo.classical.defaults import resolve_config
 from prismstereo.cli import main
 
 RIG = thesis_setup1().downscaled(2)  # 512 x 384: coarse-to-fine by default (the dense output needs it)
 Z = (400.0, 900.0)
 
 
+@functools.cache
+def _preset_model(name: str) -> PrismStereo:
+    """The model of a preset, by its name, built once for the module's tests (0.5-0.9 s each on this sensor; the
+    tests only read it and run it). The module's tests run on one xdist worker (tests/conftest.py: XDIST_GROUPS)."""
+    return PrismStereo(RIG, Z, name)
+
+
+# A model's resolved options (``model.resolved``) are ``resolve_config(rig, z_range, as_config(config))`` of what it
+# was built with: another form of the same config is compared with a built model through resolve_config, without
+# building a model of each form.
+
+
 def test_default_config_is_the_models_default():
     default = PrismStereo(RIG, Z).resolved
     assert as_config(None) == as_config("accurate") == StereoConfig()
-    assert PrismStereo(RIG, Z, "accurate").resolved == PrismStereo(RIG, Z, StereoConfig()).resolved == default
+    assert _preset_model("accurate").resolved == resolve_config(RIG, Z, StereoConfig()) == default
     # every option of every level is set (None only where it means "off")
     for level in default.levels:
         unset = {k for k, v in level.to_options().items() if v is None}
@@ -24,20 +38,20 @@ def test_default_config_is_the_models_default():
 
 @pytest.mark.parametrize("name", list(PRESETS))
 def test_presets_build_the_model_of_their_options_and_round_trip(name, tmp_path):
-    model = PrismStereo(RIG, Z, name)
-    assert model.resolved == PrismStereo(RIG, Z, preset(name)).resolved
+    model = _preset_model(name)
+    assert model.resolved == resolve_config(RIG, Z, preset(name))
     flat = StereoConfig().with_options(**model.config.to_options())  # the flat options are a config too
-    assert PrismStereo(RIG, model.z_range, flat).resolved == model.resolved
+    assert resolve_config(RIG, model.z_range, flat) == model.resolved
     preset(name).to_json(tmp_path / "c.json")
     assert StereoConfig.from_json(tmp_path / "c.json") == preset(name)
 
 
 def test_presets_differ_where_they_say():
-    assert PrismStereo(RIG, Z, "dense").final.config.validity.dense
-    fast = PrismStereo(RIG, Z, "fast")
+    assert _preset_model("dense").final.config.validity.dense
+    fast = _preset_model("fast")
     assert fast.downsample == 2 and fast.binned is not None and fast.final.band == 1
     assert fast.final.config.search.band_edges == "clamp"
-    reference = PrismStereo(RIG, Z, "reference")
+    reference = _preset_model("reference")
     assert reference.final.factor == 1 and reference.binned is None and reference.downsample == 1
     image = torch.rand(1, 1, 384, 512, generator=torch.Generator().manual_seed(0))
     assert fast(image).depth.shape == (1, 1, 384, RIG.reference_width)

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from prismstereo import OptionError, PrismStereo, RigError, ShapeError, thesis_setup1, thesis_setup2
-from prismstereo.classical.defaults import default_coarse_factor, pyramid_coarse_factor
+from prismstereo.classical.defaults import default_coarse_factor, pyramid_coarse_factor, resolve_config
 from prismstereo.conventions import to_grey
 from prismstereo.epipolar import exact_sampling_grid
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_hypotheses
@@ -352,7 +352,7 @@ def test_downsample_matches_the_binned_capture_on_the_full_grid():
             assert torch.equal(res.match[block], ref.match * 2 + 0.5)
     rel, coverage = _errors(rig, res, cap)
     assert coverage > 0.9 and rel.median() < 0.002
-    assert PrismStereo(rig, model.z_range, model.config).downsample == 2
+    assert resolve_config(rig, model.z_range, model.config).downsample == 2  # what a model of its config resolves
     with pytest.raises(OptionError, match="downsample must be an int >= 1"):
         PrismStereo(rig, (400.0, 800.0), dict(downsample=0))
     with pytest.raises(ShapeError, match="but the rig's sensor is"):
@@ -398,7 +398,7 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
     config = model.config
     assert config.search.full_band == 2 and config.search.downsample == 2
     assert model.binned.config.search.num_hypotheses == blocks.num_hypotheses
-    assert PrismStereo(rig, model.z_range, config).resolved == model.resolved
+    assert resolve_config(rig, model.z_range, config) == model.resolved  # a model of its config: the same options
     assert blocks.config.search.full_band == 0
     with pytest.raises(OptionError, match="full_band must be an int >= 0, and > 0 only with downsample > 1"):
         PrismStereo(rig, z_range, dict(full_band=2))  # this sensor's default downsample is 1
@@ -407,7 +407,7 @@ def test_full_band_refines_the_binned_estimate_at_full_resolution():
     fast = PrismStereo(rig, z_range, dict(downsample=2, full_band=1, band_edges="clamp"))
     assert fast.binned.fine.band_edges == "clamp" and fast.final.fine.band_edges == "clamp"
     assert fast.config.search.band_edges == "clamp"
-    assert PrismStereo(rig, fast.z_range, fast.config).resolved == fast.resolved
+    assert resolve_config(rig, fast.z_range, fast.config) == fast.resolved
     assert fast.summary() == (f"2x2-binned model ({model.binned.num_hypotheses} hypotheses, rectified coarse level "
                               f"with factor {model.binned.factor} ({model.binned.search.num_hypotheses} hypotheses), "
                               f"band "

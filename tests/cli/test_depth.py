@@ -291,8 +291,8 @@ def test_export_writes_a_loadable_model(scene, tmp_path, capsys):
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(dense), "--z-range", "400", "700",
                  "--dense", "--downsample", "2", "--full-band", "1"]) == 0
     assert json.loads(OnnxDepth(dense).metadata["prismstereo.config"])["config"]["validity"]["dense"] is True
-    hybrid = tmp_path / "hybrid.onnx"
-    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(hybrid), "--z-range", "400", "700",
+    hybrid = tmp_path / "hybrid.onnx"  # the request of test_hybrid_model_from_the_cli[onnx]: one export for both
+    assert main(["export", "--rig", str(scene / "small.json"), "--out", str(hybrid), "--z-range", "400", "900",
                  "--model", "hybrid"]) == 0
     assert json.loads(OnnxDepth(hybrid).metadata["prismstereo.config"])["model"] == "HybridStereo"
     assert main(["export", "--rig", str(scene / "small.json"), "--out", str(tmp_path / "m.txt")]) == 2

@@ -48,7 +48,8 @@ def test_cached_graphs_export_once_and_serve_a_request_without_a_model(tmp_path,
     assert files == cached_graphs(model, cache_dir=tmp_path) and not files.cached and files.temporal is None
     assert files.path == cache_path(model, cache_dir=tmp_path) and len(list(tmp_path.glob("*.onnx"))) == 1
     other = PrismStereo(rig, (300.0, 900.0), {"coarse_factor": 2})
-    assert cached_graphs(other, cache_dir=tmp_path).path != files.path  # another range: another graph
+    # another range: another graph (the file cached_graphs keeps a model's graph in is its cache_path, as above)
+    assert cache_path(other, cache_dir=tmp_path) != files.path
     tracked = cached_graphs(model, temporal=TemporalOptions(), cache_dir=tmp_path)
     assert tracked.path == files.path and OnnxDepth(tracked.temporal).temporal.downsample == 1
     assert "temporal prior on sequences" in tracked.summary

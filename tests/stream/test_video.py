@@ -163,17 +163,16 @@ def test_stream_torch_and_onnx_agree_and_number_frames(clip, export_once):
     assert torch_stream.frames_per_second() > 0
 
 
-def test_temporal_streams_of_both_backends_agree(clip, tmp_path):
+def test_temporal_streams_of_both_backends_agree(clip, export_once):
     from prismstereo.classical.model import PrismStereo
     from prismstereo.classical.prior import TemporalOptions
-    from prismstereo.export import export_onnx
 
     model = PrismStereo(thesis_setup1().downscaled(8), (400.0, 700.0), {"coarse_factor": 2})
     options = TemporalOptions(band=2)
     frames = [f.image for f in read_frames(clip / "frames")]
     torch_stream = DepthStream(model, temporal=options)
-    per_frame = export_onnx(model, tmp_path / "m.onnx")
-    band = export_onnx(model, tmp_path / "t.onnx", temporal=options)
+    per_frame = export_once(model)  # graph files (shared with tests/test_predictor.py: the same model and band)
+    band = export_once(model, temporal=options)
     onnx_stream = DepthStream(Predictor.from_graphs(per_frame, band), temporal=True)
     assert torch_stream.temporal == onnx_stream.temporal == dataclasses.replace(options, downsample=1)  # resolved
     # sessions opened from paths: the temporal graph on one intra-op thread (threads.thread_plan)
