@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import torch
 
 from prismstereo.conventions import to_grey
-from prismstereo.errors import OptionError, ShapeError, check_int, check_option
+from prismstereo.errors import OptionError, check_int, check_option
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.models import DepthModel, ModelSpec
 from prismstereo.threads import thread_plan, torch_threads
@@ -283,15 +283,3 @@ class Predictor:
 
     def __repr__(self) -> str:
         return f"Predictor({self.backend}: {self.summary})"
-
-    def check_image_size(self, height: int, width: int) -> None:
-        """Raise a ShapeError unless the predictor's sensor is ``width`` x ``height`` px.
-
-        Example:
-            >>> from prismstereo.models import build_model
-            >>> Predictor(build_model(thesis_setup1().downscaled(16), z_range=(400.0, 700.0))).check_image_size(48, 64)
-        """
-        rig = self.rig
-        if (width, height) != (rig.image_width, rig.image_height):
-            raise ShapeError(f"the image is {width}x{height} px but the rig's sensor is {rig.image_width}x"
-                             f"{rig.image_height} px")

@@ -113,5 +113,3 @@ def test_predictor_errors(model, image, tmp_path):
         _ = single.graph
     with pytest.raises(ShapeError):
         Predictor(model, backend="onnx").depth(torch.rand(1, 1, 48, 64))
-    with pytest.raises(ShapeError, match="the image is 64x48 px but the rig's sensor is 128x96 px"):
-        single.check_image_size(48, 64)

@@ -36,6 +36,7 @@ class TaskReport(NamedTuple):
     model_seconds: float
     error: str | None = None
 
+
 def _prefetch(items: Iterable[Any], depth: int = 2) -> Iterator[Any]:
     """The items of ``items``, produced on a background thread up to ``depth`` ahead (decoding overlaps the
     consumer's work); an exception of the producer is raised at its position."""
