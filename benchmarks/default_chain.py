@@ -63,6 +63,7 @@ import sys, torch
 from pathlib import Path
 from prismstereo import thesis_setup1
 from prismstereo.learned import HybridStereo
+from prismstereo.threads import set_torch_threads
 
 def peak():  # this process's own high-water mark (ru_maxrss would include the parent's at the fork)
     line = next(x for x in Path("/proc/self/status").read_text().splitlines() if x.startswith("VmHWM"))

@@ -477,6 +477,7 @@ import numpy as np
 import torch
 from prismstereo import thesis_setup1
 from prismstereo.classical.model import PrismStereo
+from prismstereo.threads import set_torch_threads
 out = {"imports": hwm()}
 set_torch_threads(2)
 image = torch.from_numpy(np.load(sys.argv[2]))

@@ -108,3 +108,42 @@ def test_default_chain_score_counts_valid_and_dense_pixels():
     assert r["dense"] == pytest.approx(100 * 8 / 9) and r["dense bad"] == pytest.approx(100 * 2 / 8)
     # the most confident first: four 500s (0.9), 501 (0.8), then 510 (0.7: 1 of 6 wrong > 3 %): 5 of 9 kept
     assert r["@3"] == pytest.approx(100 * 5 / 9)
+
+
+def _code_strings(path: Path) -> dict[str, str]:
+    """The module-level string constants of a benchmark that are Python programs (run as ``python -c CODE`` in a
+    fresh process, so the script's own imports do not reach them), concatenations included."""
+    import ast
+
+    values: dict[str, str] = {}
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            try:
+                value = eval(compile(ast.Expression(node.value), str(path), "eval"), {"__builtins__": {}}, values)
+            except Exception:  # not a constant expression of strings
+                continue
+            if isinstance(value, str):
+                values[node.targets[0].id] = value
+    programs = {}
+    for name, value in values.items():
+        try:
+            ast.parse(value)
+        except SyntaxError:
+            continue
+        if "import " in value:
+            programs[name] = value
+    return programs
+
+
+def test_subprocess_programs_of_the_benchmarks_define_every_name():
+    """Every ``python -c`` program of a benchmark imports what it calls (ruff's undefined-name rule, F821)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1] / "benchmarks"
+    programs = {f"{path.name}:{name}": code for path in sorted(root.glob("*.py"))
+                for name, code in _code_strings(path).items()}
+    assert {"default_chain.py:MEMORY", "onnx_speed.py:TORCH_RSS", "onnx_speed.py:ORT_RSS"} <= set(programs)
+    for where, code in programs.items():
+        run = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "--isolated", "--select", "F821",
+                              "--stdin-filename", "program.py", "-"], input=code, capture_output=True, text=True)
+        assert run.returncode == 0, f"{where}: {run.stdout}{run.stderr}"
