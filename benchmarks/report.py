@@ -76,6 +76,12 @@ BENCHMARKS: dict[str, Benchmark] = {
         "Untrained candidate refinement stages (warp + dilated 3 x 3 CNN) at 1/2 and full resolution beside the "
         "classical block mode in onnxruntime, against StereoSGBM in the same interleaved rounds, 1024 x 768: which "
         "stage sizes keep the chain within 0.8x SGBM."),
+    "learned_start": Benchmark(
+        "learned_start.py", (), "The learned first stage against the classical block level",
+        "Where each first stage leaves the hybrid's refinement on held-out photographs as surfaces and a weakly "
+        "textured surface (1024 x 768, 228-1374 mm): the share of reliable co-visible blocks on the 4 x 4-binned grid "
+        "whose start is within 1, 2 (the refinement's cost curve) and 4 steps of the truth; then each one's exported "
+        "graph against StereoSGBM in the same interleaved rounds."),
     "default_chain": Benchmark(
         "default_chain.py", ("--plot", "docs/frontier.png"), "One dense, exact and fast default: every chain",
         "Photographs as surfaces (Tsukuba, Venus, Motorcycle), textured planes through both setups, weak texture and "

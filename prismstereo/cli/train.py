@@ -5,7 +5,9 @@ Contract::
 
     prismstereo train --rig RIG.json|PRESET --out WEIGHTS.pt [--steps N] [--seed S] [--z-range ZMIN ZMAX]
         [--cache DIR] [--batch-size B] [--captures N] [--downscale K] [--hypotheses D] [--quiet]
-    prismstereo train --model hybrid --out WEIGHTS.pt [--steps N] [--seed S] [--cache DIR] [--batch-size B]
+    prismstereo train --model hybrid --out WEIGHTS.pt [--start classical|learned] [--steps N] [--seed S]
+        [--cache DIR] [--batch-size B] [--captures N] [--quiet]
+    prismstereo train --model start --out WEIGHTS.pt [--steps N] [--seed S] [--cache DIR] [--batch-size B]
         [--captures N] [--quiet]
 
 ``--model learned`` (the default) renders ``--captures`` random scenes through the rig binned by ``--downscale``
@@ -13,11 +15,13 @@ Contract::
 and writes ``--out``. ``--model hybrid`` renders ``--captures`` scenes through each of the training rig variants
 (:func:`~prismstereo.learned.hybrid_data.training_rigs`), trains the refinement of
 :class:`~prismstereo.learned.hybrid.HybridStereo` (:func:`~prismstereo.learned.hybrid_train.train_hybrid`) and writes
-``--out``; it keeps a checkpoint beside ``--out`` and the same command resumes from it. The shipped default weights
+``--out``; it keeps a checkpoint beside ``--out`` and the same command resumes from it; ``--start learned`` refines
+the learned first stage's estimate instead of the classical block level's. ``--model start`` trains that first stage
+(:func:`~prismstereo.learned.start_train.train_start`) on the same renders, resumable too. The shipped default weights
 are only replaced when ``--out`` names them. Prints the loss at the start and end and the time. Errors exit with
 status 2 and a message: an unknown preset or bad rig file, an output that is not a ``.pt`` file, a bad range or
 count, a missing ``--rig`` for the learned model, ``--rig`` / ``--z-range`` / ``--downscale`` / ``--hypotheses``
-with the hybrid.
+with the hybrid or the start, ``--start`` with another model than the hybrid.
 """
 
 from __future__ import annotations
@@ -51,18 +55,27 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 def _train(args: argparse.Namespace, out: Path):
     """The model's trainer with the flags' options (its TrainResult)."""
-    if args.model == "hybrid":
-        from prismstereo.learned.hybrid_train import train_hybrid
-
+    if args.start is not None and args.model != "hybrid":
+        raise OptionError("--start applies to --model hybrid only")
+    if args.model in ("hybrid", "start"):
         learned_only = [flag for flag, value in (("--rig", args.rig), ("--z-range", args.z_range),
                                                  ("--downscale", args.downscale), ("--hypotheses", args.hypotheses))
                         if value is not None]
         if learned_only:
-            raise OptionError(f"{', '.join(learned_only)} apply to --model learned only (the hybrid trains on the "
-                              "rig variants of prismstereo.learned.hybrid_data.training_rigs)")
+            raise OptionError(f"{', '.join(learned_only)} apply to --model learned only (the {args.model} trains on "
+                              "the rig variants of prismstereo.learned.hybrid_data.training_rigs)")
+    if args.model == "start":
+        from prismstereo.learned.start_train import train_start
+
+        return train_start(out, steps=_or(args.steps, 3000), seed=args.seed, batch_size=_or(args.batch_size, 2),
+                           captures=_or(args.captures, 24), cache=args.cache, progress=not args.quiet)
+    if args.model == "hybrid":
+        from prismstereo.learned.hybrid_train import train_hybrid
+        from prismstereo.learned.refinement import HybridArchitecture
 
         return train_hybrid(out, steps=_or(args.steps, 6000), seed=args.seed, batch_size=_or(args.batch_size, 8),
-                            captures=_or(args.captures, 24), cache=args.cache, progress=not args.quiet)
+                            captures=_or(args.captures, 24), cache=args.cache, progress=not args.quiet,
+                            architecture=HybridArchitecture(start=args.start or "classical"))
     from prismstereo.geometry.presets import load_rig
     from prismstereo.learned.train import train
 
@@ -85,18 +98,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                      "--rig) or of HybridStereo (--model hybrid: through the training rig variants, "
                                      "resumable) on them on the CPU and write a weights file for "
                                      "prismstereo.learned.LearnedStereo / HybridStereo(weights=...).")
-    cmd.add_argument("--model", choices=("learned", "hybrid"), default="learned",
+    cmd.add_argument("--model", choices=("learned", "hybrid", "start"), default="learned",
                      help="learned: LearnedStereo on one rig (default); hybrid: HybridStereo's refinement on the "
-                          "training rig variants, resumable")
+                          "training rig variants, resumable; start: the hybrid's learned first stage, same renders")
+    cmd.add_argument("--start", choices=("classical", "learned"), default=None,
+                     help="what the hybrid's refinement starts from (default classical; --model hybrid)")
     cmd.add_argument("--rig", default=None, help="rig JSON file or preset name (--model learned)")
     cmd.add_argument("--out", required=True, help="weights file to write (.pt)")
-    cmd.add_argument("--steps", type=int, default=None, help="optimiser steps (default 900; hybrid 6000)")
+    cmd.add_argument("--steps", type=int, default=None, help="optimiser steps (default 900; hybrid 6000; start 3000)")
     cmd.add_argument("--seed", type=int, default=0, help="seed of the renders, the initialisation and the data order")
     cmd.add_argument("--z-range", type=float, nargs=2, default=None, metavar=("ZMIN", "ZMAX"),
                      help="depths rendered and searched (mm, default 450 1000; --model learned)")
     cmd.add_argument("--cache", default=None, metavar="DIR", help="keep the rendered captures here")
     cmd.add_argument("--batch-size", type=int, default=None,
-                     help="captures per step (default 4; hybrid 8)")
+                     help="captures per step (default 4; hybrid 8; start 2)")
     cmd.add_argument("--captures", type=int, default=None,
                      help="captures rendered (default 80; hybrid: per rig variant, 24)")
     cmd.add_argument("--downscale", type=int, default=None,

@@ -44,6 +44,7 @@ from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.network import normalise_image
 from prismstereo.learned.refinement import HybridArchitecture, RefinementCNN
+from prismstereo.learned.sweep_start import SweepStart, load_start
 from prismstereo.learned.weights import WeightsError, read_weights, write_weights
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.band import extend_estimate
@@ -149,12 +150,16 @@ class HybridStereo(nn.Module):
         self.classical = PrismStereo(rig, z, classical_config(k))
         self.stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.iterations)])
         self.quarter_stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.quarter)])
+        # the learned first stage: the shipped one unless the weights file holds its own
+        self.start: SweepStart | None = load_start(rig, z) if arch.start == "learned" else None
         if state is not None:
             try:
                 self.stages.load_state_dict({k[5:]: v for k, v in state.items() if k.startswith("half.")})
                 self.quarter_stages.load_state_dict({k[8:]: v for k, v in state.items() if k.startswith("quarter.")})
             except RuntimeError as exc:
                 raise WeightsError(f"weights do not fit the architecture {arch}: {exc}") from exc
+            if self.start is not None and any(k.startswith("start.") for k in state):
+                self.start.load_weights({k[6:]: v for k, v in state.items() if k.startswith("start.")})
         self.rig = rig
         self.half = half = rig.binned(2)
         z = self.classical.z_range
@@ -166,6 +171,7 @@ class HybridStereo(nn.Module):
         coefficients = sweep_coefficients(fit_sweep(half, z), torch.stack([u, v], -1)).permute(2, 3, 0, 1)
         self.register_buffer("coefficients", coefficients.to(torch.get_default_dtype()), persistent=False)
         quarter = rig.binned(4)
+        self.quarter_size = (quarter.image_height, quarter.reference_width)
         self.quarter_step = 2.0 / (default_hypotheses(quarter, z) - 1)
         quarter_coefficients = torch.zeros(0)
         if arch.quarter:
@@ -209,8 +215,9 @@ class HybridStereo(nn.Module):
 
     def weights(self) -> dict[str, torch.Tensor]:
         """The learned tensors (what a weights file holds): ``half.*`` and ``quarter.*`` stages."""
+        start = {} if self.start is None else {f"start.{k}": v for k, v in self.start.weights().items()}
         return {**{f"half.{k}": v for k, v in self.stages.state_dict().items()},
-                **{f"quarter.{k}": v for k, v in self.quarter_stages.state_dict().items()}}
+                **{f"quarter.{k}": v for k, v in self.quarter_stages.state_dict().items()}, **start}
 
     def describe(self) -> dict[str, Any]:
         """What the model is, JSON-ready (the ONNX export's metadata and cache key).
@@ -238,7 +245,9 @@ class HybridStereo(nn.Module):
         a = self.architecture
         count = sum(v.numel() for v in self.weights().values())
         quarter = f"{a.quarter} at 1/4 and " if a.quarter else ""
-        return (f"hybrid: classical block level ({self.classical.summary()}), then learned 2-D stages: "
+        first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/8)" if self.start is not None
+                 else f"classical block level ({self.classical.summary()})")
+        return (f"hybrid: {first}, then learned 2-D stages: "
                 f"{quarter}{a.iterations} at 1/2 ({a.layers} x {a.channels} ch, {count} parameters)")
 
     def save(self, path: str | Path, **metadata: Any) -> Path:
@@ -266,10 +275,16 @@ class HybridStereo(nn.Module):
             torch.Size([1, 1, 48, 32])
         """
         k = self.architecture.block
+        image = normalise_image(grey)
         with torch.no_grad():
+            if self.start is not None:  # the learned first stage on 8 x 8 bins, carried to the 4 x 4 grid
+                out = self.start(image)
+                s, confidence, covered = upsample(torch.cat([out.s, out.confidence, out.covered], 1), 2,
+                                                  self.quarter_size, mode="bilinear").split(1, 1)
+                return RefinementInputs(image, s, confidence, (covered > 0.5).to(grey.dtype))
             block = self.classical.block_estimate(grey if k == 2 else F.avg_pool2d(grey, k // 2))
             s = extend_estimate(block.s, block.covered, FILL_RADIUS).s
-        return RefinementInputs(normalise_image(grey), s, block.confidence, block.covered.to(grey.dtype))
+        return RefinementInputs(image, s, block.confidence, block.covered.to(grey.dtype))
 
     def _check(self, image: torch.Tensor) -> None:
         check_shape(image, ["B", "C", "H", "W"], "image")

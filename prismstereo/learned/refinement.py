@@ -15,7 +15,10 @@ from torch import nn
 
 from prismstereo.errors import OptionError
 
-__all__ = ["DILATIONS", "HybridArchitecture", "RefinementCNN"]
+__all__ = ["DILATIONS", "STARTS", "HybridArchitecture", "RefinementCNN"]
+
+STARTS = ("classical", "learned")
+"""What the refinement stages start from (:attr:`HybridArchitecture.start`)."""
 
 DILATIONS = (1, 2, 4, 8, 1, 1, 1, 1)
 """The dilations of a CNN's 3 x 3 convolutions, layer by layer (the receptive field doubles over the first four)."""
@@ -33,6 +36,8 @@ class HybridArchitecture:
         iterations: refinement stages at 1/2, each with its own CNN.
         quarter: refinement stages at 1/4 before them (block 4 only: on the classical level's own grid, with twice
             the reach per layer).
+        start: what the stages start from: ``'classical'`` (the classical block level) or ``'learned'`` (the learned
+            first stage, :class:`~prismstereo.learned.sweep_start.SweepStart`, on 8 x 8 bins; block 4 only).
 
     Example:
         >>> HybridArchitecture().block, HybridArchitecture(offsets=1).inputs
@@ -45,6 +50,7 @@ class HybridArchitecture:
     offsets: int = 2
     iterations: int = 1
     quarter: int = 1
+    start: str = "classical"
 
     def __post_init__(self) -> None:
         if self.block not in (2, 4):
@@ -54,6 +60,10 @@ class HybridArchitecture:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise OptionError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+        if self.start not in STARTS:
+            raise OptionError(f"Unknown start {self.start!r}. Choose from: {', '.join(STARTS)}")
+        if self.start == "learned" and self.block != 4:
+            raise OptionError(f"the learned start needs block 4, got block {self.block}")
         if self.quarter and self.block != 4:
             raise OptionError(f"quarter stages need block 4 (the classical level's grid), got block {self.block}")
 

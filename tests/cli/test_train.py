@@ -26,9 +26,38 @@ def test_cli_train(tmp_path, capsys):
     (["--rig", "no_such_rig", "--out", "w.pt"], "no_such_rig"),
     (["--rig", "thesis_setup1", "--out", "w.onnx"], "must be a .pt file"),
     (["--rig", "thesis_setup1", "--out", "w.pt", "--z-range", "900", "400"], "increasing"),
+    (["--rig", "thesis_setup1", "--out", "w.pt", "--start", "learned"], "--start applies to --model hybrid only"),
+    (["--model", "start", "--rig", "thesis_setup1", "--out", "w.pt"], "--rig apply to --model learned only (the start"),
 ])
 def test_cli_train_errors(tmp_path, capsys, args, message):
     args = [str(tmp_path / a) if a.startswith("w.") else a for a in args]
     assert main(["train", *args, "--quiet"]) == 2
     assert message in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(("model", "function"), [("start", "train_start"), ("hybrid", "train_hybrid")])
+def test_cli_trains_the_hybrid_and_its_first_stage_with_their_options(tmp_path, monkeypatch, capsys, model, function):
+    """The flags reach the trainer (its renders are tested in tests/learned: seven 1024 x 768 rig variants here would
+    take minutes)."""
+    import torch
+
+    import prismstereo.learned.hybrid_train as hybrid_train
+    import prismstereo.learned.start_train as start_train
+    from prismstereo.learned.train import TrainResult
+
+    seen = {}
+
+    def fake(out, **options):
+        seen.update(options)
+        return TrainResult(torch.zeros(3), 1.0, out)
+
+    monkeypatch.setattr(start_train if model == "start" else hybrid_train, function, fake)
+    extra = ["--start", "learned"] if model == "hybrid" else []
+    assert main(["train", "--model", model, "--out", str(tmp_path / "w.pt"), "--steps", "7", "--captures", "3",
+                 "--cache", str(tmp_path), "--quiet", *extra]) == 0
+    assert (seen["steps"], seen["captures"], seen["cache"], seen["progress"]) == (7, 3, str(tmp_path), False)
+    assert seen["batch_size"] == (2 if model == "start" else 8)
+    if model == "hybrid":
+        assert seen["architecture"].start == "learned"
+    assert "trained 3 steps" in capsys.readouterr().out

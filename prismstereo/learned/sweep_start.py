@@ -1,0 +1,280 @@
+"""The learned first stage: learned features correlated along the exact sweep over the whole range at 1/8, aggregated
+by 2-D convolutions, so that a match is found where fixed windows fail (weak texture, brightness changes, repeated
+patterns).
+
+Data path (one capture; h, w the reference half binned 8 x 8, D hypotheses):
+
+1. a small CNN on the normalised 2 x 2-binned capture (:func:`~prismstereo.learned.network.normalise_image`, both
+   halves side by side) down to 1/8 of the sensor: two convolutions of kernel 4, stride 2 and padding 1 (feature
+   pixel j centred on sensor pixel 8 j + 7/2, the ray of the 8 x 8-binned rig's pixel j), C channels;
+2. :class:`~prismstereo.nn.PrismCostVolume` with G groups on the exact sweep of the rig binned by 8 (thesis eq.
+   3.1-3.10 traced, the virtual epipolar curve of eq. 4.1-4.10 exactly): (B, G, D, h, w), D hypotheses uniform in the
+   sweep coordinate s (linear in 1/Z) with neighbours <= 1 px apart at 1/8 on every pixel
+   (:func:`~prismstereo.classical.defaults.default_hypotheses` of the binned rig), so the range and rig set D;
+3. aggregation by 2-D convolutions shared by every hypothesis (a 3 x 3 one with the reference features' context
+   added, a 1 x 1 mix of each hypothesis with its two neighbours, a dilated 3 x 3 one and a 3 x 3 head), so the
+   weights do not depend on D: any range, any rig;
+4. a softmax over the hypotheses, and the expected s within :attr:`StartArchitecture.window` hypotheses of the best
+   one (a multi-modal curve is not averaged across its modes); the probability mass in that window is the
+   confidence.
+
+The estimate starts :class:`~prismstereo.learned.hybrid.HybridStereo`'s refinement stages in place of the classical
+block level (:meth:`SweepStart.estimate`). Training: :mod:`prismstereo.learned.start_train`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from prismstereo.classical.defaults import default_hypotheses
+from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.geometry.optics import check_rig_images
+from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.nn import PrismCostVolume
+
+__all__ = ["LEARNED", "SCALE", "START_FORMAT", "START_WEIGHTS", "StartArchitecture", "StartEstimate", "SweepStart",
+           "load_start", "windowed_expectation"]
+
+START_WEIGHTS = Path(__file__).resolve().parent / "weights" / "start.pt"
+"""The shipped first stage (:mod:`prismstereo.learned.start_train` says how it was trained)."""
+START_FORMAT = "prismstereo.start/1"
+SCALE = 8
+"""The first stage's resolution: features and hypotheses on the sensor binned 8 x 8."""
+LEARNED = ("features", "context", "first", "mix", "dilated", "head")
+"""The learned layers (what a weights file holds; the volume and masks are built from the rig and range)."""
+MASKED = 1e4  # subtracted from the score of a hypothesis that does not sample the other half
+
+
+@dataclasses.dataclass(frozen=True)
+class StartArchitecture:
+    """The hyper-parameters that shape the first stage's weights (stored beside them).
+
+    Attributes:
+        features: C, channels of the correlated feature map.
+        groups: G correlation groups (C must be a multiple of G).
+        channels: A, channels of the aggregation's 2-D convolutions.
+        window: hypotheses on each side of the best one that the expected s is taken over.
+
+    Raises:
+        OptionError: a value out of its range, or C not a multiple of G.
+
+    Example:
+        >>> StartArchitecture().features, StartArchitecture(groups=8).groups
+        (16, 8)
+    """
+
+    features: int = 16
+    groups: int = 4
+    channels: int = 8
+    window: int = 2
+
+    def __post_init__(self) -> None:
+        for name, low, high in (("features", 1, 128), ("groups", 1, 128), ("channels", 1, 64), ("window", 1, 8)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise OptionError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+        if self.features % self.groups:
+            raise OptionError(f"features ({self.features}) must be a multiple of groups ({self.groups})")
+
+
+class StartEstimate(NamedTuple):
+    """The first stage's estimate on the 8 x 8-binned reference grid (h, w).
+
+    Attributes:
+        s: (B, 1, h, w) sweep coordinate in [-1, 1] (0 where no hypothesis is valid).
+        confidence: (B, 1, h, w) the probability mass within the window around the best hypothesis (0 where not
+            ``covered``).
+        covered: (B, 1, h, w) 1 where at least one hypothesis samples the other half, else 0 (in ``s``'s dtype).
+        scores: (B, D, h, w) the aggregated scores (training's classification target is on them); invalid
+            hypotheses lowered by 1e4.
+    """
+
+    s: torch.Tensor
+    confidence: torch.Tensor
+    covered: torch.Tensor
+    scores: torch.Tensor
+
+
+def _conv3(cin: int, cout: int, stride: int = 1, dilation: int = 1) -> nn.Conv2d:
+    if stride == 2:  # kernel 4, padding 1: output pixel j centred on input 2 j + 1/2
+        return nn.Conv2d(cin, cout, 4, 2, padding=1)
+    return nn.Conv2d(cin, cout, 3, padding=dilation, dilation=dilation)
+
+
+def _feature_net(features: int) -> nn.Sequential:
+    """2 x 2-binned normalised capture (B, 2, H/2, W/2) -> (B, C, H/8, W/8)."""
+    return nn.Sequential(_conv3(2, 8, 2), nn.ReLU(), _conv3(8, 16), nn.ReLU(),
+                         _conv3(16, 24, 2), nn.ReLU(), _conv3(24, 24), nn.ReLU(), _conv3(24, 24, dilation=2),
+                         nn.ReLU(), nn.Conv2d(24, features, 1))
+
+
+class SweepStart(nn.Module):
+    """The learned first stage of a rig and range (module docstring).
+
+    Args:
+        rig: the full-resolution rig; its sensor size must be divisible by 8.
+        z_range: (z_min, z_max) searched, mm.
+        architecture: the hyper-parameters (default :class:`StartArchitecture` ()).
+
+    Attributes:
+        volume: the :class:`~prismstereo.nn.PrismCostVolume` on the sensor binned by 8.
+        s_hypotheses: (D,) buffer, the hypotheses' sweep coordinates.
+
+    Raises:
+        OptionError: a sensor 8 does not divide, or a rig that is not a BiPrismRig. RigError: bad rig or range.
+
+    Example:
+        >>> start = SweepStart(thesis_setup1().downscaled(2), (450.0, 1000.0))
+        >>> out = start(torch.randn(1, 2, 192, 256))
+        >>> out.s.shape, out.scores.shape[1] == start.num_hypotheses
+        (torch.Size([1, 1, 48, 32]), True)
+    """
+
+    s_hypotheses: torch.Tensor
+
+    def __init__(self, rig: BiPrismRig, z_range: tuple[float, float], *,
+                 architecture: StartArchitecture | None = None) -> None:
+        super().__init__()
+        if not isinstance(rig, BiPrismRig):
+            raise OptionError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
+        check_rig_images(rig)
+        if rig.image_width % SCALE or rig.image_height % SCALE:
+            raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by {SCALE}")
+        self.architecture = arch = architecture or StartArchitecture()
+        self.rig = rig
+        self.z_range = (float(z_range[0]), float(z_range[1]))
+        d = default_hypotheses(rig.binned(SCALE), self.z_range)
+        self.volume = PrismCostVolume(rig, self.z_range, d, SCALE, groups=arch.groups)
+        self.features = _feature_net(arch.features)
+        a = arch.channels
+        self.context = nn.Conv2d(arch.features, a, 1)
+        self.first = nn.Conv2d(arch.groups, a, 3, padding=1)
+        self.mix = nn.Conv2d(3 * a, a, 1)  # each hypothesis with its two neighbours
+        self.dilated = nn.Conv2d(a, a, 3, padding=2, dilation=2)
+        self.head = nn.Conv2d(a, 1, 3, padding=1)
+        dtype = torch.get_default_dtype()
+        self.register_buffer("s_hypotheses", torch.linspace(-1.0, 1.0, d, dtype=dtype), persistent=False)
+        covered = self.volume.valid.any(0).to(dtype)
+        self.register_buffer("covered_mask", covered.view(1, 1, *covered.shape), persistent=False)
+
+    def weights(self) -> dict[str, torch.Tensor]:
+        """The learned tensors (:data:`LEARNED` layers), what a weights file holds."""
+        return {f"{name}.{k}": v for name in LEARNED for k, v in getattr(self, name).state_dict().items()}
+
+    def load_weights(self, state: dict[str, torch.Tensor]) -> None:
+        """Load :meth:`weights` of the same architecture.
+
+        Raises:
+            WeightsError: tensors that do not fit the architecture.
+        """
+        from prismstereo.learned.weights import WeightsError
+
+        for name in LEARNED:
+            part = {k[len(name) + 1:]: v for k, v in state.items() if k.startswith(f"{name}.")}
+            try:
+                getattr(self, name).load_state_dict(part)
+            except RuntimeError as exc:
+                raise WeightsError(f"weights do not fit the architecture {self.architecture}: {exc}") from exc
+
+    @property
+    def num_hypotheses(self) -> int:
+        """D, the hypotheses over the range."""
+        return self.volume.num_hypotheses
+
+    @property
+    def step(self) -> float:
+        """The sweep coordinate between neighbouring hypotheses."""
+        return 2.0 / (self.num_hypotheses - 1)
+
+    def scores(self, image: torch.Tensor) -> torch.Tensor:
+        """Steps 1-3: (B, D, h, w) aggregated scores of the normalised binned capture ``image`` (B, 2, H/2, W/2);
+        hypotheses that do not sample the other half lowered by 1e4."""
+        check_shape(image, ["B", 2, "H", "W"], "image")
+        rig = self.rig
+        if tuple(image.shape[-2:]) != (rig.image_height // 2, rig.image_width // 2):
+            raise ShapeError(f"image must be the normalised 2 x 2-binned capture (B, 2, {rig.image_height // 2}, "
+                             f"{rig.image_width // 2}), got {tuple(image.shape)}")
+        features = self.features(image)
+        cost = self.volume(features)  # (B, G, D, h, w), or (B, D, h, w) with one group
+        if cost.dim() == 4:
+            cost = cost.unsqueeze(1)
+        b, g, d, h, w = cost.shape
+        a = self.architecture.channels
+        # 2-D convolutions on every hypothesis at once: (B D, channels, h, w)
+        x = self.first(cost.transpose(1, 2).reshape(b * d, g, h, w)).view(b, d, a, h, w)
+        context = self.context(features[..., :self.volume.reference_width]).unsqueeze(1)
+        x = F.relu(x + context)
+        zero = torch.zeros_like(x[:, :1])
+        neighbours = torch.cat([torch.cat([zero, x[:, :-1]], 1), x, torch.cat([x[:, 1:], zero], 1)], 2)
+        x = F.relu(self.mix(neighbours.view(b * d, 3 * a, h, w)))
+        x = F.relu(self.dilated(x))
+        valid = self.volume.valid.to(x.dtype)
+        return self.head(x).view(b, d, h, w) - (1.0 - valid) * MASKED
+
+    def forward(self, image: torch.Tensor) -> StartEstimate:
+        """The estimate of the normalised 2 x 2-binned capture ``image`` (B, 2, H/2, W/2) (step 4).
+
+        Returns:
+            :class:`StartEstimate` on the 8 x 8-binned reference grid.
+
+        Raises:
+            ShapeError: an image that is not (B, 2, H/2, W/2) of the rig's sensor.
+        """
+        scores = self.scores(image)
+        s, mass = windowed_expectation(scores, self.s_hypotheses, self.architecture.window)
+        covered = self.covered_mask.to(scores.dtype).expand(scores.shape[0], -1, -1, -1)
+        return StartEstimate(s * covered, mass * covered, covered, scores)
+
+
+def windowed_expectation(scores: torch.Tensor, values: torch.Tensor, window: int
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The expectation of ``values`` under the softmax of ``scores`` over axis 1, restricted to the ``window``
+    hypotheses on each side of the best one, and the probability mass there.
+
+    Args:
+        scores: (B, D, h, w).
+        values: (D,) the hypotheses' values.
+        window: hypotheses on each side.
+
+    Returns:
+        (value, mass): (B, 1, h, w) each.
+
+    Example:
+        >>> scores = torch.tensor([0.0, 5.0, 0.0, 0.0, 4.9]).view(1, 5, 1, 1)  # two modes
+        >>> value, mass = windowed_expectation(scores, torch.arange(5.0), 1)
+        >>> round(float(value), 3), round(float(mass), 3)  # the stronger mode's, not the mean of both
+        (1.0, 0.526)
+    """
+    p = torch.softmax(scores, 1)
+    index = torch.arange(scores.shape[1], dtype=scores.dtype, device=scores.device).view(1, -1, 1, 1)
+    best = scores.argmax(1, keepdim=True).to(scores.dtype)
+    q = p * ((index - best).abs() <= window).to(p.dtype)
+    mass = q.sum(1, keepdim=True)
+    value = (q * values.to(p.dtype).view(1, -1, 1, 1)).sum(1, keepdim=True) / mass.clamp_min(1e-12)
+    return value, mass
+
+
+def load_start(rig: BiPrismRig, z_range: tuple[float, float], path: str | Path = START_WEIGHTS) -> SweepStart:
+    """A :class:`SweepStart` of ``rig`` and ``z_range`` with the weights of ``path`` (written by
+    :func:`~prismstereo.learned.start_train.train_start`).
+
+    Raises:
+        WeightsError: a file that cannot be read or does not fit.
+
+    Example:
+        >>> start = load_start(thesis_setup1(), (228.0, 1374.0))
+        >>> start.num_hypotheses
+        49
+    """
+    from prismstereo.learned.weights import read_weights
+
+    arch, state, _ = read_weights(path, START_FORMAT, StartArchitecture, "SweepStart")
+    model = SweepStart(rig, z_range, architecture=arch)
+    model.load_weights(state)
+    return model
