@@ -8,7 +8,7 @@ brightness and contrast is jittered again (x 0.8-1.25, +- 0.05) before the norma
 grid is the mean of the 4 x 4 blocks of the 2 x 2-binned truth, known where all 16 are known and agree within half a
 hypothesis. Loss on the known pixels whose two hypotheses around the truth both sample the other half: the
 cross-entropy of the softmax over the hypotheses against those two (weights linear in the distance), plus 0.3 times
-the smooth L1 of the windowed expectation in hypothesis steps. Adam, warm-up then cosine learning rate, gradients
+the smooth L1 of the windowed expectation, in hypotheses. Adam, warm-up then cosine learning rate, gradients
 clipped at 1.
 
 A checkpoint (``<out>.ckpt``) is written every ``checkpoint_every`` steps; a run started again with the same options
@@ -128,16 +128,17 @@ def start_loss(model: SweepStart, image: torch.Tensor, truth: torch.Tensor, know
     """
     scores = model.scores(image)
     d = scores.shape[1]
-    position = ((truth + 1.0) / model.step).clamp(0, d - 1)  # fractional hypothesis index
+    position, known = model.truth_index(truth, known)  # fractional hypothesis index on the scores' grid
+    known = known & (position >= 0) & (position <= d - 1)
     index = torch.arange(d, dtype=scores.dtype).view(1, -1, 1, 1)
-    target = (1.0 - (index - position).abs()).clamp_min(0.0)  # the two neighbours, linear weights
+    target = (1.0 - (index - position.clamp(0, d - 1)).abs()).clamp_min(0.0)  # the two neighbours, linear weights
     # a truth whose neighbouring hypotheses do not both sample the other half has no score to learn from
-    sampled = (target * model.volume.valid.to(target.dtype)).sum(1, keepdim=True) > 0.999
+    sampled = (target * model.valid.to(target.dtype)).sum(1, keepdim=True) > 0.999
     known = known & sampled
     count = known.sum().clamp_min(1)
     ce = -(target * F.log_softmax(scores, 1).clamp_min(-100.0)).sum(1, keepdim=True)
-    s, _ = windowed_expectation(scores, model.s_hypotheses, model.architecture.window)
-    l1 = F.smooth_l1_loss(s / model.step, truth / model.step, reduction="none")
+    expected, _ = windowed_expectation(scores, index.flatten(), model.architecture.window)
+    l1 = F.smooth_l1_loss(expected, position, reduction="none")  # in hypotheses
     return ((ce + 0.3 * l1) * known).sum() / count
 
 

@@ -7,19 +7,21 @@ Data path (one capture; h, w the reference half binned 8 x 8, D hypotheses):
 1. a small CNN on the normalised 2 x 2-binned capture (:func:`~prismstereo.learned.network.normalise_image`, both
    halves side by side) down to 1/8 of the sensor: two convolutions of kernel 4, stride 2 and padding 1 (feature
    pixel j centred on sensor pixel 8 j + 7/2, the ray of the 8 x 8-binned rig's pixel j), C channels;
-2. :class:`~prismstereo.nn.PrismCostVolume` with G groups on the exact sweep of the rig binned by 8 (thesis eq.
-   3.1-3.10 traced, the virtual epipolar curve of eq. 4.1-4.10 exactly): (B, G, D, h, w), D hypotheses uniform in the
-   sweep coordinate s (linear in 1/Z) with neighbours <= 1 px apart at 1/8 on every pixel
-   (:func:`~prismstereo.classical.defaults.default_hypotheses` of the binned rig), so the range and rig set D;
+2. a G-group correlation of the two halves over the whole range (thesis eq. 3.1-3.10 traced; the virtual epipolar
+   curve of eq. 4.1-4.10 exactly), D hypotheses from the range and rig, neighbours <= 1 px apart at 1/8:
+   ``'rectified'`` (the default): whole-pixel column shifts on row-rectified features
+   (:class:`~prismstereo.nn.rectified_volume.RectifiedCostVolume`: (B, G, D, w, h), transposed, a fractional shift
+   turned into the sweep coordinate s exactly), or ``'sweep'``: D hypotheses uniform in s (linear in 1/Z), each
+   sampled bilinearly on its exact sweep (:class:`~prismstereo.nn.PrismCostVolume`; onnxruntime samples it on one
+   thread, several times slower);
 3. aggregation by 2-D convolutions shared by every hypothesis (a 3 x 3 one with the reference features' context
-   added, a 1 x 1 mix of each hypothesis with its two neighbours, a dilated 3 x 3 one and a 3 x 3 head), so the
-   weights do not depend on D: any range, any rig;
-4. a softmax over the hypotheses, and the expected s within :attr:`StartArchitecture.window` hypotheses of the best
-   one (a multi-modal curve is not averaged across its modes); the probability mass in that window is the
-   confidence.
+   added, a dilated 3 x 3 one and a 3 x 3 head), so the weights do not depend on D: any range, any rig;
+4. a softmax over the hypotheses, and the expected hypothesis within :attr:`StartArchitecture.window` of the best
+   one (a multi-modal curve is not averaged across its modes), as s on the reference grid; the probability mass in
+   that window is the confidence.
 
 The estimate starts :class:`~prismstereo.learned.hybrid.HybridStereo`'s refinement stages in place of the classical
-block level (:meth:`SweepStart.estimate`). Training: :mod:`prismstereo.learned.start_train`.
+block level (``HybridArchitecture(start='learned')``). Training: :mod:`prismstereo.learned.start_train`.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from prismstereo.errors import OptionError, ShapeError, check_shape
 from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.nn import PrismCostVolume
+from prismstereo.nn.rectified_volume import RectifiedCostVolume
 
 __all__ = ["LEARNED", "SCALE", "START_FORMAT", "START_WEIGHTS", "StartArchitecture", "StartEstimate", "SweepStart",
            "load_start", "windowed_expectation"]
@@ -46,9 +49,10 @@ START_WEIGHTS = Path(__file__).resolve().parent / "weights" / "start.pt"
 START_FORMAT = "prismstereo.start/1"
 SCALE = 8
 """The first stage's resolution: features and hypotheses on the sensor binned 8 x 8."""
-LEARNED = ("features", "context", "first", "mix", "dilated", "head")
+LEARNED = ("features", "context", "first", "dilated", "head")
 """The learned layers (what a weights file holds; the volume and masks are built from the rig and range)."""
-MASKED = 1e4  # subtracted from the score of a hypothesis that does not sample the other half
+MASKED = 1e4
+SAMPLINGS = ("sweep", "rectified")  # subtracted from the score of a hypothesis that does not sample the other half
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,6 +64,10 @@ class StartArchitecture:
         groups: G correlation groups (C must be a multiple of G).
         channels: A, channels of the aggregation's 2-D convolutions.
         window: hypotheses on each side of the best one that the expected s is taken over.
+        sampling: ``'sweep'`` (hypotheses uniform in s, each sampled bilinearly on its exact sweep:
+            :class:`~prismstereo.nn.PrismCostVolume`) or ``'rectified'`` (whole-pixel column shifts on row-rectified
+            features, turned into s exactly: :class:`~prismstereo.nn.rectified_volume.RectifiedCostVolume`, several
+            times faster exported; the split must be a multiple of 8). The weights belong to one of them.
 
     Raises:
         OptionError: a value out of its range, or C not a multiple of G.
@@ -71,14 +79,17 @@ class StartArchitecture:
 
     features: int = 16
     groups: int = 4
-    channels: int = 8
+    channels: int = 4
     window: int = 2
+    sampling: str = "rectified"
 
     def __post_init__(self) -> None:
         for name, low, high in (("features", 1, 128), ("groups", 1, 128), ("channels", 1, 64), ("window", 1, 8)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise OptionError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+        if self.sampling not in SAMPLINGS:
+            raise OptionError(f"Unknown sampling {self.sampling!r}. Choose from: {', '.join(SAMPLINGS)}")
         if self.features % self.groups:
             raise OptionError(f"features ({self.features}) must be a multiple of groups ({self.groups})")
 
@@ -91,8 +102,8 @@ class StartEstimate(NamedTuple):
         confidence: (B, 1, h, w) the probability mass within the window around the best hypothesis (0 where not
             ``covered``).
         covered: (B, 1, h, w) 1 where at least one hypothesis samples the other half, else 0 (in ``s``'s dtype).
-        scores: (B, D, h, w) the aggregated scores (training's classification target is on them); invalid
-            hypotheses lowered by 1e4.
+        scores: (B, D, h', w') the aggregated scores (training's classification target is on them; 'rectified': on
+            the rectified grid, transposed); invalid hypotheses lowered by 1e4.
     """
 
     s: torch.Tensor
@@ -110,8 +121,8 @@ def _conv3(cin: int, cout: int, stride: int = 1, dilation: int = 1) -> nn.Conv2d
 def _feature_net(features: int) -> nn.Sequential:
     """2 x 2-binned normalised capture (B, 2, H/2, W/2) -> (B, C, H/8, W/8)."""
     return nn.Sequential(_conv3(2, 8, 2), nn.ReLU(), _conv3(8, 16), nn.ReLU(),
-                         _conv3(16, 24, 2), nn.ReLU(), _conv3(24, 24), nn.ReLU(), _conv3(24, 24, dilation=2),
-                         nn.ReLU(), nn.Conv2d(24, features, 1))
+                         _conv3(16, 16, 2), nn.ReLU(), _conv3(16, 16), nn.ReLU(), _conv3(16, 16, dilation=2),
+                         nn.ReLU(), nn.Conv2d(16, features, 1))
 
 
 class SweepStart(nn.Module):
@@ -124,7 +135,7 @@ class SweepStart(nn.Module):
 
     Attributes:
         volume: the :class:`~prismstereo.nn.PrismCostVolume` on the sensor binned by 8.
-        s_hypotheses: (D,) buffer, the hypotheses' sweep coordinates.
+        values: (D,) buffer, the hypotheses' sweep coordinates ('sweep') or column shifts ('rectified').
 
     Raises:
         OptionError: a sensor 8 does not divide, or a rig that is not a BiPrismRig. RigError: bad rig or range.
@@ -136,7 +147,7 @@ class SweepStart(nn.Module):
         (torch.Size([1, 1, 48, 32]), True)
     """
 
-    s_hypotheses: torch.Tensor
+    values: torch.Tensor
 
     def __init__(self, rig: BiPrismRig, z_range: tuple[float, float], *,
                  architecture: StartArchitecture | None = None) -> None:
@@ -149,19 +160,28 @@ class SweepStart(nn.Module):
         self.architecture = arch = architecture or StartArchitecture()
         self.rig = rig
         self.z_range = (float(z_range[0]), float(z_range[1]))
-        d = default_hypotheses(rig.binned(SCALE), self.z_range)
-        self.volume = PrismCostVolume(rig, self.z_range, d, SCALE, groups=arch.groups)
+        self.volume: PrismCostVolume | RectifiedCostVolume
+        if arch.sampling == "rectified":
+            self.volume = RectifiedCostVolume(rig, self.z_range, SCALE, groups=arch.groups)
+            values = self.volume.shifts
+        else:
+            d = default_hypotheses(rig.binned(SCALE), self.z_range)
+            self.volume = PrismCostVolume(rig, self.z_range, d, SCALE, groups=arch.groups)
+            values = torch.linspace(-1.0, 1.0, d)
         self.features = _feature_net(arch.features)
         a = arch.channels
         self.context = nn.Conv2d(arch.features, a, 1)
         self.first = nn.Conv2d(arch.groups, a, 3, padding=1)
-        self.mix = nn.Conv2d(3 * a, a, 1)  # each hypothesis with its two neighbours
         self.dilated = nn.Conv2d(a, a, 3, padding=2, dilation=2)
         self.head = nn.Conv2d(a, 1, 3, padding=1)
         dtype = torch.get_default_dtype()
-        self.register_buffer("s_hypotheses", torch.linspace(-1.0, 1.0, d, dtype=dtype), persistent=False)
-        covered = self.volume.valid.any(0).to(dtype)
-        self.register_buffer("covered_mask", covered.view(1, 1, *covered.shape), persistent=False)
+        # the hypotheses' values: sweep coordinates ('sweep') or shifts ('rectified')
+        self.register_buffer("values", values.to(dtype), persistent=False)
+        if isinstance(self.volume, RectifiedCostVolume):
+            covered = self.volume.covered()
+        else:
+            covered = self.volume.valid.any(0).view(1, 1, *self.volume.valid.shape[1:])
+        self.register_buffer("covered_mask", covered.to(dtype), persistent=False)
 
     def weights(self) -> dict[str, torch.Tensor]:
         """The learned tensors (:data:`LEARNED` layers), what a weights file holds."""
@@ -189,8 +209,20 @@ class SweepStart(nn.Module):
 
     @property
     def step(self) -> float:
-        """The sweep coordinate between neighbouring hypotheses."""
+        """The sweep coordinate between neighbouring hypotheses ('rectified': on average over the range)."""
         return 2.0 / (self.num_hypotheses - 1)
+
+    @property
+    def valid(self) -> torch.Tensor:
+        """(D, h', w') bool: where each hypothesis samples the other half, on the scores' grid."""
+        return self.volume.valid
+
+    def truth_index(self, s: torch.Tensor, known: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """True sweep coordinates ``s`` and ``known`` (B, 1, h, w) on the reference grid as fractional hypothesis
+        indices and their known mask on the scores' grid (training's target), (B, 1, h', w') each."""
+        if isinstance(self.volume, RectifiedCostVolume):
+            return self.volume.truth_shift(s, known)
+        return (s + 1.0) / self.step, known
 
     def scores(self, image: torch.Tensor) -> torch.Tensor:
         """Steps 1-3: (B, D, h, w) aggregated scores of the normalised binned capture ``image`` (B, 2, H/2, W/2);
@@ -201,21 +233,21 @@ class SweepStart(nn.Module):
             raise ShapeError(f"image must be the normalised 2 x 2-binned capture (B, 2, {rig.image_height // 2}, "
                              f"{rig.image_width // 2}), got {tuple(image.shape)}")
         features = self.features(image)
-        cost = self.volume(features)  # (B, G, D, h, w), or (B, D, h, w) with one group
+        cost = self.volume(features)  # (B, G, D, h', w'), or (B, D, h', w') with one group
         if cost.dim() == 4:
             cost = cost.unsqueeze(1)
         b, g, d, h, w = cost.shape
         a = self.architecture.channels
-        # 2-D convolutions on every hypothesis at once: (B D, channels, h, w)
+        # 2-D convolutions on every hypothesis at once: (B D, channels, h', w')
         x = self.first(cost.transpose(1, 2).reshape(b * d, g, h, w)).view(b, d, a, h, w)
-        context = self.context(features[..., :self.volume.reference_width]).unsqueeze(1)
-        x = F.relu(x + context)
-        zero = torch.zeros_like(x[:, :1])
-        neighbours = torch.cat([torch.cat([zero, x[:, :-1]], 1), x, torch.cat([x[:, 1:], zero], 1)], 2)
-        x = F.relu(self.mix(neighbours.view(b * d, 3 * a, h, w)))
+        if isinstance(self.volume, RectifiedCostVolume):
+            reference = self.volume.rectified_reference(features)
+        else:
+            reference = features[..., :self.volume.reference_width]
+        context = self.context(reference).unsqueeze(1)
+        x = F.relu(x + context).view(b * d, a, h, w)
         x = F.relu(self.dilated(x))
-        valid = self.volume.valid.to(x.dtype)
-        return self.head(x).view(b, d, h, w) - (1.0 - valid) * MASKED
+        return self.head(x).view(b, d, h, w) - (1.0 - self.volume.valid.to(x.dtype)) * MASKED
 
     def forward(self, image: torch.Tensor) -> StartEstimate:
         """The estimate of the normalised 2 x 2-binned capture ``image`` (B, 2, H/2, W/2) (step 4).
@@ -227,7 +259,12 @@ class SweepStart(nn.Module):
             ShapeError: an image that is not (B, 2, H/2, W/2) of the rig's sensor.
         """
         scores = self.scores(image)
-        s, mass = windowed_expectation(scores, self.s_hypotheses, self.architecture.window)
+        value, mass = windowed_expectation(scores, self.values, self.architecture.window)
+        if isinstance(self.volume, RectifiedCostVolume):  # shift -> s, rectified grid -> reference grid
+            s = self.volume.to_sweep(value)
+            s, mass = self.volume.back(torch.cat([s, mass.transpose(-1, -2)], 1)).split(1, 1)
+        else:
+            s = value
         covered = self.covered_mask.to(scores.dtype).expand(scores.shape[0], -1, -1, -1)
         return StartEstimate(s * covered, mass * covered, covered, scores)
 
@@ -251,13 +288,15 @@ def windowed_expectation(scores: torch.Tensor, values: torch.Tensor, window: int
         >>> round(float(value), 3), round(float(mass), 3)  # the stronger mode's, not the mean of both
         (1.0, 0.526)
     """
-    p = torch.softmax(scores, 1)
+    # the softmax by hand: onnxruntime's Softmax over a leading axis transposes the volume twice
+    top = scores.amax(1, keepdim=True)
+    e = torch.exp(scores - top)
     index = torch.arange(scores.shape[1], dtype=scores.dtype, device=scores.device).view(1, -1, 1, 1)
     best = scores.argmax(1, keepdim=True).to(scores.dtype)
-    q = p * ((index - best).abs() <= window).to(p.dtype)
-    mass = q.sum(1, keepdim=True)
-    value = (q * values.to(p.dtype).view(1, -1, 1, 1)).sum(1, keepdim=True) / mass.clamp_min(1e-12)
-    return value, mass
+    q = e * ((index - best).abs() <= window).to(e.dtype)
+    near = q.sum(1, keepdim=True)
+    value = (q * values.to(e.dtype).view(1, -1, 1, 1)).sum(1, keepdim=True) / near
+    return value, near / e.sum(1, keepdim=True)
 
 
 def load_start(rig: BiPrismRig, z_range: tuple[float, float], path: str | Path = START_WEIGHTS) -> SweepStart:
