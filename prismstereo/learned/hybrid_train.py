@@ -21,10 +21,8 @@ The shipped ``weights/hybrid.pt``: the command is in the comment below the impor
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
-from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -33,6 +31,7 @@ from tqdm.auto import tqdm
 
 from prismstereo.epipolar.sweep import sweep_to_depth
 from prismstereo.errors import OptionError
+from prismstereo.learned.checkpoint import Run, resume, save_checkpoint
 from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, RefinementInputs
 from prismstereo.learned.hybrid_data import HybridSet, training_rigs, training_sets
 from prismstereo.learned.train import TrainResult, warmup_cosine
@@ -160,10 +159,10 @@ def train_hybrid(
         sets = training_sets(captures, seed=seed, cache=cache, models=models, progress=progress)
     stages = nn.ModuleList([models[0].stages, models[0].quarter_stages])
     optimiser = torch.optim.Adam(stages.parameters(), lr=learning_rate)
-    run = _Run(stages, optimiser, warmup_cosine(optimiser, steps, max(1, min(50, steps // 10))),
+    run = Run(stages, optimiser, warmup_cosine(optimiser, steps, max(1, min(50, steps // 10))),
                torch.Generator().manual_seed(seed), out_path.with_suffix(".ckpt"))
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    losses, first, seconds = _resume(run, steps, arch)
+    losses, first, seconds = resume(run, steps, arch)
     seconds = _optimise(run, models, sets, losses, first, seconds, arch=arch, batch_size=batch_size, crop=crop,
                         checkpoint_every=checkpoint_every, progress=progress)
     valid_confidence = validity_threshold(models, sets)
@@ -174,16 +173,6 @@ def train_hybrid(
                           valid_confidence=valid_confidence)
     run.checkpoint.unlink(missing_ok=True)
     return TrainResult(losses, seconds, path)
-
-
-class _Run(NamedTuple):
-    """A training run's state that a checkpoint saves (besides the losses and the time), and the checkpoint's path."""
-
-    stages: nn.ModuleList
-    optimiser: torch.optim.Optimizer
-    schedule: torch.optim.lr_scheduler.LRScheduler
-    gen: torch.Generator
-    checkpoint: Path
 
 
 def _models(sets: list[HybridSet] | None, arch: HybridArchitecture) -> list[HybridStereo]:
@@ -199,23 +188,7 @@ def _models(sets: list[HybridSet] | None, arch: HybridArchitecture) -> list[Hybr
     return models
 
 
-def _resume(run: _Run, steps: int, arch: HybridArchitecture) -> tuple[torch.Tensor, int, float]:
-    """The (steps,) losses, the first step to run and the seconds spent: from the run's checkpoint when it is of the
-    same steps and architecture (its states are loaded into ``run``), else zeros, 0 and 0."""
-    losses = torch.zeros(steps, dtype=torch.float64)
-    first, seconds = 0, 0.0
-    if run.checkpoint.is_file():
-        state = torch.load(run.checkpoint, weights_only=True)
-        if state["steps"] == steps and state["architecture"] == dataclasses.asdict(arch):
-            run.stages.load_state_dict(state["stages"])
-            run.optimiser.load_state_dict(state["optimiser"])
-            run.schedule.load_state_dict(state["schedule"])
-            run.gen.set_state(state["generator"])
-            losses, first, seconds = state["losses"], state["step"], state["seconds"]
-    return losses, first, seconds
-
-
-def _optimise(run: _Run, models: list[HybridStereo], sets: list[HybridSet], losses: torch.Tensor, first: int,
+def _optimise(run: Run, models: list[HybridStereo], sets: list[HybridSet], losses: torch.Tensor, first: int,
               seconds: float, *, arch: HybridArchitecture, batch_size: int, crop: tuple[int, int],
               checkpoint_every: int, progress: bool) -> float:
     """Steps ``first`` to the last of :func:`train_hybrid` (module docstring), each on a rig variant drawn by its
@@ -223,7 +196,7 @@ def _optimise(run: _Run, models: list[HybridStereo], sets: list[HybridSet], loss
     this run's wall time."""
     steps = losses.shape[0]
     weights = torch.tensor([float(d.s.shape[0]) for d in sets])
-    run.stages.train()
+    run.module.train()
     start = time.perf_counter()
     bar = tqdm(range(first, steps), desc="train hybrid", disable=not progress, initial=first, total=steps)
     for step in bar:
@@ -234,16 +207,13 @@ def _optimise(run: _Run, models: list[HybridStereo], sets: list[HybridSet], loss
         loss = hybrid_loss(model, inputs, *truth, window, size)
         run.optimiser.zero_grad()
         loss.backward()
-        torch.nn.utils.clip_grad_norm_(run.stages.parameters(), 1.0)
+        torch.nn.utils.clip_grad_norm_(run.module.parameters(), 1.0)
         run.optimiser.step()
         run.schedule.step()
         losses[step] = loss.item()
         bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
         if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
-            torch.save({"steps": steps, "architecture": dataclasses.asdict(arch), "stages": run.stages.state_dict(),
-                        "optimiser": run.optimiser.state_dict(), "schedule": run.schedule.state_dict(),
-                        "generator": run.gen.get_state(), "losses": losses, "step": step + 1,
-                        "seconds": seconds + time.perf_counter() - start}, run.checkpoint)
+            save_checkpoint(run, arch, losses, step + 1, seconds + time.perf_counter() - start)
     return seconds + time.perf_counter() - start
 
 

@@ -19,7 +19,6 @@ The shipped ``weights/start.pt``: the command is in the comment below the import
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -29,6 +28,7 @@ import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from prismstereo.errors import OptionError
+from prismstereo.learned.checkpoint import Run, resume, save_checkpoint
 from prismstereo.learned.hybrid_data import Rendered, render_set, training_rigs
 from prismstereo.learned.network import normalise_image
 from prismstereo.learned.sweep_start import (
@@ -152,14 +152,6 @@ def _jitter(grey: torch.Tensor, w_ref: int, gen: torch.Generator) -> torch.Tenso
     return normalise_image(out.clamp(0, 1))
 
 
-class _Run(NamedTuple):
-    model: SweepStart
-    optimiser: torch.optim.Optimizer
-    schedule: torch.optim.lr_scheduler.LRScheduler
-    gen: torch.Generator
-    checkpoint: Path
-
-
 def _models(sets: list[StartSet], arch: StartArchitecture) -> list[SweepStart]:
     """One first stage per rig variant, all sharing the first one's learned layers."""
     models: list[SweepStart] = []
@@ -225,10 +217,10 @@ def train_start(
             sets.append(start_set(f"{name} binned 2", binned_rendered(rendered), rig.binned(2), z_range, arch))
     models = _models(sets, arch)
     optimiser = torch.optim.Adam(models[0].parameters(), lr=learning_rate)  # the learned layers only
-    run = _Run(models[0], optimiser, warmup_cosine(optimiser, steps, max(1, min(100, steps // 10))),
+    run = Run(models[0], optimiser, warmup_cosine(optimiser, steps, max(1, min(100, steps // 10))),
                torch.Generator().manual_seed(seed), out_path.with_suffix(".ckpt"))
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    losses, first, seconds = _resume(run, steps, arch)
+    losses, first, seconds = resume(run, steps, arch)
     seconds = _optimise(run, models, sets, losses, first, seconds, arch, batch_size, checkpoint_every, progress)
     curve = [float(chunk.mean()) for chunk in losses.chunk(min(10, steps))]
     path = write_weights(out_path, START_FORMAT, arch, models[0].weights(), {
@@ -239,27 +231,13 @@ def train_start(
     return TrainResult(losses, seconds, path)
 
 
-def _resume(run: _Run, steps: int, arch: StartArchitecture) -> tuple[torch.Tensor, int, float]:
-    """(losses, first step, seconds) from the run's checkpoint when it is of the same steps and architecture."""
-    losses = torch.zeros(steps, dtype=torch.float64)
-    if run.checkpoint.is_file():
-        state = torch.load(run.checkpoint, weights_only=True)
-        if state["steps"] == steps and state["architecture"] == dataclasses.asdict(arch):
-            run.model.load_weights(state["model"])
-            run.optimiser.load_state_dict(state["optimiser"])
-            run.schedule.load_state_dict(state["schedule"])
-            run.gen.set_state(state["generator"])
-            return state["losses"], state["step"], state["seconds"]
-    return losses, 0, 0.0
-
-
-def _optimise(run: _Run, models: list[SweepStart], sets: list[StartSet], losses: torch.Tensor, first: int,
+def _optimise(run: Run, models: list[SweepStart], sets: list[StartSet], losses: torch.Tensor, first: int,
               seconds: float, arch: StartArchitecture, batch_size: int, checkpoint_every: int,
               progress: bool) -> float:
     """Steps ``first`` to the last (module docstring); returns ``seconds`` plus this run's wall time."""
     steps = losses.shape[0]
     weights = torch.tensor([float(d.grey.shape[0]) for d in sets])
-    run.model.train()
+    run.module.train()
     start = time.perf_counter()
     bar = tqdm(range(first, steps), desc="train start", disable=not progress, initial=first, total=steps)
     for step in bar:
@@ -270,14 +248,11 @@ def _optimise(run: _Run, models: list[SweepStart], sets: list[StartSet], losses:
         loss = start_loss(model, image, data.truth[pick], data.known[pick])
         run.optimiser.zero_grad()
         loss.backward()
-        torch.nn.utils.clip_grad_norm_(run.model.parameters(), 1.0)
+        torch.nn.utils.clip_grad_norm_(run.module.parameters(), 1.0)
         run.optimiser.step()
         run.schedule.step()
         losses[step] = loss.item()
         bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
         if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
-            torch.save({"steps": steps, "architecture": dataclasses.asdict(arch), "model": run.model.weights(),
-                        "optimiser": run.optimiser.state_dict(), "schedule": run.schedule.state_dict(),
-                        "generator": run.gen.get_state(), "losses": losses, "step": step + 1,
-                        "seconds": seconds + time.perf_counter() - start}, run.checkpoint)
+            save_checkpoint(run, arch, losses, step + 1, seconds + time.perf_counter() - start)
     return seconds + time.perf_counter() - start

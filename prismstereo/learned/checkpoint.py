@@ -1,0 +1,63 @@
+"""Resumable training runs: the state a checkpoint keeps, shared by the hybrid's and the first stage's trainers
+(:mod:`prismstereo.learned.hybrid_train`, :mod:`prismstereo.learned.start_train`).
+
+A run is the trained module, its optimiser and learning-rate schedule, the generator that draws its batches and the
+checkpoint's path (``<out>.ckpt``). :func:`save_checkpoint` writes them with the losses so far, the next step and the
+seconds spent; :func:`resume` loads them into a run built with the same options, so that a run stopped and started
+again ends with the uninterrupted run's result. A checkpoint of other steps or another architecture is ignored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import torch
+from torch import nn
+
+__all__ = ["Run", "resume", "save_checkpoint"]
+
+
+class Run(NamedTuple):
+    """A training run's state that a checkpoint saves (besides the losses and the time), and the checkpoint's path.
+
+    Example:
+        >>> module = nn.Linear(2, 1)
+        >>> optimiser = torch.optim.Adam(module.parameters())
+        >>> run = Run(module, optimiser, torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 1.0),
+        ...           torch.Generator().manual_seed(0), Path("w.ckpt"))
+    """
+
+    module: nn.Module
+    optimiser: torch.optim.Optimizer
+    schedule: torch.optim.lr_scheduler.LRScheduler
+    gen: torch.Generator
+    checkpoint: Path
+
+
+def save_checkpoint(run: Run, architecture: Any, losses: torch.Tensor, step: int, seconds: float) -> None:
+    """Write ``run``'s state to its checkpoint: the module, optimiser, schedule and generator, the (steps,)
+    ``losses``, the next ``step`` and the ``seconds`` spent, under ``architecture`` (a dataclass) and the step count."""
+    torch.save({"steps": int(losses.shape[0]), "architecture": dataclasses.asdict(architecture),
+                "module": run.module.state_dict(), "optimiser": run.optimiser.state_dict(),
+                "schedule": run.schedule.state_dict(), "generator": run.gen.get_state(), "losses": losses,
+                "step": step, "seconds": seconds}, run.checkpoint)
+
+
+def resume(run: Run, steps: int, architecture: Any) -> tuple[torch.Tensor, int, float]:
+    """The (steps,) losses, the first step to run and the seconds spent: from the run's checkpoint when it is of the
+    same ``steps`` and ``architecture`` (its states are loaded into ``run``), else zeros, 0 and 0.
+
+    Example:
+        >>> losses, first, seconds = resume(run, 100, architecture)  # doctest: +SKIP
+    """
+    if run.checkpoint.is_file():
+        state = torch.load(run.checkpoint, weights_only=True)
+        if state.get("steps") == steps and state.get("architecture") == dataclasses.asdict(architecture):
+            run.module.load_state_dict(state["module"])
+            run.optimiser.load_state_dict(state["optimiser"])
+            run.schedule.load_state_dict(state["schedule"])
+            run.gen.set_state(state["generator"])
+            return state["losses"], state["step"], state["seconds"]
+    return torch.zeros(steps, dtype=torch.float64), 0, 0.0
