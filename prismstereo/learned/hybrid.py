@@ -5,7 +5,9 @@ Data path (one capture, both halves as recorded; k = ``block``; (h, w) the refer
 1. :class:`~prismstereo.classical.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band) with the
    'dense' preset (:func:`classical_config`): the exact plane sweep on the k x k-binned capture gives every covered
    block a sweep coordinate s (linear in 1/Z), its calibrated confidence and the coverage
-   (:meth:`~prismstereo.classical.model.PrismStereo.block_estimate`);
+   (:meth:`~prismstereo.classical.model.PrismStereo.block_estimate`); or, with ``HybridArchitecture(start='learned')``,
+   the learned first stage (:class:`~prismstereo.learned.sweep_start.SweepStart`, on 8 x 8 bins, carried to that
+   grid bilinearly);
 2. refinement stages, first on that k x k grid (``quarter``, block 4: twice the reach per layer), then on the
    2 x 2-binned grid (``iterations``; the maps carried over bilinearly, block centres kept: pixel j of that grid is
    at full-sensor 2 j + 1/2). Each samples the other half of the normalised binned capture
@@ -214,7 +216,8 @@ class HybridStereo(nn.Module):
         return PrismStereo(self.rig, self.z_range).tracker(options)
 
     def weights(self) -> dict[str, torch.Tensor]:
-        """The learned tensors (what a weights file holds): ``half.*`` and ``quarter.*`` stages."""
+        """The learned tensors (what a weights file holds): ``half.*`` and ``quarter.*`` stages, and ``start.*`` the
+        learned first stage's (``architecture.start == 'learned'``)."""
         start = {} if self.start is None else {f"start.{k}": v for k, v in self.start.weights().items()}
         return {**{f"half.{k}": v for k, v in self.stages.state_dict().items()},
                 **{f"quarter.{k}": v for k, v in self.quarter_stages.state_dict().items()}, **start}

@@ -239,6 +239,14 @@ def test_hybrid_refines_the_learned_start(rig, tmp_path):
         carried = upsample(out.s, 2, tuple(inputs.s.shape[-2:]), mode="bilinear")
     assert torch.allclose(inputs.s, carried)
     assert inputs.s.shape[-2:] == (rig.image_height // 4, rig.binned(4).reference_width)
+    # the exported graph runs the first stage too (a textured capture: the shipped start's picks are clear)
+    from prismstereo.export import OnnxDepth, export_onnx
+
+    capture = render(rig, fronto_parallel_plane(rig, 600.0, seed=5), ImageFormation(noise_sigma=1 / 255))
+    with torch.no_grad():
+        ref = model(capture.image[:, :1].float())
+    out = OnnxDepth(export_onnx(model, tmp_path / "hybrid.onnx"))(capture.image[:, :1].float().numpy())
+    assert torch.allclose(torch.as_tensor(np.asarray(out.depth)), ref.depth, rtol=1e-4)
     # the weights file holds the first stage too, and a model built from it starts where this one does
     path = model.save(tmp_path / "hybrid.pt")
     with torch.no_grad():
