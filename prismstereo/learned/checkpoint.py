@@ -38,7 +38,11 @@ class Run(NamedTuple):
 
 def save_checkpoint(run: Run, architecture: Any, losses: torch.Tensor, step: int, seconds: float) -> None:
     """Write ``run``'s state to its checkpoint: the module, optimiser, schedule and generator, the (steps,)
-    ``losses``, the next ``step`` and the ``seconds`` spent, under ``architecture`` (a dataclass) and the step count."""
+    ``losses``, the next ``step`` and the ``seconds`` spent, under ``architecture`` (a dataclass) and the step count.
+
+    Example:
+        >>> save_checkpoint(run, architecture, losses, step + 1, seconds)  # doctest: +SKIP
+    """
     torch.save({"steps": int(losses.shape[0]), "architecture": dataclasses.asdict(architecture),
                 "module": run.module.state_dict(), "optimiser": run.optimiser.state_dict(),
                 "schedule": run.schedule.state_dict(), "generator": run.gen.get_state(), "losses": losses,
