@@ -2,9 +2,10 @@
 (:mod:`prismstereo.learned.hybrid_train`, :mod:`prismstereo.learned.start_train`).
 
 A run is the trained module, its optimiser and learning-rate schedule, the generator that draws its batches and the
-checkpoint's path (``<out>.ckpt``). :func:`save_checkpoint` writes them with the losses so far, the next step and the
-seconds spent; :func:`resume` loads them into a run built with the same options, so that a run stopped and started
-again ends with the uninterrupted run's result. A checkpoint of other steps or another architecture is ignored.
+checkpoint's path (``<out>.ckpt``); :func:`take_step` is one step of it. :func:`save_checkpoint` writes them with the
+losses so far, the next step and the seconds spent; :func:`resume` loads them into a run built with the same options,
+so that a run stopped and started again ends with the uninterrupted run's result. A checkpoint of other steps or
+another architecture is ignored.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any, NamedTuple
 import torch
 from torch import nn
 
-__all__ = ["Run", "resume", "save_checkpoint"]
+__all__ = ["Run", "resume", "save_checkpoint", "take_step"]
 
 
 class Run(NamedTuple):
@@ -65,3 +66,17 @@ def resume(run: Run, steps: int, architecture: Any) -> tuple[torch.Tensor, int, 
             run.gen.set_state(state["generator"])
             return state["losses"], state["step"], state["seconds"]
     return torch.zeros(steps, dtype=torch.float64), 0, 0.0
+
+
+def take_step(run: Run, loss: torch.Tensor, clip: float = 1.0) -> float:
+    """One optimiser step of ``run`` on ``loss`` (gradients clipped to norm ``clip``, then the schedule); the loss.
+
+    Example:
+        >>> losses[step] = take_step(run, loss)  # doctest: +SKIP
+    """
+    run.optimiser.zero_grad()
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(run.module.parameters(), clip)
+    run.optimiser.step()
+    run.schedule.step()
+    return loss.item()

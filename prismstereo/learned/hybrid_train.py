@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 
 from prismstereo.epipolar.sweep import sweep_to_depth
 from prismstereo.errors import OptionError
-from prismstereo.learned.checkpoint import Run, resume, save_checkpoint
+from prismstereo.learned.checkpoint import Run, resume, save_checkpoint, take_step
 from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, RefinementInputs
 from prismstereo.learned.hybrid_data import HybridSet, training_rigs, training_sets
 from prismstereo.learned.train import TrainResult, warmup_cosine
@@ -205,12 +205,7 @@ def _optimise(run: Run, models: list[HybridStereo], sets: list[HybridSet], losse
         pick = torch.randint(data.s.shape[0], (batch_size,), generator=run.gen)
         inputs, truth, window, size = _batch(model, data, pick, crop, run.gen)
         loss = hybrid_loss(model, inputs, *truth, window, size)
-        run.optimiser.zero_grad()
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(run.module.parameters(), 1.0)
-        run.optimiser.step()
-        run.schedule.step()
-        losses[step] = loss.item()
+        losses[step] = take_step(run, loss)
         bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
         if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
             save_checkpoint(run, arch, losses, step + 1, seconds + time.perf_counter() - start)

@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from prismstereo.errors import OptionError
-from prismstereo.learned.checkpoint import Run, resume, save_checkpoint
+from prismstereo.learned.checkpoint import Run, resume, save_checkpoint, take_step
 from prismstereo.learned.hybrid_data import Rendered, render_set, training_rigs
 from prismstereo.learned.network import normalise_image
 from prismstereo.learned.sweep_start import (
@@ -246,12 +246,7 @@ def _optimise(run: Run, models: list[SweepStart], sets: list[StartSet], losses: 
         pick = torch.randint(data.grey.shape[0], (batch_size,), generator=run.gen)
         image = _jitter(data.grey[pick], model.rig.binned(2).reference_width, run.gen)
         loss = start_loss(model, image, data.truth[pick], data.known[pick])
-        run.optimiser.zero_grad()
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(run.module.parameters(), 1.0)
-        run.optimiser.step()
-        run.schedule.step()
-        losses[step] = loss.item()
+        losses[step] = take_step(run, loss)
         bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
         if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
             save_checkpoint(run, arch, losses, step + 1, seconds + time.perf_counter() - start)
