@@ -98,10 +98,11 @@ class StartEstimate(NamedTuple):
     """The first stage's estimate on the 8 x 8-binned reference grid (h, w).
 
     Attributes:
-        s: (B, 1, h, w) sweep coordinate in [-1, 1] (0 where no hypothesis is valid).
+        s: (B, 1, h, w) sweep coordinate in [-1, 1] (0 where not ``covered``).
         confidence: (B, 1, h, w) the probability mass within the window around the best hypothesis (0 where not
             ``covered``).
-        covered: (B, 1, h, w) 1 where at least one hypothesis samples the other half, else 0 (in ``s``'s dtype).
+        covered: (B, 1, h, w) 1 where a hypothesis samples the other half (for 'rectified': of a neighbouring
+            rectified pixel), else 0, in ``s``'s dtype.
         scores: (B, D, h', w') the aggregated scores (training's classification target is on them; 'rectified': on
             the rectified grid, transposed); invalid hypotheses lowered by 1e4.
     """
@@ -134,7 +135,9 @@ class SweepStart(nn.Module):
         architecture: the hyper-parameters (default :class:`StartArchitecture` ()).
 
     Attributes:
-        volume: the :class:`~prismstereo.nn.PrismCostVolume` on the sensor binned by 8.
+        volume: the correlation on the sensor binned by 8: a
+            :class:`~prismstereo.nn.rectified_volume.RectifiedCostVolume` ('rectified') or a
+            :class:`~prismstereo.nn.PrismCostVolume` ('sweep').
         values: (D,) buffer, the hypotheses' sweep coordinates ('sweep') or column shifts ('rectified').
 
     Raises:
