@@ -47,6 +47,8 @@ class RectifiedCostVolume(nn.Module):
         shifts: (D,) buffer, the integer shifts (px at 1/scale), ascending.
         valid: (D, W_l, H_r) bool buffer, transposed layout: the rectified reference pixel and its shifted sample are
             real and the shift lies within the pixel's searched range.
+        columns: (W_l,) buffer, the full-sensor column of each rectified reference column; shift k reaches
+            columns + k scale in the other half.
         height, width, reference_width: the feature map's (h, W_b) and the reference level's columns w_l (the
             feature columns that hold the reference half, the last one possibly shared with the other half).
 
@@ -78,7 +80,6 @@ class RectifiedCostVolume(nn.Module):
         level = rectified_level(fit_row_rectification(rig, fit), fit, f, rays.valid & ~rays.left)
         self.height, self.width = h // f, w // f
         self.reference_width = level.reference_grid.shape[1]  # ceil(w_ref / f): the reference level's columns
-        self.split = float(w_ref)
         # the other level's pixel x (other-half columns f x ... f x + f - 1) is feature column x + w_ref / f: its grid
         # normalised on the whole feature map, so that a split between feature columns needs no second resampling
         other = level.other_grid.clone()
@@ -90,6 +91,12 @@ class RectifiedCostVolume(nn.Module):
             self.register_buffer(name, getattr(level, name).to(dtype), persistent=False)
         self.register_buffer("index", level.index.reshape(-1), persistent=False)  # (D W_l,) rows of the transposed
         self.register_buffer("valid", level.valid.transpose(-1, -2).contiguous(), persistent=False)
+        # the rectified reference pixels with a valid shift (1, 1, H_r, W_l), and the full-sensor column of each
+        # rectified reference column u: a shift k (px at 1/scale) reaches column columns[u] + k scale
+        self.register_buffer("rectified_covered", level.valid.any(0).to(dtype).view(1, 1, *level.valid.shape[1:]),
+                             persistent=False)
+        u = (torch.arange(self.reference_width, dtype=f64) + 0.5) * f - 0.5
+        self.register_buffer("columns", (u + w_ref).to(dtype), persistent=False)
 
     @property
     def num_hypotheses(self) -> int:
@@ -126,9 +133,7 @@ class RectifiedCostVolume(nn.Module):
     def to_sweep(self, shift: torch.Tensor) -> torch.Tensor:
         """Fractional shifts (B, 1, W_l, H_r) (transposed, as the volume) -> sweep coordinates (B, 1, H_r, W_l) of the
         rectified reference pixels (exact through each pixel's tabulated sweep)."""
-        f = self.scale
-        u = (torch.arange(self.reference_width, device=shift.device).to(shift.dtype) + 0.5) * f - 0.5
-        column = u + self.split + shift.transpose(-1, -2) * f  # full-sensor column of the match
+        column = self.columns.to(shift) + shift.transpose(-1, -2) * self.scale  # full-sensor column of the match
         return column_to_sweep(self.table.to(shift), column)
 
     def back(self, maps: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
@@ -142,7 +147,7 @@ class RectifiedCostVolume(nn.Module):
         grid = self.back_grid.to(maps).unsqueeze(0).expand(maps.shape[0], -1, -1, -1)
         if mode == "nearest":
             return F.grid_sample(maps, grid, mode="nearest", padding_mode="border", align_corners=False)
-        covered = self.valid.any(0).transpose(0, 1).to(maps.dtype).view(1, 1, *maps.shape[-2:])
+        covered = self.rectified_covered.to(maps)
         weight = box_filter(covered, 3)
         filled = box_filter(maps * covered, 3) / weight.clamp_min(1e-6)
         maps = maps * covered + filled * (1.0 - covered)
@@ -150,9 +155,8 @@ class RectifiedCostVolume(nn.Module):
 
     def covered(self) -> torch.Tensor:
         """(1, 1, h, w_l) 1 where a reference level pixel's rectified neighbours have a valid hypothesis, else 0."""
-        covered = self.valid.any(0).transpose(0, 1).view(1, 1, *self.valid.shape[:0:-1])
         grid = self.back_grid.unsqueeze(0)
-        return (F.grid_sample(covered.to(grid.dtype), grid, mode="bilinear", padding_mode="border",
+        return (F.grid_sample(self.rectified_covered.to(grid), grid, mode="bilinear", padding_mode="border",
                               align_corners=False) > 0).to(grid.dtype)
 
     def truth_shift(self, s: torch.Tensor, known: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -168,6 +172,5 @@ class RectifiedCostVolume(nn.Module):
                                 align_corners=False) > 0.999
         cubic = local_cubic(self.table.to(s), s_r)
         column = cubic_at(cubic, cubic.u)[..., 0]  # (B, 1, H_r, W_l) full-sensor column
-        u = (torch.arange(self.reference_width, device=s.device).to(s.dtype) + 0.5) * self.scale - 0.5
-        shift = (column - self.split - u) / self.scale - self.shifts[0].to(s)
+        shift = (column - self.columns.to(s)) / self.scale - self.shifts[0].to(s)
         return shift.transpose(-1, -2), known_r.transpose(-1, -2)
