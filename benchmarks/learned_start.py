@@ -42,6 +42,7 @@ from prismstereo.depth.resample import upsample  # noqa: E402
 from prismstereo.learned import HybridStereo  # noqa: E402
 from prismstereo.learned.hybrid import truth_sweep  # noqa: E402
 from prismstereo.learned.network import normalise_image  # noqa: E402
+from prismstereo.learned.start_train import block_truth  # noqa: E402
 from prismstereo.learned.sweep_start import START_WEIGHTS, SweepStart, load_start  # noqa: E402
 from prismstereo.threads import set_torch_threads  # noqa: E402
 
@@ -66,16 +67,9 @@ def truth_grid(capture: dict, step: float) -> tuple[torch.Tensor, torch.Tensor]:
     """(truth, reliable) on the 4 x 4-binned reference grid: the mean true s of each block, and blocks whose 16 pixels
     are co-visible with true sweep coordinates within half a ``step``."""
     w_ref = capture["depth"].shape[-1]
-    depth = capture["depth"][..., :w_ref].double()
-    s = truth_sweep(depth, Z_RANGE)
+    s = truth_sweep(capture["depth"][..., :w_ref].double(), Z_RANGE)
     seen = capture["covisible"][..., :w_ref] & torch.isfinite(s)
-    filled = torch.where(seen, s, torch.zeros_like(s))
-    w = filled.shape[-1] // 4 * 4
-    h = filled.shape[-2] // 4
-    blocks = F.unfold(filled[..., :w], 4, stride=4)
-    all_seen = F.unfold(seen[..., :w].double(), 4, stride=4).amin(1) > 0.5
-    reliable = all_seen & (blocks.amax(1) - blocks.amin(1) < 0.5 * step)
-    return blocks.mean(1).view(1, 1, h, w // 4), reliable.view(1, 1, h, w // 4)
+    return block_truth(s, seen, 4, step, (s.shape[-2] // 4, s.shape[-1] // 4))
 
 
 def main() -> None:

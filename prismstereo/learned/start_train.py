@@ -42,7 +42,7 @@ from prismstereo.learned.sweep_start import (
 from prismstereo.learned.train import TrainResult, warmup_cosine
 from prismstereo.learned.weights import write_weights
 
-__all__ = ["StartSet", "binned_rendered", "start_loss", "start_set", "train_start"]
+__all__ = ["StartSet", "binned_rendered", "block_truth", "start_loss", "start_set", "train_start"]
 
 # The shipped weights/start.pt (7 rig variants x 24 captures, the renders of weights/hybrid.pt's training, and the
 # same rigs binned 2 x 2):
@@ -77,18 +77,41 @@ def start_set(name: str, rendered: Rendered, rig: Any, z_range_mm: tuple[float, 
         >>> data = start_set("s", rendered, rig, (450.0, 1000.0))  # doctest: +SKIP
     """
     model = SweepStart(rig, z_range_mm, architecture=architecture)
-    f = SCALE // 2
-    truth = rendered.truth
-    known = rendered.known & torch.isfinite(truth)
-    filled = torch.where(known, truth, torch.zeros_like(truth))
-    h8, w8 = model.covered_mask.shape[-2:]
-    pad = (0, max(0, w8 * f - filled.shape[-1]), 0, max(0, h8 * f - filled.shape[-2]))
-    filled, known = F.pad(filled, pad)[..., :h8 * f, :w8 * f], F.pad(known, pad)[..., :h8 * f, :w8 * f]
-    blocks = F.unfold(filled, f, stride=f)  # (N, 16, h8 w8)
-    all_known = F.unfold(known.to(truth.dtype), f, stride=f).amin(1) > 0.5
-    reliable = (all_known & (blocks.amax(1) - blocks.amin(1) < 0.5 * model.step)).view(-1, 1, h8, w8)
-    mean = blocks.mean(1).view(-1, 1, h8, w8)
-    return StartSet(name, rig, z_range_mm, rendered.grey, torch.where(reliable, mean, 0.0), reliable)
+    known = rendered.known & torch.isfinite(rendered.truth)
+    truth, reliable = block_truth(rendered.truth, known, SCALE // 2, model.step, tuple(model.covered_mask.shape[-2:]))
+    return StartSet(name, rig, z_range_mm, rendered.grey, truth, reliable)
+
+
+def block_truth(s: torch.Tensor, known: torch.Tensor, factor: int, step: float, size: tuple[int, int]
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+    """True sweep coordinates on a grid ``factor`` times coarser: each block's mean, reliable where all its pixels
+    are known and their values lie within half a ``step`` of each other.
+
+    Args:
+        s: (N, 1, H, W) true sweep coordinates (any value where not known).
+        known: (N, 1, H, W) bool.
+        factor: the block side.
+        step: the spacing of the coarse grid's hypotheses in s.
+        size: (h, w) of the coarse grid; blocks beyond the fine grid are unknown, fine pixels beyond it are cut.
+
+    Returns:
+        (truth, reliable): (N, 1, h, w) each, truth 0 where not reliable.
+
+    Example:
+        >>> s = torch.tensor([[0.1, 0.1, 0.5, 0.9]]).view(1, 1, 1, 4).expand(1, 1, 2, 4)
+        >>> truth, reliable = block_truth(s, torch.ones(1, 1, 2, 4, dtype=torch.bool), 2, 0.5, (1, 2))
+        >>> truth.flatten().tolist(), reliable.flatten().tolist()
+        ([0.10000000149011612, 0.0], [True, False])
+    """
+    h, w = size
+    filled = torch.where(known, s, torch.zeros_like(s))
+    pad = (0, max(0, w * factor - filled.shape[-1]), 0, max(0, h * factor - filled.shape[-2]))
+    filled = F.pad(filled, pad)[..., :h * factor, :w * factor]
+    known = F.pad(known, pad)[..., :h * factor, :w * factor]
+    blocks = F.unfold(filled, factor, stride=factor)  # (N, factor^2, h w)
+    all_known = F.unfold(known.to(filled.dtype), factor, stride=factor).amin(1) > 0.5
+    reliable = (all_known & (blocks.amax(1) - blocks.amin(1) < 0.5 * step)).view(-1, 1, h, w)
+    return torch.where(reliable, blocks.mean(1).view(-1, 1, h, w), 0.0), reliable
 
 
 def binned_rendered(rendered: Rendered) -> Rendered:
