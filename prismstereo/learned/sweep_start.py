@@ -51,8 +51,8 @@ SCALE = 8
 """The first stage's resolution: features and hypotheses on the sensor binned 8 x 8."""
 LEARNED = ("features", "context", "first", "dilated", "head")
 """The learned layers (what a weights file holds; the volume and masks are built from the rig and range)."""
-MASKED = 1e4
-SAMPLINGS = ("sweep", "rectified")  # subtracted from the score of a hypothesis that does not sample the other half
+MASKED = 1e4  # subtracted from the score of a hypothesis that does not sample the other half
+SAMPLINGS = ("sweep", "rectified")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,7 +67,7 @@ class StartArchitecture:
         sampling: ``'sweep'`` (hypotheses uniform in s, each sampled bilinearly on its exact sweep:
             :class:`~prismstereo.nn.PrismCostVolume`) or ``'rectified'`` (whole-pixel column shifts on row-rectified
             features, turned into s exactly: :class:`~prismstereo.nn.rectified_volume.RectifiedCostVolume`, several
-            times faster exported; the split must be a multiple of 8). The weights belong to one of them.
+            times faster exported). The weights belong to one of them.
 
     Raises:
         OptionError: a value out of its range, or C not a multiple of G.
