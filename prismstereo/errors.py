@@ -94,18 +94,23 @@ def check_option(value: Any, choices: Iterable[str], name: str) -> str:
     return value
 
 
-def check_int(value: Any, name: str, least: int, *, none: bool = False) -> Any:
-    """Return ``value`` if it is an int >= ``least`` (not a bool; or None with ``none``), else raise an
-    :class:`OptionError` saying so.
+def check_int(value: Any, name: str, least: int, *, none: bool = False, most: int | None = None) -> Any:
+    """Return ``value`` if it is an int >= ``least`` (and <= ``most`` when given; not a bool; or None with ``none``),
+    else raise an :class:`OptionError` saying so.
 
     Example:
         >>> check_int(3, "band", 1)
         3
+        >>> check_int(9, "window", 1, most=8)
+        Traceback (most recent call last):
+        ...
+        prismstereo.errors.OptionError: window must be an int in [1, 8], got 9
     """
     if value is None and none:
         return value
-    if isinstance(value, bool) or not isinstance(value, int) or value < least:
-        raise OptionError(f"{name} must be an int >= {least}{' or None' if none else ''}, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, int) or value < least or (most is not None and value > most):
+        bound = f">= {least}" if most is None else f"in [{least}, {most}]"
+        raise OptionError(f"{name} must be an int {bound}{' or None' if none else ''}, got {value!r}")
     return value
 
 

@@ -30,7 +30,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from prismstereo.epipolar.sweep import sweep_to_depth
-from prismstereo.errors import OptionError
+from prismstereo.errors import check_int
 from prismstereo.learned.checkpoint import Run, resume, save_checkpoint, take_step
 from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, RefinementInputs
 from prismstereo.learned.hybrid_data import HybridSet, training_rigs, training_sets
@@ -149,8 +149,7 @@ def train_hybrid(
     """
     for name, value, low in (("steps", steps, 1), ("batch_size", batch_size, 1), ("checkpoint_every",
                                                                                    checkpoint_every, 0)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise OptionError(f"{name} must be an int >= {low}, got {value!r}")
+        check_int(value, name, low)
     arch = architecture or HybridArchitecture()
     out_path = Path(out_path)
     torch.manual_seed(seed)

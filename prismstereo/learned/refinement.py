@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo.errors import OptionError
+from prismstereo.errors import OptionError, check_int
 
 __all__ = ["DILATIONS", "STARTS", "HybridArchitecture", "RefinementCNN"]
 
@@ -57,9 +57,7 @@ class HybridArchitecture:
             raise OptionError(f"Unknown block {self.block!r}. Choose from: 2, 4")
         for name, low, high in (("channels", 1, 256), ("layers", 2, len(DILATIONS)), ("offsets", 0, 8),
                                 ("iterations", 1, 4), ("quarter", 0, 4)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-                raise OptionError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+            check_int(getattr(self, name), name, low, most=high)
         if self.start not in STARTS:
             raise OptionError(f"Unknown start {self.start!r}. Choose from: {', '.join(STARTS)}")
         if self.start == "learned" and self.block != 4:

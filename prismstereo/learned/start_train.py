@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
 
-from prismstereo.errors import OptionError
+from prismstereo.errors import check_int
 from prismstereo.learned.checkpoint import Run, resume, save_checkpoint, take_step
 from prismstereo.learned.hybrid_data import Rendered, render_set, training_rigs
 from prismstereo.learned.network import normalise_image
@@ -227,8 +227,7 @@ def train_start(
     """
     for name, value, low in (("steps", steps, 1), ("batch_size", batch_size, 1),
                              ("checkpoint_every", checkpoint_every, 0)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise OptionError(f"{name} must be an int >= {low}, got {value!r}")
+        check_int(value, name, low)
     arch = architecture or StartArchitecture()
     out_path = Path(out_path)
     torch.manual_seed(seed)

@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.classical.defaults import default_hypotheses
-from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_int, check_shape
 from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.nn import PrismCostVolume
@@ -85,9 +85,7 @@ class StartArchitecture:
 
     def __post_init__(self) -> None:
         for name, low, high in (("features", 1, 128), ("groups", 1, 128), ("channels", 1, 64), ("window", 1, 8)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-                raise OptionError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+            check_int(getattr(self, name), name, low, most=high)
         if self.sampling not in SAMPLINGS:
             raise OptionError(f"Unknown sampling {self.sampling!r}. Choose from: {', '.join(SAMPLINGS)}")
         if self.features % self.groups:
