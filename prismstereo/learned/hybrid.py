@@ -18,7 +18,18 @@ Data path (one capture, both halves as recorded; k = ``block``; (h, w) the refer
    around the estimate. A dilated 3 x 3 CNN (the StereoNet / HITNet refinement) on the reference image, the cost curve,
    the estimate's local relief and the classical confidence and coverage predicts a residual of s in steps and a
    confidence logit;
-3. s and the confidence bilinearly to full resolution, depth exact from s (thesis eq. 6.1-6.10 via the sweep).
+3. the exact last stage (``last_stage='exact'``, the default): the classical band of 2 R + 1 hypotheses
+   (R = :data:`EXACT_BAND`) on the exact sweep around the learned estimate, its sub-pixel fit, calibrated confidence,
+   robust smoothing and occlusion test (:class:`~prismstereo.classical.level.DepthLevel` with :func:`exact_config`),
+   on the grid where the classical model fits its own final band (:func:`~prismstereo.classical.defaults.
+   default_downsample`: the 2 x 2-binned grid of sensors whose reference half is >= 384 px on its shorter side,
+   else the full sensor, the estimate carried there bilinearly). Where that fit is valid and within
+   :data:`EXACT_AGREEMENT` steps of the learned estimate it replaces it: a learned estimate carries a smooth bias of
+   a tenth of a step on textured surfaces (it is regressed, not fitted), the windowed fit, smoothed over 15 x 15
+   pixels, does not; where the two disagree (depth edges, weak texture) the learned estimate stays. The confidence
+   is the learned one;
+4. s and the confidence bilinearly to full resolution (where they are not there yet), depth exact from s (thesis
+   eq. 6.1-6.10 via the sweep).
 
 The weights are the CNNs only; the sweep, masks and the classical level are built from the rig and range the model
 is constructed with, so the same weights run on any rig whose sensor the block divides.
@@ -36,12 +47,14 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.classical import PrismStereo, StereoConfig, TemporalDepth, TemporalOptions, preset
-from prismstereo.classical.defaults import default_hypotheses
+from prismstereo.classical.defaults import default_downsample, default_hypotheses, resolve_level
+from prismstereo.classical.level import DepthLevel
 from prismstereo.conventions import to_grey
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
+from prismstereo.epipolar.series import series_at
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
-from prismstereo.errors import OptionError, ShapeError, check_shape
+from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.network import normalise_image
@@ -52,8 +65,8 @@ from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.band import extend_estimate
 from prismstereo.runtime import sample_bilinear
 
-__all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "HybridStereo", "RefinementInputs", "classical_config",
-           "load_hybrid_weights", "sweep_match", "truth_sweep"]
+__all__ = ["EXACT_AGREEMENT", "EXACT_BAND", "HYBRID_FORMAT", "HYBRID_WEIGHTS", "LAST_STAGES", "HybridStereo",
+           "RefinementInputs", "classical_config", "exact_config", "load_hybrid_weights", "sweep_match", "truth_sweep"]
 
 HYBRID_WEIGHTS = Path(__file__).resolve().parent / "weights" / "hybrid.pt"
 HYBRID_FORMAT = "prismstereo.hybrid/1"
@@ -63,6 +76,13 @@ RELIEF_STEPS = 8.0  # the estimate's local relief is given to the CNN in steps, 
 # neighbours' mean s, so the refinement starts near the truth there instead of at s = 0
 FILL_RADIUS = 3
 VALID_CONFIDENCE = 0.5  # the validity threshold of weights without a calibrated one (``valid_confidence``)
+EXACT_BAND = 1
+"""R of the exact last stage's band: the learned estimate is within a step of the match wherever the fit replaces
+it, and with R = 1 the band's winner is its centre (no winner search)."""
+EXACT_AGREEMENT = 0.5
+"""The exact last stage replaces the learned estimate where its fit is within this many steps of it."""
+LAST_STAGES = ("exact", "learned")
+"""What gives the final depth (:class:`HybridStereo`'s ``last_stage``)."""
 
 
 class RefinementInputs(NamedTuple):
@@ -105,11 +125,15 @@ class HybridStereo(nn.Module):
         weights: ``'default'`` (the shipped ``weights/hybrid.pt``), None (random initialisation from torch's global
             RNG; the untrained heads keep the classical estimate) or a weights file path.
         architecture: without weights, the hyper-parameters (default :class:`HybridArchitecture` ()).
+        last_stage: ``'exact'`` (the classical band's fit on the exact sweep around the learned estimate, where it
+            is valid and agrees) or ``'learned'`` (the learned estimate as it is); see the module docstring.
 
     Attributes:
         valid_confidence: the confidence from which a depth is valid: the threshold calibrated on the training
             captures (:func:`~prismstereo.learned.hybrid_train.validity_threshold`, in the weights' metadata),
             else :data:`VALID_CONFIDENCE`.
+        exact: the exact last stage's level (None with ``last_stage='learned'``); exact_binning: the binning of its
+            grid (2 or 1; 0 without it).
 
     Raises:
         OptionError: a sensor the block does not divide, or bad options. WeightsError: a weights file that cannot
@@ -129,9 +153,12 @@ class HybridStereo(nn.Module):
 
     def __init__(self, rig: BiPrismRig, z_range: tuple[float, float] | None = None, *,
                  weights: str | Path | None | Literal["default"] = "default",
-                 architecture: HybridArchitecture | None = None) -> None:
+                 architecture: HybridArchitecture | None = None,
+                 last_stage: Literal["exact", "learned"] = "exact") -> None:
         super().__init__()
         from prismstereo.depth.range import check_z_range, default_z_range
+
+        check_option(last_stage, LAST_STAGES, "last_stage")
 
         if not isinstance(rig, BiPrismRig):
             raise OptionError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
@@ -165,6 +192,15 @@ class HybridStereo(nn.Module):
         self.rig = rig
         self.half = half = rig.binned(2)
         z = self.classical.z_range
+        self.last_stage = last_stage
+        # the exact last stage: a classical level's band placed by the learned estimate, where the classical model
+        # fits its final band (2 x 2-binned on large sensors, else at full resolution)
+        self.exact: DepthLevel | None = None
+        self.exact_binning = 0  # the binning of the exact last stage's grid, 0 without one
+        if last_stage == "exact":
+            self.exact_binning = default_downsample(rig)
+            grid = half if self.exact_binning == 2 else rig
+            self.exact = DepthLevel(grid, z, exact_config(grid, z), placed_by=2)
         # a step of s: the sweep's largest pixel spacing at the half resolution is <= 1 px per step
         self.step = 2.0 / (default_hypotheses(half, z) - 1)
         f64 = torch.float64
@@ -235,7 +271,8 @@ class HybridStereo(nn.Module):
             digest.update(tensor.detach().float().cpu().numpy().tobytes())
         return {"model": "HybridStereo", "z_range_mm": list(self.z_range), "num_hypotheses": self.num_hypotheses,
                 "architecture": dataclasses.asdict(self.architecture), "classical": self.classical.describe(),
-                "weights_sha256": digest.hexdigest()[:16], "valid_confidence": self.valid_confidence}
+                "weights_sha256": digest.hexdigest()[:16], "valid_confidence": self.valid_confidence,
+                "last_stage": self.last_stage}
 
     def summary(self) -> str:
         """The model in one line.
@@ -250,8 +287,9 @@ class HybridStereo(nn.Module):
         quarter = f"{a.quarter} at 1/4 and " if a.quarter else ""
         first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/8)" if self.start is not None
                  else f"classical block level ({self.classical.summary()})")
+        last = f", then the exact band +-{EXACT_BAND} at 1/{self.exact_binning}" if self.exact_binning else ""
         return (f"hybrid: {first}, then learned 2-D stages: "
-                f"{quarter}{a.iterations} at 1/2 ({a.layers} x {a.channels} ch, {count} parameters)")
+                f"{quarter}{a.iterations} at 1/2 ({a.layers} x {a.channels} ch, {count} parameters){last}")
 
     def save(self, path: str | Path, **metadata: Any) -> Path:
         """Write the CNNs' weights with the architecture and ``metadata`` (small, plain values)."""
@@ -311,23 +349,21 @@ class HybridStereo(nn.Module):
         """
         n = self.architecture.offsets
         b, _, h, w = s.shape
-        r, c = window
         coefficients, step = (self.quarter_coefficients, self.quarter_step) if quarter else (self.coefficients,
                                                                                             self.step)
-        match, slope = sweep_match(coefficients[..., r:r + h, c:c + w], s)  # (B, 2, h, w) each
+        match, slope = sweep_match(_crop(coefficients, window, (h, w)), s)  # (B, 2, h, w) each
         offsets = torch.arange(-n, n + 1, dtype=s.dtype, device=s.device).view(1, -1, 1, 1, 1) * step
         at = match.unsqueeze(1) + offsets * slope.unsqueeze(1)  # (B, O, 2, h, w)
         local = image[:, 1:2]
         warped = sample_bilinear(local, at[:, :, 0], at[:, :, 1])[:, 0]  # (B, O, h, w)
-        return box_filter((local[..., r:r + h, c:c + w] - warped).abs(), 3)
+        return box_filter((_crop(local, window, (h, w)) - warped).abs(), 3)
 
     def _stage(self, stage: RefinementCNN, image: torch.Tensor, s: torch.Tensor, confidence: torch.Tensor,
                covered: torch.Tensor, window: tuple[int, int], quarter: bool) -> tuple[torch.Tensor, torch.Tensor]:
         h, w = s.shape[-2:]
-        r, c = window
         step = self.quarter_step if quarter else self.step
         relief = ((s - box_filter(s, 5)) / step).clamp(-RELIEF_STEPS, RELIEF_STEPS) / RELIEF_STEPS
-        x = torch.cat([image[..., r:r + h, c:c + w], self.sample_costs(image, s, window, quarter), relief,
+        x = torch.cat([_crop(image, window, (h, w)), self.sample_costs(image, s, window, quarter), relief,
                        confidence, covered], 1)
         delta, logit = stage(x).split(1, 1)
         return (s + delta * step).clamp(-1.0, 1.0), logit
@@ -371,24 +407,71 @@ class HybridStereo(nn.Module):
             through the prism; valid (B, 1, H, W_ref) bool (confidence >= :attr:`valid_confidence`, the weights'
             calibrated threshold); confidence (B, 1, H, W_ref) in
             [0, 1] (trained as the probability of a depth within 1 % of the truth; 0 exactly where there is no
-            depth); index into :attr:`depths`; match (B, 2, H, W_ref), the 2 x 2-binned match interpolated.
+            depth); index into :attr:`depths`; match (B, 2, H, W_ref), the match of the last stage's grid
+            (interpolated from the 2 x 2-binned one, or the exact sweep at full resolution).
 
         Raises:
             ShapeError: an image that is not (B, 1 or 3, H, W) of the rig's sensor, or not floating point.
         """
         dtype = self.coefficients.dtype
-        inputs = self.initial(image)
-        s, logit = self.refine(inputs)[-1]
-        match = sweep_match(self.coefficients, s)[0] * 2.0 + 0.5  # full-sensor pixels
+        self._check(image)
+        grey = F.avg_pool2d(to_grey(image.to(dtype)), 2)
+        s, logit = self.refine(self.initial_binned(grey))[-1]
+        confidence = torch.sigmoid(logit)
         size = (self.rig.image_height, self.rig.reference_width)
-        # each map on its own: the exported graph keeps only what its outputs need (not the match)
-        s, confidence, match = (upsample(t, 2, size, mode="bilinear") for t in (s, torch.sigmoid(logit), match))
-        z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
+        if self.exact_binning == 2:  # the exact last stage on the binned grid
+            s = self.exact_stage(grey, s)
+        if self.exact_binning == 1:  # ... at full resolution
+            s = self.exact_stage(to_grey(image.to(dtype)), s)
+            match = torch.cat(series_at(self.exact.series, s), 1)
+            confidence = upsample(confidence, 2, size, mode="bilinear")
+        else:
+            match = sweep_match(self.coefficients, s)[0] * 2.0 + 0.5  # full-sensor pixels
+            # each map on its own: the exported graph keeps only what its outputs need (not the match)
+            s, confidence, match = (upsample(t, 2, size, mode="bilinear") for t in (s, confidence, match))
         confidence = confidence * self.rays_valid.to(dtype)
+        z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
         out = image.dtype
         return DepthResult(depth.to(out), confidence >= self.valid_confidence, confidence.to(out),
                            ((s + 1.0) / self.classical.step).to(out), match.to(out))
+
+    def exact_stage(self, grey: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        """The exact last stage (module docstring, step 3).
+
+        Args:
+            grey: (B, 1, H', W') the grey capture on the stage's grid (``exact.rig``'s sensor: 2 x 2-binned, or the
+                full sensor).
+            s: (B, 1, h, w) the learned estimate's sweep coordinate on the 2 x 2-binned grid (its reference half).
+
+        Returns:
+            (B, 1, H', W'_ref) s on the stage's grid: the band's fit where it is valid and within
+            :data:`EXACT_AGREEMENT` steps of the estimate, else the estimate.
+
+        Raises:
+            OptionError: a model built with ``last_stage='learned'``.
+        """
+        level = self.exact
+        if level is None:
+            raise OptionError("exact_stage needs a model built with last_stage='exact'")
+        reference, other = level.split(grey)
+        size = tuple(reference.shape[-2:])
+        if tuple(s.shape[-2:]) != size:  # the stage at full resolution: the estimate carried there
+            s = upsample(s, 2, size, mode="bilinear")
+        s0 = s.detach().clamp(-1.0, 1.0)
+        placed = torch.ones_like(s0, dtype=torch.bool)
+        # judged by the band's own evidence (its NCC is the placement's similarity, as the confidence was fitted)
+        fit = level.finish(level.search_band(reference, other, s0, placed, ~placed, None))
+        fitted = fit.index * level.step - 1.0
+        take = fit.valid & ((fitted - s).abs() <= EXACT_AGREEMENT * level.step)
+        return torch.where(take, fitted, s)
+
+
+def _crop(t: torch.Tensor, window: tuple[int, int], size: tuple[int, int]) -> torch.Tensor:
+    """The (h, w) = ``size`` crop of ``t`` (..., H, W) from row, column ``window`` on; ``t`` itself when that is all of
+    it (an exported Slice copies even a whole tensor: 2 ms a stage at 1024 x 768)."""
+    (r, c), (h, w) = window, size
+    return t if (r, c) == (0, 0) and tuple(t.shape[-2:]) == (h, w) else t[..., r:r + h, c:c + w]
 
 
 def classical_config(block: int) -> StereoConfig:
@@ -402,6 +485,21 @@ def classical_config(block: int) -> StereoConfig:
         (4, 0, True)
     """
     return preset("dense").replace(search={"downsample": block, "full_band": 0})
+
+
+def exact_config(rig: BiPrismRig, z_range_mm: tuple[float, float]) -> StereoConfig:
+    """The exact last stage's level: the classical pyramid's full-resolution level (the default options, with its
+    calibrated confidence, smoothing and occlusion test) placed by another estimate, band :data:`EXACT_BAND`,
+    resolved for ``rig`` (the hybrid's: its sensor binned 2 x 2) by
+    :func:`~prismstereo.classical.defaults.resolve_level`.
+
+    Example:
+        >>> config = exact_config(thesis_setup1(), (450.0, 900.0))
+        >>> config.search.coarse_factor, config.search.band, config.validity.validity
+        (2, 1, 'calibrated')
+    """
+    config = StereoConfig().replace(search={"downsample": 2, "full_band": EXACT_BAND})
+    return resolve_level(rig, z_range_mm, config, placed_by=2)
 
 
 def sweep_match(coefficients: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
