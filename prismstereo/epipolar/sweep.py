@@ -52,6 +52,7 @@ __all__ = [
     "fit_sweep",
     "sweep_coefficients",
     "evaluate_sweep",
+    "sweep_match",
     "sweep_positions",
     "positions_at",
     "sweep_hypotheses",
@@ -405,3 +406,28 @@ def sweep_hypotheses(coefficients: torch.Tensor, max_step_px: float = 1.0, strid
     pos = positions_at(sub, probe)  # (257, h, w, 2)
     speed = (pos[1:] - pos[:-1]).norm(dim=-1).amax() * 256 / 2  # px per unit s (max over pixels)
     return max(2, math.ceil(float(speed) * 2 / max_step_px * 1.02) + 1)
+
+
+def sweep_match(coefficients: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The per-pixel sweep polynomials (Chebyshev in s, :func:`~prismstereo.epipolar.sweep.sweep_coefficients`)
+    at ``s`` and their slope d m / d s, on whole maps (Clenshaw's recurrence and its derivative).
+
+    Args:
+        coefficients: (N, 2, h, w) per-pixel coefficients.
+        s: (B, 1, h, w) sweep coordinates in [-1, 1].
+
+    Returns:
+        (match, slope): (B, 2, h, w) each, positions in the other half (px of the polynomials' rig) and d/ds.
+
+    Example:
+        >>> c = torch.zeros(3, 2, 1, 1); c[1] = 1.0  # m(s) = T_1(s) = s
+        >>> [t.flatten().tolist() for t in sweep_match(c, torch.full((1, 1, 1, 1), 0.5))]
+        [[0.5, 0.5], [1.0, 1.0]]
+    """
+    check_shape(coefficients, ["N", 2, "H", "W"], "coefficients")
+    terms = coefficients.unbind(0)  # one Split when exported, not a Slice per term
+    two_s = 2.0 * s
+    b1 = b2 = d1 = d2 = torch.zeros_like(terms[0] * s)
+    for k in range(len(terms) - 1, 0, -1):  # Clenshaw: b_k = c_k + 2 s b_(k+1) - b_(k+2), and d/ds
+        b1, b2, d1, d2 = terms[k] + two_s * b1 - b2, b1, 2.0 * b1 + two_s * d1 - d2, d1
+    return terms[0] + s * b1 - b2, b1 + s * d1 - d2

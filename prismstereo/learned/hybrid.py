@@ -18,16 +18,11 @@ Data path (one capture, both halves as recorded; k = ``block``; (h, w) the refer
    around the estimate. A dilated 3 x 3 CNN (the StereoNet / HITNet refinement) on the reference image, the cost curve,
    the estimate's local relief and the classical confidence and coverage predicts a residual of s in steps and a
    confidence logit;
-3. the exact last stage (``last_stage='exact'``, the default): the classical band of 2 R + 1 hypotheses
-   (R = :data:`EXACT_BAND`) on the exact sweep around the learned estimate, its sub-pixel fit, calibrated confidence,
-   robust smoothing and occlusion test (:class:`~prismstereo.classical.level.DepthLevel` with :func:`exact_config`),
-   on the grid where the classical model fits its own final band (:func:`~prismstereo.classical.defaults.
-   default_downsample`: the 2 x 2-binned grid of sensors whose reference half is >= 384 px on its shorter side,
-   else the full sensor, the estimate carried there bilinearly). Where that fit is valid and within
-   :data:`EXACT_AGREEMENT` steps of the learned estimate it replaces it: a learned estimate carries a smooth bias of
-   a tenth of a step on textured surfaces (it is regressed, not fitted), the windowed fit, smoothed over 15 x 15
-   pixels, does not; where the two disagree (depth edges, weak texture) the learned estimate stays. The confidence
-   is the learned one;
+3. the exact last stage (``last_stage='exact'``, the default; :mod:`~prismstereo.learned.exact_stage`): the
+   classical band's fit on the exact sweep around the estimate, where the classical default fits its own band (the
+   2 x 2-binned grid on large sensors, else the full sensor), replaces the estimate where it is valid and agrees
+   with it (a regressed estimate carries a smooth bias of a tenth of a step on textured surfaces, the smoothed fit
+   does not). The confidence is the learned one;
 4. s and the confidence bilinearly to full resolution (where they are not there yet), depth exact from s (thesis
    eq. 6.1-6.10 via the sweep).
 
@@ -47,16 +42,16 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.classical import PrismStereo, StereoConfig, TemporalDepth, TemporalOptions, preset
-from prismstereo.classical.defaults import default_downsample, default_hypotheses, resolve_level
-from prismstereo.classical.level import DepthLevel
+from prismstereo.classical.defaults import default_hypotheses
 from prismstereo.conventions import to_grey
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.series import series_at
-from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
+from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_match, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.learned.exact_stage import EXACT_BAND, ExactStage
 from prismstereo.learned.network import normalise_image
 from prismstereo.learned.refinement import HybridArchitecture, RefinementCNN
 from prismstereo.learned.sweep_start import SweepStart, load_start
@@ -65,8 +60,8 @@ from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.band import extend_estimate
 from prismstereo.runtime import sample_bilinear
 
-__all__ = ["EXACT_AGREEMENT", "EXACT_BAND", "HYBRID_FORMAT", "HYBRID_WEIGHTS", "LAST_STAGES", "HybridStereo",
-           "RefinementInputs", "classical_config", "exact_config", "load_hybrid_weights", "sweep_match", "truth_sweep"]
+__all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "LAST_STAGES", "HybridStereo", "RefinementInputs", "classical_config",
+           "load_hybrid_weights", "truth_sweep"]
 
 HYBRID_WEIGHTS = Path(__file__).resolve().parent / "weights" / "hybrid.pt"
 HYBRID_FORMAT = "prismstereo.hybrid/1"
@@ -76,11 +71,6 @@ RELIEF_STEPS = 8.0  # the estimate's local relief is given to the CNN in steps, 
 # neighbours' mean s, so the refinement starts near the truth there instead of at s = 0
 FILL_RADIUS = 3
 VALID_CONFIDENCE = 0.5  # the validity threshold of weights without a calibrated one (``valid_confidence``)
-EXACT_BAND = 1
-"""R of the exact last stage's band: the learned estimate is within a step of the match wherever the fit replaces
-it, and with R = 1 the band's winner is its centre (no winner search)."""
-EXACT_AGREEMENT = 0.5
-"""The exact last stage replaces the learned estimate where its fit is within this many steps of it."""
 LAST_STAGES = ("exact", "learned")
 """What gives the final depth (:class:`HybridStereo`'s ``last_stage``)."""
 
@@ -132,8 +122,8 @@ class HybridStereo(nn.Module):
         valid_confidence: the confidence from which a depth is valid: the threshold calibrated on the training
             captures (:func:`~prismstereo.learned.hybrid_train.validity_threshold`, in the weights' metadata),
             else :data:`VALID_CONFIDENCE`.
-        exact: the exact last stage's level (None with ``last_stage='learned'``); exact_binning: the binning of its
-            grid (2 or 1; 0 without it).
+        exact: the exact last stage (:class:`~prismstereo.learned.exact_stage.ExactStage`; None with
+            ``last_stage='learned'``).
 
     Raises:
         OptionError: a sensor the block does not divide, or bad options. WeightsError: a weights file that cannot
@@ -193,14 +183,7 @@ class HybridStereo(nn.Module):
         self.half = half = rig.binned(2)
         z = self.classical.z_range
         self.last_stage = last_stage
-        # the exact last stage: a classical level's band placed by the learned estimate, where the classical model
-        # fits its final band (2 x 2-binned on large sensors, else at full resolution)
-        self.exact: DepthLevel | None = None
-        self.exact_binning = 0  # the binning of the exact last stage's grid, 0 without one
-        if last_stage == "exact":
-            self.exact_binning = default_downsample(rig)
-            grid = half if self.exact_binning == 2 else rig
-            self.exact = DepthLevel(grid, z, exact_config(grid, z), placed_by=2)
+        self.exact = ExactStage(rig, z) if last_stage == "exact" else None
         # a step of s: the sweep's largest pixel spacing at the half resolution is <= 1 px per step
         self.step = 2.0 / (default_hypotheses(half, z) - 1)
         f64 = torch.float64
@@ -287,7 +270,7 @@ class HybridStereo(nn.Module):
         quarter = f"{a.quarter} at 1/4 and " if a.quarter else ""
         first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/8)" if self.start is not None
                  else f"classical block level ({self.classical.summary()})")
-        last = f", then the exact band +-{EXACT_BAND} at 1/{self.exact_binning}" if self.exact_binning else ""
+        last = "" if self.exact is None else f", then the exact band +-{EXACT_BAND} at 1/{self.exact.binning}"
         return (f"hybrid: {first}, then learned 2-D stages: "
                 f"{quarter}{a.iterations} at 1/2 ({a.layers} x {a.channels} ch, {count} parameters){last}")
 
@@ -419,11 +402,11 @@ class HybridStereo(nn.Module):
         s, logit = self.refine(self.initial_binned(grey))[-1]
         confidence = torch.sigmoid(logit)
         size = (self.rig.image_height, self.rig.reference_width)
-        if self.exact_binning == 2:  # the exact last stage on the binned grid
-            s = self.exact_stage(grey, s)
-        if self.exact_binning == 1:  # ... at full resolution
-            s = self.exact_stage(to_grey(image.to(dtype)), s)
-            match = torch.cat(series_at(self.exact.series, s), 1)
+        if self.exact is not None and self.exact.binning == 2:  # the exact last stage on the binned grid
+            s = self.exact(grey, s)
+        if self.exact is not None and self.exact.binning == 1:  # ... at full resolution
+            s = self.exact(to_grey(image.to(dtype)), s)
+            match = torch.cat(series_at(self.exact.level.series, s), 1)
             confidence = upsample(confidence, 2, size, mode="bilinear")
         else:
             match = sweep_match(self.coefficients, s)[0] * 2.0 + 0.5  # full-sensor pixels
@@ -436,40 +419,10 @@ class HybridStereo(nn.Module):
         return DepthResult(depth.to(out), confidence >= self.valid_confidence, confidence.to(out),
                            ((s + 1.0) / self.classical.step).to(out), match.to(out))
 
-    def exact_stage(self, grey: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
-        """The exact last stage (module docstring, step 3).
-
-        Args:
-            grey: (B, 1, H', W') the grey capture on the stage's grid (``exact.rig``'s sensor: 2 x 2-binned, or the
-                full sensor).
-            s: (B, 1, h, w) the learned estimate's sweep coordinate on the 2 x 2-binned grid (its reference half).
-
-        Returns:
-            (B, 1, H', W'_ref) s on the stage's grid: the band's fit where it is valid and within
-            :data:`EXACT_AGREEMENT` steps of the estimate, else the estimate.
-
-        Raises:
-            OptionError: a model built with ``last_stage='learned'``.
-        """
-        level = self.exact
-        if level is None:
-            raise OptionError("exact_stage needs a model built with last_stage='exact'")
-        reference, other = level.split(grey)
-        size = tuple(reference.shape[-2:])
-        if tuple(s.shape[-2:]) != size:  # the stage at full resolution: the estimate carried there
-            s = upsample(s, 2, size, mode="bilinear")
-        s0 = s.detach().clamp(-1.0, 1.0)
-        placed = torch.ones_like(s0, dtype=torch.bool)
-        # judged by the band's own evidence (its NCC is the placement's similarity, as the confidence was fitted)
-        fit = level.finish(level.search_band(reference, other, s0, placed, ~placed, None))
-        fitted = fit.index * level.step - 1.0
-        take = fit.valid & ((fitted - s).abs() <= EXACT_AGREEMENT * level.step)
-        return torch.where(take, fitted, s)
-
 
 def _crop(t: torch.Tensor, window: tuple[int, int], size: tuple[int, int]) -> torch.Tensor:
-    """The (h, w) = ``size`` crop of ``t`` (..., H, W) from row, column ``window`` on; ``t`` itself when that is all of
-    it (an exported Slice copies even a whole tensor: 2 ms a stage at 1024 x 768)."""
+    """The ``size`` crop of ``t`` (..., H, W) from ``window`` on; ``t`` itself when that is all of it (an exported Slice
+    copies even a whole tensor: 2 ms a stage at 1024 x 768)."""
     (r, c), (h, w) = window, size
     return t if (r, c) == (0, 0) and tuple(t.shape[-2:]) == (h, w) else t[..., r:r + h, c:c + w]
 
@@ -485,46 +438,6 @@ def classical_config(block: int) -> StereoConfig:
         (4, 0, True)
     """
     return preset("dense").replace(search={"downsample": block, "full_band": 0})
-
-
-def exact_config(rig: BiPrismRig, z_range_mm: tuple[float, float]) -> StereoConfig:
-    """The exact last stage's level: the classical pyramid's full-resolution level (the default options, with its
-    calibrated confidence, smoothing and occlusion test) placed by another estimate, band :data:`EXACT_BAND`,
-    resolved for ``rig`` (the hybrid's: its sensor binned 2 x 2) by
-    :func:`~prismstereo.classical.defaults.resolve_level`.
-
-    Example:
-        >>> config = exact_config(thesis_setup1(), (450.0, 900.0))
-        >>> config.search.coarse_factor, config.search.band, config.validity.validity
-        (2, 1, 'calibrated')
-    """
-    config = StereoConfig().replace(search={"downsample": 2, "full_band": EXACT_BAND})
-    return resolve_level(rig, z_range_mm, config, placed_by=2)
-
-
-def sweep_match(coefficients: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The per-pixel sweep polynomials (Chebyshev in s, :func:`~prismstereo.epipolar.sweep.sweep_coefficients`)
-    at ``s`` and their slope d m / d s, on whole maps (Clenshaw's recurrence and its derivative).
-
-    Args:
-        coefficients: (N, 2, h, w) per-pixel coefficients.
-        s: (B, 1, h, w) sweep coordinates in [-1, 1].
-
-    Returns:
-        (match, slope): (B, 2, h, w) each, positions in the other half (px of the polynomials' rig) and d/ds.
-
-    Example:
-        >>> c = torch.zeros(3, 2, 1, 1); c[1] = 1.0  # m(s) = T_1(s) = s
-        >>> [t.flatten().tolist() for t in sweep_match(c, torch.full((1, 1, 1, 1), 0.5))]
-        [[0.5, 0.5], [1.0, 1.0]]
-    """
-    check_shape(coefficients, ["N", 2, "H", "W"], "coefficients")
-    terms = coefficients.unbind(0)  # one Split when exported, not a Slice per term
-    two_s = 2.0 * s
-    b1 = b2 = d1 = d2 = torch.zeros_like(terms[0] * s)
-    for k in range(len(terms) - 1, 0, -1):  # Clenshaw: b_k = c_k + 2 s b_(k+1) - b_(k+2), and d/ds
-        b1, b2, d1, d2 = terms[k] + two_s * b1 - b2, b1, 2.0 * b1 + two_s * d1 - d2, d1
-    return terms[0] + s * b1 - b2, b1 + s * d1 - d2
 
 
 def truth_sweep(depth: torch.Tensor, z_range_mm: tuple[float, float]) -> torch.Tensor:

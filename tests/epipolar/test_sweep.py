@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from prismstereo import OptionError, RigError, thesis_setup1, thesis_setup2
+from prismstereo import OptionError, RigError, ShapeError, thesis_setup1, thesis_setup2
 from prismstereo.epipolar import depth_hypotheses, exact_sampling_grid
 from prismstereo.epipolar.sweep import (
     chebyshev_basis,
@@ -10,6 +10,7 @@ from prismstereo.epipolar.sweep import (
     fit_sweep,
     inverse_to_sweep,
     sweep_coefficients,
+    sweep_match,
     sweep_positions,
     sweep_to_depth,
     sweep_to_inverse,
@@ -138,3 +139,21 @@ def test_fit_errors():
         fit_sweep(rig, (300.0, 900.0), nodes_uv=1)
     with pytest.raises(RigError, match="sweep fit error"):
         fit_sweep(rig, (228.0, 1374.0), nodes_uv=2, nodes_depth=2, tolerance_px=1e-12, max_nodes=4)
+
+
+def test_sweep_match_is_the_sweep_and_its_slope():
+    half = thesis_setup1().binned(2)
+    uv = torch.rand(4, 6, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * torch.tensor(
+        [250.0, 380.0], dtype=torch.float64)
+    c = sweep_coefficients(fit_sweep(half, (228.0, 1374.0)), uv)  # (4, 6, N, 2)
+    s = torch.rand(1, 1, 4, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(2)) * 2 - 1
+    match, slope = sweep_match(c.permute(2, 3, 0, 1), s)
+    assert torch.allclose(match[0].permute(1, 2, 0), evaluate_sweep(c, s[0, 0]), atol=1e-9)
+    h = 1e-6
+    numeric = (evaluate_sweep(c, s[0, 0] + h) - evaluate_sweep(c, s[0, 0] - h)) / (2 * h)
+    assert torch.allclose(slope[0].permute(1, 2, 0), numeric, atol=1e-5)
+    small = c[:2, :2].permute(2, 3, 0, 1).contiguous()
+    probe = s[..., :2, :2].clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda x: sweep_match(small, x)[0], (probe,))
+    with pytest.raises(ShapeError, match="coefficients"):
+        sweep_match(torch.zeros(3, 4, 5), s)

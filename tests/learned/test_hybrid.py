@@ -6,20 +6,18 @@ import numpy as np
 import pytest
 import torch
 
-from prismstereo import PrismStereo, thesis_setup1
+from prismstereo import thesis_setup1
 from prismstereo.cli import main
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
-from prismstereo.epipolar.sweep import evaluate_sweep, fit_sweep, sweep_coefficients
+from prismstereo.epipolar.sweep import sweep_match
 from prismstereo.errors import OptionError, ShapeError
 from prismstereo.learned import HYBRID_WEIGHTS, HybridArchitecture, HybridStereo, WeightsError
 from prismstereo.learned.hybrid import (
-    EXACT_AGREEMENT,
     FILL_RADIUS,
     VALID_CONFIDENCE,
     RefinementInputs,
     load_hybrid_weights,
-    sweep_match,
     truth_sweep,
 )
 from prismstereo.learned.hybrid_data import hybrid_set, photo_scene, photographs, training_rigs
@@ -107,24 +105,6 @@ def test_uncovered_blocks_start_from_their_covered_neighbours(untrained, plane):
     assert torch.equal(inputs.s[far], torch.zeros_like(inputs.s[far]))
 
 
-def test_sweep_match_is_the_sweep_and_its_slope():
-    half = thesis_setup1().binned(2)
-    uv = torch.rand(4, 6, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * torch.tensor(
-        [250.0, 380.0], dtype=torch.float64)
-    c = sweep_coefficients(fit_sweep(half, (228.0, 1374.0)), uv)  # (4, 6, N, 2)
-    s = torch.rand(1, 1, 4, 6, dtype=torch.float64, generator=torch.Generator().manual_seed(2)) * 2 - 1
-    match, slope = sweep_match(c.permute(2, 3, 0, 1), s)
-    assert torch.allclose(match[0].permute(1, 2, 0), evaluate_sweep(c, s[0, 0]), atol=1e-9)
-    h = 1e-6
-    numeric = (evaluate_sweep(c, s[0, 0] + h) - evaluate_sweep(c, s[0, 0] - h)) / (2 * h)
-    assert torch.allclose(slope[0].permute(1, 2, 0), numeric, atol=1e-5)
-    small = c[:2, :2].permute(2, 3, 0, 1).contiguous()
-    probe = s[..., :2, :2].clone().requires_grad_(True)
-    assert torch.autograd.gradcheck(lambda x: sweep_match(small, x)[0], (probe,))
-    with pytest.raises(ShapeError, match="coefficients"):
-        sweep_match(torch.zeros(3, 4, 5), s)
-
-
 def test_architecture_and_option_errors(rig):
     assert HybridArchitecture().inputs == 10
     with pytest.raises(OptionError, match="Choose from: 2, 4"):
@@ -192,50 +172,10 @@ def test_shipped_weights_load_and_keep_a_textured_plane(rig, plane):
     assert float((out.valid & inner & covisible).sum()) >= 0.95 * float((inner & covisible).sum())
 
 
-def test_exact_last_stage_keeps_a_textured_plane_as_exact_as_the_classical_model(rig, plane):
-    exact, learned = (HybridStereo(rig, Z, last_stage=last).eval() for last in ("exact", "learned"))
-    assert exact.describe()["last_stage"] == "exact" and "exact band" in exact.summary()
-    assert learned.exact is None and "exact band" not in learned.summary()
-    with torch.inference_mode():
-        out, plain, classical = exact(plane.image), learned(plane.image), PrismStereo(rig, Z)(plane.image)
-    w = rig.reference_width
-    truth, covisible = plane.depth[..., :w], plane.covisible[..., :w]
-    inner = torch.zeros_like(out.valid)
-    inner[..., 8:-8, 8:-8] = True
-    sel = inner & covisible & out.valid & classical.valid
-    assert float(sel.sum()) >= 0.9 * float((inner & covisible).sum())
-    error = {name: float(((r.depth - truth).abs() / truth)[sel].mean())
-             for name, r in (("exact", out), ("learned", plain), ("classical", classical))}
-    assert error["exact"] <= 1.2 * error["classical"], error  # the issue's target
-    assert error["exact"] < error["learned"], error
-    # the confidence and validity are the learned stages'; the fit moves s by at most EXACT_AGREEMENT steps
-    assert torch.equal(out.confidence, plain.confidence) and torch.equal(out.valid, plain.valid)
-    moved = (out.index - plain.index).abs() * learned.classical.step / learned.step
-    assert float(moved[inner].max()) <= EXACT_AGREEMENT * 2 + 1e-3  # bilinear upsampling: up to 2 neighbours
-    assert float((moved[sel] > 1e-6).float().mean()) > 0.5  # the fit replaced most of the plane
-
-
-@pytest.mark.parametrize(("downscale", "binning"), [(1, 2), (2, 1)])
-def test_exact_last_stage_keeps_the_learned_estimate_where_it_cannot_fit(downscale, binning):
-    # a large sensor fits on its 2 x 2-binned grid, a small one on its full-resolution grid (the classical rule)
-    model = HybridStereo(thesis_setup1().downscaled(downscale), Z, weights=None).eval()
-    assert model.exact_binning == binning and model.exact.rig.image_width == model.rig.image_width // binning
-    half, grid = model.half, model.exact.rig
-    flat = torch.full((1, 1, grid.image_height, grid.image_width), 0.5)
-    s = torch.linspace(-0.5, 0.5, half.reference_width).expand(1, 1, half.image_height, -1).contiguous()
-    with torch.inference_mode():  # no texture: no valid fit, every pixel keeps its estimate
-        out = model.exact_stage(flat, s)
-    expected = s if binning == 2 else upsample(s, 2, (grid.image_height, grid.reference_width), mode="bilinear")
-    assert torch.equal(out, expected)
-
-
 def test_last_stage_option_errors(rig):
     with pytest.raises(OptionError, match="Unknown last_stage 'band'. Choose from: 'exact', 'learned'"):
         HybridStereo(rig, Z, weights=None, last_stage="band")
-    model = HybridStereo(rig, Z, weights=None, last_stage="learned")
-    s = torch.zeros(1, 1, model.half.image_height, model.half.reference_width)
-    with pytest.raises(OptionError, match="exact_stage needs a model built with last_stage='exact'"):
-        model.exact_stage(torch.zeros(1, 1, model.half.image_height, model.half.image_width), s)
+    assert HybridStereo(rig, Z, weights=None, last_stage="learned").exact is None
 
 
 def test_onnxruntime_matches_torch(tmp_path, untrained, rig, plane):

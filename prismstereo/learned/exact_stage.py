@@ -1,0 +1,107 @@
+"""The hybrid's exact last stage: the classical band's fit on the exact sweep, placed on a learned estimate.
+
+A learned estimate is regressed, not fitted: on textured surfaces it carries a smooth bias of about a tenth of a
+sweep step (``benchmarks/default_chain.py``: twice the classical model's error on textured planes). The classical
+model's final band is exact there: 2 R + 1 hypotheses on each pixel's exact sweep (thesis eq. 4.1-4.10 done exactly),
+ZNCC, a sub-pixel fit, its calibrated confidence, a 15 x 15 confidence-weighted robust mean and the z-buffer
+occlusion test (:class:`~prismstereo.classical.level.DepthLevel` with :func:`exact_config`). :class:`ExactStage`
+places that band (R = :data:`EXACT_BAND`) on the learned estimate, on the grid where the classical default fits its
+own band (:func:`~prismstereo.classical.defaults.default_downsample`: 2 x 2-binned on sensors whose reference half is
+>= 384 px on its shorter side, else the full sensor), and takes its fit where the band is valid and within
+:data:`EXACT_AGREEMENT` steps of the estimate; elsewhere (depth edges, weak texture, occlusions) the estimate stays.
+The band is judged by its own evidence (its NCC is the placement's similarity, as the confidence was fitted).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from prismstereo.classical.config import StereoConfig
+from prismstereo.classical.defaults import default_downsample, resolve_level
+from prismstereo.classical.level import DepthLevel
+from prismstereo.depth.resample import upsample
+from prismstereo.errors import ShapeError, check_shape
+from prismstereo.geometry.rig import BiPrismRig
+
+__all__ = ["EXACT_AGREEMENT", "EXACT_BAND", "ExactStage", "exact_config"]
+
+EXACT_BAND = 1
+"""R of the band: the learned estimate is within a step of the match wherever the fit replaces it, and with R = 1
+the band's winner is its centre (no winner search)."""
+EXACT_AGREEMENT = 0.5
+"""The fit replaces the estimate where it is within this many steps of it (the band's steps)."""
+
+
+def exact_config(rig: BiPrismRig, z_range_mm: tuple[float, float]) -> StereoConfig:
+    """The stage's level: the classical pyramid's full-resolution level (the default options, with its calibrated
+    confidence, smoothing and occlusion test) placed by another estimate, band :data:`EXACT_BAND`, resolved for
+    ``rig`` (the stage's grid) by :func:`~prismstereo.classical.defaults.resolve_level`.
+
+    Example:
+        >>> config = exact_config(thesis_setup1(), (450.0, 900.0))
+        >>> config.search.coarse_factor, config.search.band, config.validity.validity
+        (2, 1, 'calibrated')
+    """
+    config = StereoConfig().replace(search={"downsample": 2, "full_band": EXACT_BAND})
+    return resolve_level(rig, z_range_mm, config, placed_by=2)
+
+
+class ExactStage(nn.Module):
+    """The classical band's fit around an estimate on the 2 x 2-binned grid (module docstring).
+
+    Args:
+        rig: the full-resolution rig.
+        z_range_mm: (z_min, z_max) of the sweep coordinate s (the estimate's).
+
+    Attributes:
+        binning: the binning of the stage's grid (2, or 1 on sensors where the classical default has no pyramid).
+        level: its :class:`~prismstereo.classical.level.DepthLevel` (the grid's rig: ``level.rig``).
+
+    Example:
+        >>> stage = ExactStage(thesis_setup1().downscaled(2), (450.0, 900.0))
+        >>> s = torch.zeros(1, 1, 192, 128)  # the estimate on the 2 x 2-binned grid
+        >>> stage.binning, stage(torch.rand(1, 1, 384, 512), s).shape  # a small sensor: fitted at full resolution
+        (1, torch.Size([1, 1, 384, 256]))
+    """
+
+    def __init__(self, rig: BiPrismRig, z_range_mm: tuple[float, float]) -> None:
+        super().__init__()
+        self.binning = default_downsample(rig)
+        grid = rig.binned(2) if self.binning == 2 else rig
+        self.level = DepthLevel(grid, z_range_mm, exact_config(grid, z_range_mm), placed_by=2)
+        self.estimate_size = (rig.binned(2).image_height, rig.binned(2).reference_width)
+
+    @property
+    def rig(self) -> BiPrismRig:
+        """The rig of the stage's grid."""
+        return self.level.rig
+
+    def forward(self, grey: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        """The fit around ``s``.
+
+        Args:
+            grey: (B, 1, H', W') the grey capture on the stage's grid (:attr:`rig`'s sensor).
+            s: (B, 1, h, w) the estimate's sweep coordinate on the 2 x 2-binned grid (its reference half).
+
+        Returns:
+            (B, 1, H', W'_ref) s on the stage's grid: the band's fit where it is valid and within
+            :data:`EXACT_AGREEMENT` steps of the estimate, else the estimate (bilinearly on a full-resolution grid).
+
+        Raises:
+            ShapeError: ``s`` not on the 2 x 2-binned grid, ``grey`` not of the stage's sensor.
+        """
+        check_shape(s, ["B", 1, *self.estimate_size], "s")
+        level = self.level
+        reference, other = level.split(grey)
+        size = tuple(reference.shape[-2:])
+        if self.binning == 1:  # the estimate carried to the full-resolution grid
+            s = upsample(s, 2, size, mode="bilinear")
+        if reference.shape[0] != s.shape[0]:
+            raise ShapeError(f"grey has {reference.shape[0]} images, s {s.shape[0]}")
+        s0 = s.detach().clamp(-1.0, 1.0)
+        placed = torch.ones_like(s0, dtype=torch.bool)
+        fit = level.finish(level.search_band(reference, other, s0, placed, ~placed, None))
+        fitted = fit.index * level.step - 1.0
+        take = fit.valid & ((fitted - s).abs() <= EXACT_AGREEMENT * level.step)
+        return torch.where(take, fitted, s)
