@@ -1,30 +1,34 @@
 """One dense, exact and fast default: every candidate chain on photographs as surfaces, textured planes and defocus,
-with its exported graph's time against OpenCV's StereoSGBM in the same run (1024 x 768, 228-1374 mm).
+on three sensors, with each exported graph's time against OpenCV's StereoSGBM in the same run (228-1374 mm).
 
-Captures (held out from every training and fit; ``thesis_setup1`` unless named, 2 x 2 supersampling, read noise
-2/255, Fresnel, 8 bits): the Middlebury photographs Tsukuba and Venus and scikit-image's stereo Motorcycle (sub-pixel
-truth) as height fields 450-900 mm in front of the prism; a weakly textured height field; a textured plane at 525 mm
-through each thesis setup; a plane at 400 mm behind a thin lens focused at 600 mm at f/12.5 and f/6.25. The
-Middlebury and defocus renders are ``benchmarks/dense_depth.py``'s (shared cache).
+Sensors (:data:`SENSORS`): ``thesis_setup1`` at 1024 x 768 and binned to 512 x 384, and a rig no training saw
+(:func:`other_rig`: 1920 x 1080, 3.45 um pixels, 16 mm lens, a 9 degree N-BK7 prism 150 mm away). Captures per
+sensor (held out from every training and fit; 2 x 2 supersampling, read noise 2/255, Fresnel, 8 bits): the
+Middlebury photographs Tsukuba and Venus and scikit-image's stereo Motorcycle (sub-pixel truth) as height fields
+450-900 mm in front of the prism; a weakly textured height field; a textured plane at 525 mm (at 1024 x 768 through
+each thesis setup); a plane at 400 mm behind a thin lens focused at 600 mm at f/12.5 and f/6.25. The Middlebury and
+defocus renders are ``benchmarks/dense_depth.py``'s (shared cache).
 
 Chains: ``accurate`` (:class:`~prismstereo.PrismStereo`'s defaults: the pyramid with the calibrated confidence),
 ``dense`` (its 'dense' preset), ``learned`` (:class:`~prismstereo.learned.LearnedStereo`, hypotheses by range),
-``block`` (the classical level of the hybrid alone: block mode on 4 x 4-binned pixels, dense) and ``hybrid``
-(:class:`~prismstereo.learned.HybridStereo`, the shipped weights, or ``--hybrid-weights FILE``). Per capture and
-chain: ``valid`` (co-visible pixels the chain calls valid, and the share of them off by more than 1 %), ``dense``
-(every co-visible pixel it gives a depth, same), mean relative error of the valid ones, and ``@3 %``: the largest
-share of co-visible pixels a threshold on the confidence keeps with <= 3 % of them off by more than 1 %. Then each
-chain's reliability per confidence band (:data:`BANDS`), the photographs and the other captures pooled: the band's
-share of the co-visible pixels with a depth, their share off by more than 1 %, and 1 - their mean confidence (what a
-calibrated confidence predicts for that share). Then the
-speed: each chain's exported graph in onnxruntime (2 intra-op threads) and StereoSGBM (``cv2.setNumThreads(2)``) in
-interleaved rounds (``benchmarks/_timing.py``; the learned graph in 3 rounds of its own with StereoSGBM, since
-among the others it slows every graph timed after it), median ms and the paired ratio; and the peak resident memory of a
-fresh process building the hybrid at 1024 x 768 and during one torch forward (``/proc/self/status`` VmHWM).
-``--plot FILE`` draws the frontier: time / SGBM against the photographs' mean ``@3 %`` share, one point per chain.
+``block`` (the classical level of the hybrid alone: block mode on 4 x 4-binned pixels, dense), ``hybrid``
+(:class:`~prismstereo.learned.HybridStereo`, the default: learned stages and the exact last stage) and
+``hybrid-learned`` (the same without the exact last stage, ``last_stage='learned'``); the hybrids with the shipped
+weights or ``--hybrid-weights FILE``. Per capture and chain: ``valid`` (co-visible pixels the chain calls valid, and
+the share of them off by more than 1 %), ``dense`` (every co-visible pixel it gives a depth, same), mean relative error
+of the valid ones, and ``@3 %``: the largest share of co-visible pixels a threshold on the confidence keeps with
+<= 3 % of them off by more than 1 %. Then each chain's reliability per confidence band (:data:`BANDS`), the
+photographs and the other captures pooled over the sensors: the band's share of the co-visible pixels with a depth,
+their share off by more than 1 %, and 1 - their mean confidence (what a calibrated confidence predicts for that
+share). Then per sensor the speed: each chain's exported graph in onnxruntime (2 intra-op threads) and StereoSGBM
+(``cv2.setNumThreads(2)``) on that sensor's plane in interleaved rounds (``benchmarks/_timing.py``; the learned graph
+in 3 rounds of its own with StereoSGBM, since among the others it slows every graph timed after it), median ms and
+the paired ratio; and the peak resident memory of a fresh process building the hybrid at 1024 x 768 and during one
+torch forward (``/proc/self/status`` VmHWM). ``--plot FILE`` draws the frontier at 1024 x 768: time / SGBM against
+the photographs' mean ``@3 %`` share, one point per chain.
 
 Run: .venv/bin/python benchmarks/default_chain.py [--rounds 7] [--plot docs/frontier.png] [--chains a,b,...]
-     [--hybrid-weights FILE] [--accuracy-only]
+     [--sensors 512,1024,1920] [--hybrid-weights FILE] [--accuracy-only]
 """
 
 from __future__ import annotations
@@ -47,14 +51,14 @@ from dense_depth import best_coverage, captures  # noqa: E402
 from onnx_speed import opencv_halves, pixel_sweep  # noqa: E402
 from video_speed import disparities  # noqa: E402
 
-from prismstereo import PrismStereo, thesis_setup1, thesis_setup2  # noqa: E402
+from prismstereo import BiPrismRig, PrismStereo, thesis_setup1, thesis_setup2  # noqa: E402
 from prismstereo.export import OnnxDepth, export_onnx  # noqa: E402
 from prismstereo.learned import HybridStereo, LearnedStereo  # noqa: E402
 from prismstereo.synthetic import ImageFormation, disparity_scene, fronto_parallel_plane, render  # noqa: E402
 from prismstereo.threads import set_torch_threads  # noqa: E402
 
 Z_RANGE = (228.0, 1374.0)
-CHAINS = ("accurate", "dense", "learned", "block", "hybrid")
+CHAINS = ("accurate", "dense", "learned", "block", "hybrid", "hybrid-learned")
 SLOW = ("learned",)  # timed in rounds of their own (see main)
 PHOTOS = ("Tsukuba 450-900 mm", "Venus 450-900 mm", "Motorcycle 450-900 mm")
 BANDS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.85, 0.95, 1.0)  # confidence bands of the reliability table (the last closed)
@@ -78,12 +82,24 @@ with torch.inference_mode():
 print(built, peak())
 """
 
-def more_captures(cache: Path) -> dict[str, tuple[object, dict]]:
-    """Motorcycle and the two setups' planes (rendered once into ``cache``): name -> (rig, capture)."""
+def other_rig() -> BiPrismRig:
+    """The held-out rig of another sensor: 1920 x 1080, 3.45 um pixels, a 16 mm lens, a 9 degree N-BK7 prism 8 mm
+    thick with its apex 150 mm away (no training rig has any of these)."""
+    return thesis_setup1().replace(alpha_deg=9.0, refractive_index=1.517, focal_length_mm=16.0,
+                                   prism_thickness_mm=8.0, apex_distance_mm=150.0, pixel_size_mm=0.00345,
+                                   image_width=1920, image_height=1080, principal_point=(959.5, 539.5))
+
+
+SENSORS = {"512": lambda: thesis_setup1().downscaled(2), "1024": thesis_setup1, "1920": other_rig}
+"""The sensors by their width: the rig of each (``--sensors``)."""
+
+
+def more_captures(rig: BiPrismRig, cache: Path) -> dict[str, tuple[BiPrismRig, dict]]:
+    """Motorcycle and a plane at 525 mm through ``rig`` (at 1024 x 768 also through thesis setup 2; rendered once into
+    ``cache``): name -> (rig, capture)."""
     import skimage.data
 
     base = dict(supersample=2, noise_sigma=2 / 255, fresnel=True, seed=7)
-    s1, s2 = thesis_setup1(), thesis_setup2()
 
     def motorcycle():
         left, _, disparity = skimage.data.stereo_motorcycle()
@@ -91,15 +107,23 @@ def more_captures(cache: Path) -> dict[str, tuple[object, dict]]:
         return disparity_scene(picture, torch.from_numpy(disparity.astype(np.float32)), 450.0, 900.0,
                                name="motorcycle")
 
-    specs = {"Motorcycle 450-900 mm": (s1, motorcycle), "plane 525 mm setup 1": (s1, lambda: fronto_parallel_plane(
-        s1, 525.0, seed=11)), "plane 525 mm setup 2": (s2, lambda: fronto_parallel_plane(s2, 525.0, seed=12))}
+    if rig == thesis_setup1():  # the names (and cached files) of the 1024 x 768 captures
+        s2 = thesis_setup2()
+        specs = {"Motorcycle 450-900 mm": (rig, motorcycle), "plane 525 mm setup 1": (
+            rig, lambda: fronto_parallel_plane(rig, 525.0, seed=11)), "plane 525 mm setup 2": (
+            s2, lambda: fronto_parallel_plane(s2, 525.0, seed=12))}
+        files = {name: name.replace(" ", "_") for name in specs}
+    else:
+        specs = {"Motorcycle 450-900 mm": (rig, motorcycle), "plane 525 mm": (
+            rig, lambda: fronto_parallel_plane(rig, 525.0, seed=11))}
+        files = {name: f"{rig.image_width}_{name.replace(' ', '_')}" for name in specs}
     out = {}
     cache.mkdir(parents=True, exist_ok=True)
-    for name, (rig, scene) in specs.items():
-        path = cache / f"{name.replace(' ', '_')}.pt"
+    for name, (capture_rig, scene) in specs.items():
+        path = cache / f"{files[name]}.pt"
         if not path.exists():
-            torch.save(render(rig, scene(), ImageFormation(**base))._asdict(), path)
-        out[name] = (rig, torch.load(path))
+            torch.save(render(capture_rig, scene(), ImageFormation(**base))._asdict(), path)
+        out[name] = (capture_rig, torch.load(path))
     return out
 
 
@@ -111,7 +135,8 @@ def build(chain: str, rig, hybrid_weights: str) -> torch.nn.Module:
         return PrismStereo(rig, Z_RANGE, "dense").eval()
     if chain == "learned":
         return LearnedStereo(rig, Z_RANGE).eval()
-    hybrid = HybridStereo(rig, Z_RANGE, weights=hybrid_weights).eval()
+    hybrid = HybridStereo(rig, Z_RANGE, weights=hybrid_weights,
+                          last_stage="learned" if chain in ("block", "hybrid-learned") else "exact").eval()
     return hybrid.classical if chain == "block" else hybrid
 
 
@@ -154,38 +179,23 @@ def print_reliability(counts: dict[tuple[str, str], torch.Tensor]) -> None:
         print(f"{chain:9s} {group:11s} " + " ".join(f"{x:>19s}" for x in cells))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
-    parser.add_argument("--cache", type=Path, default=Path(".cache/dense_depth"))
-    parser.add_argument("--hybrid-weights", default="default", help="the hybrid's weights file")
-    parser.add_argument("--chains", default=",".join(CHAINS), help="comma-separated subset of " + ",".join(CHAINS))
-    parser.add_argument("--plot", type=Path, default=None, help="write the frontier plot here")
-    parser.add_argument("--accuracy-only", action="store_true", help="no timing and no memory measurement")
-    args = parser.parse_args()
-    chains = [c for c in args.chains.split(",") if c]
-    unknown = set(chains) - set(CHAINS)
-    if unknown:
-        raise SystemExit(f"unknown chains {sorted(unknown)}; choose from {', '.join(CHAINS)}")
-    set_torch_threads(2)
-    cv2.setNumThreads(2)
-    s1 = thesis_setup1()
-    caps = {name: (s1, cap) for name, cap in captures(s1, args.cache).items()}
-    caps.update(more_captures(args.cache))
-    models: dict[tuple[str, object], torch.nn.Module] = {}
-    print(f"1024 x 768, searched {Z_RANGE[0]:g}-{Z_RANGE[1]:g} mm; valid / dense: % of co-visible pixels and % of "
-          "those off by > 1 %; @3 %: the most a confidence threshold keeps at <= 3 % off")
-    print(f"{'capture':26s} {'chain':9s} {'valid %':>8s} {'bad %':>6s} {'dense %':>8s} {'bad %':>6s} "
-          f"{'mean %':>7s} {'@3 %':>6s}")
+def accuracy(rig: BiPrismRig, chains: list[str], args: argparse.Namespace, models: dict, counts: dict
+             ) -> dict[str, list[float]]:
+    """Print every chain's scores on ``rig``'s captures; add to the reliability ``counts``; return each chain's @3 %
+    shares of the photographs."""
+    caps = {name: (rig, cap) for name, cap in captures(rig, args.cache).items()}
+    caps.update(more_captures(rig, args.cache))
     photo_share: dict[str, list[float]] = {c: [] for c in chains}
-    counts: dict[tuple[str, str], torch.Tensor] = {}
-    for name, (rig, cap) in caps.items():
-        w = rig.reference_width
+    print(f"\n{rig.image_width} x {rig.image_height}:")
+    print(f"{'capture':26s} {'chain':14s} {'valid %':>8s} {'bad %':>6s} {'dense %':>8s} {'bad %':>6s} "
+          f"{'mean %':>7s} {'@3 %':>6s}")
+    for name, (capture_rig, cap) in caps.items():
+        w = capture_rig.reference_width
         gt, covisible = cap["depth"][..., :w].double(), cap["covisible"][..., :w]
         for chain in chains:
-            key = (chain, rig)
+            key = (chain, capture_rig)
             if key not in models:
-                models[key] = build(chain, rig, args.hybrid_weights)
+                models[key] = build(chain, capture_rig, args.hybrid_weights)
             with torch.inference_mode():
                 res = models[key](cap["image"][:, :1].float())
             rel = (res.depth.double() - gt).abs() / gt
@@ -195,70 +205,109 @@ def main() -> None:
             counts[group] = counts.get(group, 0) + band_counts(res.confidence[sel], rel[sel] <= 0.01)
             if name in PHOTOS:
                 photo_share[chain].append(r["@3"])
-            print(f"{name:26s} {chain:9s} {r['valid']:8.1f} {r['valid bad']:6.2f} {r['dense']:8.1f} "
+            print(f"{name:26s} {chain:14s} {r['valid']:8.1f} {r['valid bad']:6.2f} {r['dense']:8.1f} "
                   f"{r['dense bad']:6.2f} {r['mean']:7.3f} {r['@3']:6.1f}")
-    print_reliability(dict(sorted(counts.items())))
-    if args.accuracy_only:
-        return
-    # speed: the exported graphs against StereoSGBM, interleaved
-    plane = caps["plane 525 mm setup 1"][1]["image"][:, :1].float()
-    left, right = opencv_halves(plane, s1.reference_width, False)
-    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=disparities(pixel_sweep(s1, Z_RANGE)), blockSize=5)
-    image = plane.numpy()
-    graphs = {}
+    return photo_share
+
+
+def speed(rig: BiPrismRig, chains: list[str], args: argparse.Namespace, models: dict,
+          photo_share: dict[str, list[float]]) -> dict[str, float]:
+    """Time each chain's exported graph and StereoSGBM on ``rig``'s plane in interleaved rounds; print and return
+    the paired ratios."""
+    plane = more_captures(rig, args.cache)["plane 525 mm setup 1" if rig == thesis_setup1() else "plane 525 mm"][1]
+    image = plane["image"][:, :1].float()
+    left, right = opencv_halves(image, rig.reference_width, False)
+    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=disparities(pixel_sweep(rig, Z_RANGE)), blockSize=5)
     ratios: dict[str, float] = {}
     times: dict[str, list[float]] = {}
     with tempfile.TemporaryDirectory() as folder:
-        for chain in chains:
-            model = models[(chain, s1)]
-            graphs[chain] = OnnxDepth(export_onnx(model, Path(folder) / f"{chain}.onnx"))
+        graphs = {c: OnnxDepth(export_onnx(models[(c, rig)], Path(folder) / f"{c}.onnx")) for c in chains}
         # the learned graph (seconds a run) in rounds of its own: among the others it slowed every graph timed after
         # it (the accurate chain 78 -> 142 ms)
         for group in ([c for c in chains if c not in SLOW], [c for c in chains if c in SLOW]):
             if not group:
                 continue
             runs = {"StereoSGBM": lambda: sgbm.compute(left, right)}
-            runs.update({c: (lambda g: lambda: g(image))(graphs[c]) for c in group})
+            runs.update({c: (lambda g: lambda: g(image.numpy()))(graphs[c]) for c in group})
             measured = interleaved_ms(runs, rounds=args.rounds if group[0] not in SLOW else 3)
             ratios.update({c: paired_ratio(measured[c], measured["StereoSGBM"]) for c in measured})
             times.setdefault("StereoSGBM", measured["StereoSGBM"])
             times.update({c: measured[c] for c in group})
     cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
                 if line.startswith("model name")), "unknown CPU")
-    print(f"\nexported graphs, onnxruntime 2 threads, {args.rounds} interleaved rounds on {cpu}")
-    print(f"{'run':12s} {'median ms':>9s} {'x SGBM':>7s} {'photos @3 %':>12s}")
+    print(f"\n{rig.image_width} x {rig.image_height}: exported graphs, onnxruntime 2 threads, {args.rounds} "
+          f"interleaved rounds on {cpu}")
+    print(f"{'run':14s} {'median ms':>9s} {'x SGBM':>7s} {'photos @3 %':>12s}")
     for run, values in times.items():
-        share = f"{statistics.mean(photo_share[run]):12.1f}" if run in photo_share and photo_share[run] else ""
-        print(f"{run:12s} {statistics.median(values):9.1f} {ratios[run]:7.2f} {share}")
-    if "hybrid" in chains:
+        share = f"{statistics.mean(photo_share[run]):12.1f}" if photo_share.get(run) else ""
+        print(f"{run:14s} {statistics.median(values):9.1f} {ratios[run]:7.2f} {share}")
+    return ratios
+
+
+def plot(path: Path, chains: list[str], ratios: dict[str, float], photo_share: dict[str, list[float]]) -> None:
+    """The frontier at 1024 x 768: time / SGBM against the photographs' mean @3 % share, one point per chain."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for chain in chains:
+        if photo_share[chain]:
+            x, y = ratios[chain], statistics.mean(photo_share[chain])
+            ax.scatter([x], [y])
+            ax.annotate(chain, (x, y), textcoords="offset points", xytext=(5, 3))
+    ax.axvline(0.6, color="grey", linestyle=":", label="speed target 0.6x SGBM")
+    ax.axhline(95.0, color="grey", linestyle="--", label="accuracy target 95 %")
+    ax.set_xscale("log")
+    ax.set_xlabel("exported graph time / StereoSGBM at 1024 x 768 (same run, log scale)")
+    ax.set_ylabel("photographs: share kept at <= 3 % bad (%)")
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    print(f"wrote {path}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
+    parser.add_argument("--cache", type=Path, default=Path(".cache/dense_depth"))
+    parser.add_argument("--hybrid-weights", default="default", help="the hybrids' weights file")
+    parser.add_argument("--chains", default=",".join(CHAINS), help="comma-separated subset of " + ",".join(CHAINS))
+    parser.add_argument("--sensors", default=",".join(SENSORS), help="comma-separated subset of " + ",".join(SENSORS))
+    parser.add_argument("--plot", type=Path, default=None, help="write the frontier plot (1024 x 768) here")
+    parser.add_argument("--accuracy-only", action="store_true", help="no timing and no memory measurement")
+    args = parser.parse_args()
+    chains = [c for c in args.chains.split(",") if c]
+    sensors = [s for s in args.sensors.split(",") if s]
+    for given, known, what in ((chains, CHAINS, "chains"), (sensors, tuple(SENSORS), "sensors")):
+        if set(given) - set(known):
+            raise SystemExit(f"unknown {what} {sorted(set(given) - set(known))}; choose from {', '.join(known)}")
+    set_torch_threads(2)
+    cv2.setNumThreads(2)
+    print(f"searched {Z_RANGE[0]:g}-{Z_RANGE[1]:g} mm; valid / dense: % of co-visible pixels and % of those off by "
+          "> 1 %; @3 %: the most a confidence threshold keeps at <= 3 % off")
+    counts: dict[tuple[str, str], torch.Tensor] = {}
+    shares, ratios = {}, {}
+    for sensor in sensors:
+        rig = SENSORS[sensor]()
+        models: dict[tuple[str, BiPrismRig], torch.nn.Module] = {}
+        shares[sensor] = accuracy(rig, chains, args, models, counts)
+        if not args.accuracy_only:
+            ratios[sensor] = speed(rig, chains, args, models, shares[sensor])
+    print_reliability(dict(sorted(counts.items())))
+    if args.accuracy_only:
+        return
+    if any(c.startswith("hybrid") for c in chains):
         extra = [] if args.hybrid_weights == "default" else [args.hybrid_weights]
         run = subprocess.run([sys.executable, "-c", MEMORY, *extra], capture_output=True, text=True, check=True)
         built, forward = (float(x) for x in run.stdout.split())
         print(f"\nhybrid at 1024 x 768, peak resident memory of a fresh process: {built:.0f} MB building the model, "
               f"{forward:.0f} MB during one torch forward")
-    if args.plot is not None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(6, 4))
-        for chain in chains:
-            if photo_share[chain]:
-                x, y = ratios[chain], statistics.mean(photo_share[chain])
-                ax.scatter([x], [y])
-                ax.annotate(chain, (x, y), textcoords="offset points", xytext=(5, 3))
-        ax.axvline(0.8, color="grey", linestyle=":", label="speed target 0.8x SGBM")
-        ax.axhline(95.0, color="grey", linestyle="--", label="accuracy target 95 %")
-        ax.set_xscale("log")
-        ax.set_xlabel("exported graph time / StereoSGBM (same run, log scale)")
-        ax.set_ylabel("photographs: share kept at <= 3 % bad (%)")
-        ax.legend(loc="lower right", fontsize=8)
-        fig.tight_layout()
-        args.plot.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(args.plot, dpi=110)
-        print(f"wrote {args.plot}")
-    print(json.dumps({"ratios": {k: round(v, 3) for k, v in ratios.items()}}))
+    if args.plot is not None and "1024" in ratios:
+        plot(args.plot, chains, ratios["1024"], shares["1024"])
+    print(json.dumps({"ratios": {s: {k: round(v, 3) for k, v in r.items()} for s, r in ratios.items()}}))
 
 
 if __name__ == "__main__":
