@@ -10,8 +10,9 @@ each thesis setup); a plane at 400 mm behind a thin lens focused at 600 mm at f/
 defocus renders are ``benchmarks/dense_depth.py``'s (shared cache).
 
 Chains: ``accurate`` (:class:`~prismstereo.PrismStereo`'s defaults: the pyramid with the calibrated confidence),
-``dense`` (its 'dense' preset), ``learned`` (:class:`~prismstereo.learned.LearnedStereo`, hypotheses by range),
-``block`` (the classical level of the hybrid alone: block mode on 4 x 4-binned pixels, dense), ``hybrid``
+``dense`` (its 'dense' preset), ``learned`` (:class:`~prismstereo.learned.LearnedStereo`, hypotheses by range;
+only when asked for by ``--chains``: seconds a capture), ``block`` (the classical level of the hybrid alone: block
+mode on 4 x 4-binned pixels, dense), ``hybrid``
 (:class:`~prismstereo.learned.HybridStereo`, the default: learned stages and the exact last stage) and
 ``hybrid-learned`` (the same without the exact last stage, ``last_stage='learned'``); the hybrids with the shipped
 weights or ``--hybrid-weights FILE``. Per capture and chain: ``valid`` (co-visible pixels the chain calls valid, and
@@ -59,6 +60,7 @@ from prismstereo.threads import set_torch_threads  # noqa: E402
 
 Z_RANGE = (228.0, 1374.0)
 CHAINS = ("accurate", "dense", "learned", "block", "hybrid", "hybrid-learned")
+DEFAULT_CHAINS = ("accurate", "dense", "block", "hybrid", "hybrid-learned")  # the learned model: seconds a capture
 SLOW = ("learned",)  # timed in rounds of their own (see main)
 PHOTOS = ("Tsukuba 450-900 mm", "Venus 450-900 mm", "Motorcycle 450-900 mm")
 BANDS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.85, 0.95, 1.0)  # confidence bands of the reliability table (the last closed)
@@ -274,7 +276,8 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
     parser.add_argument("--cache", type=Path, default=Path(".cache/dense_depth"))
     parser.add_argument("--hybrid-weights", default="default", help="the hybrids' weights file")
-    parser.add_argument("--chains", default=",".join(CHAINS), help="comma-separated subset of " + ",".join(CHAINS))
+    parser.add_argument("--chains", default=",".join(DEFAULT_CHAINS),
+                        help="comma-separated subset of " + ",".join(CHAINS) + " (default: all but learned)")
     parser.add_argument("--sensors", default=",".join(SENSORS), help="comma-separated subset of " + ",".join(SENSORS))
     parser.add_argument("--plot", type=Path, default=None, help="write the frontier plot (1024 x 768) here")
     parser.add_argument("--accuracy-only", action="store_true", help="no timing and no memory measurement")

@@ -267,12 +267,12 @@ class HybridStereo(nn.Module):
         """
         a = self.architecture
         count = sum(v.numel() for v in self.weights().values())
-        quarter = f"{a.quarter} at 1/4 and " if a.quarter else ""
+        stages = " and ".join(f"{n} at 1/{k}" for n, k in ((a.quarter, 4), (a.iterations, 2)) if n)
         first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/8)" if self.start is not None
                  else f"classical block level ({self.classical.summary()})")
         last = "" if self.exact is None else f", then the exact band +-{EXACT_BAND} at 1/{self.exact.binning}"
         return (f"hybrid: {first}, then learned 2-D stages: "
-                f"{quarter}{a.iterations} at 1/2 ({a.layers} x {a.channels} ch, {count} parameters){last}")
+                f"{stages} ({a.layers} x {a.channels} ch, {count} parameters){last}")
 
     def save(self, path: str | Path, **metadata: Any) -> Path:
         """Write the CNNs' weights with the architecture and ``metadata`` (small, plain values)."""

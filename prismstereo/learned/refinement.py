@@ -33,7 +33,8 @@ class HybridArchitecture:
         channels: C, channels of each refinement CNN.
         layers: 3 x 3 convolutions per CNN (2-8, dilations 1, 2, 4, 8, 1, ...), the output head included.
         offsets: the cost curve is sampled at s + o steps for o = -offsets ... +offsets.
-        iterations: refinement stages at 1/2, each with its own CNN.
+        iterations: refinement stages at 1/2, each with its own CNN (0: the last stage is at 1/4, its estimate carried
+            to 1/2 bilinearly; needs ``quarter`` >= 1).
         quarter: refinement stages at 1/4 before them (block 4 only: on the classical level's own grid, with twice
             the reach per layer).
         start: what the stages start from: ``'classical'`` (the classical block level) or ``'learned'`` (the learned
@@ -56,12 +57,14 @@ class HybridArchitecture:
         if self.block not in (2, 4):
             raise OptionError(f"Unknown block {self.block!r}. Choose from: 2, 4")
         for name, low, high in (("channels", 1, 256), ("layers", 2, len(DILATIONS)), ("offsets", 0, 8),
-                                ("iterations", 1, 4), ("quarter", 0, 4)):
+                                ("iterations", 0, 4), ("quarter", 0, 4)):
             check_int(getattr(self, name), name, low, most=high)
         if self.start not in STARTS:
             raise OptionError(f"Unknown start {self.start!r}. Choose from: {', '.join(STARTS)}")
         if self.start == "learned" and self.block != 4:
             raise OptionError(f"the learned start needs block 4, got block {self.block}")
+        if not self.iterations and not self.quarter:
+            raise OptionError("a hybrid needs a refinement stage: iterations or quarter >= 1")
         if self.quarter and self.block != 4:
             raise OptionError(f"quarter stages need block 4 (the classical level's grid), got block {self.block}")
 

@@ -70,6 +70,17 @@ def test_outputs_and_shapes(untrained, rig):
 
 
 @torch.no_grad()
+def test_a_hybrid_whose_last_stage_is_at_one_quarter(rig):
+    torch.manual_seed(0)
+    model = HybridStereo(rig, Z, weights=None, architecture=HybridArchitecture(quarter=2, iterations=0)).eval()
+    image = torch.rand(1, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(1))
+    stages = model.refine(model.initial(image))
+    assert len(model.stages) == 0 and len(stages) == 2 and "2 at 1/4 (" in model.summary()
+    assert stages[-1][0].shape == (1, 1, model.half.image_height, model.half.reference_width)
+    assert model(image).depth.shape == (1, 1, rig.image_height, rig.reference_width)
+
+
+@torch.no_grad()
 def test_untrained_stage_keeps_the_classical_estimate(untrained, plane):
     inputs = untrained.initial(plane.image)
     s, logit = untrained.refine(inputs)[-1]
@@ -111,6 +122,8 @@ def test_architecture_and_option_errors(rig):
         HybridArchitecture(block=3)
     with pytest.raises(OptionError, match="layers must be an int in"):
         HybridArchitecture(layers=1)
+    with pytest.raises(OptionError, match="a hybrid needs a refinement stage"):
+        HybridArchitecture(iterations=0, quarter=0)
     with pytest.raises(OptionError, match="quarter stages need block 4"):
         HybridArchitecture(block=2, quarter=1)
     with pytest.raises(OptionError, match="rig must be a BiPrismRig"):
