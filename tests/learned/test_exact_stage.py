@@ -65,8 +65,9 @@ def test_the_stage_keeps_the_estimate_where_it_cannot_fit(downscale, binning):
 
 def test_config_and_shape_errors(rig):
     config = exact_config(rig, Z)
-    assert config.search.band == EXACT_BAND and config.validity.validity == "calibrated"
-    assert config.refinement.smoothing > 0 and config.validity.occlusion_tolerance is not None
+    assert config.search.band == EXACT_BAND and config.search.band_edges == "clamp"
+    assert config.validity.validity == "thresholds" and config.validity.occlusion_tolerance is None
+    assert config.refinement.smoothing > 0 and config.refinement.refinement == "parabola"
     stage = ExactStage(rig, Z)
     grey = torch.rand(1, 1, rig.image_height, rig.image_width)
     with pytest.raises(ShapeError, match=r"s must have shape \(B, 1, 192, 128\)"):
