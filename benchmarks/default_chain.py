@@ -254,11 +254,11 @@ def plot(path: Path, chains: list[str], ratios: dict[str, float], photo_share: d
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4))
-    for chain in chains:
+    for i, chain in enumerate(chains):
         if photo_share[chain]:
             x, y = ratios[chain], statistics.mean(photo_share[chain])
-            ax.scatter([x], [y])
-            ax.annotate(chain, (x, y), textcoords="offset points", xytext=(5, 3))
+            ax.scatter([x], [y])  # labels above and below in turn: near chains' labels do not overlap
+            ax.annotate(chain, (x, y), textcoords="offset points", xytext=(5, 4 if i % 2 else -12))
     ax.axvline(0.6, color="grey", linestyle=":", label="speed target 0.6x SGBM")
     ax.axhline(95.0, color="grey", linestyle="--", label="accuracy target 95 %")
     ax.set_xscale("log")
