@@ -149,7 +149,6 @@ class HybridStereo(nn.Module):
         from prismstereo.depth.range import check_z_range, default_z_range
 
         check_option(last_stage, LAST_STAGES, "last_stage")
-
         if not isinstance(rig, BiPrismRig):
             raise OptionError(f"rig must be a BiPrismRig, got {type(rig).__name__}")
         check_rig_images(rig)
@@ -270,7 +269,8 @@ class HybridStereo(nn.Module):
         stages = " and ".join(f"{n} at 1/{k}" for n, k in ((a.quarter, 4), (a.iterations, 2)) if n)
         first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/8)" if self.start is not None
                  else f"classical block level ({self.classical.summary()})")
-        last = "" if self.exact is None else f", then the exact band +-{EXACT_BAND} at 1/{self.exact.binning}"
+        last = "" if self.exact is None else f", then the exact band +-{EXACT_BAND} " + (
+            "at full resolution" if self.exact.binning == 1 else f"at 1/{self.exact.binning}")
         return (f"hybrid: {first}, then learned 2-D stages: "
                 f"{stages} ({a.layers} x {a.channels} ch, {count} parameters){last}")
 
