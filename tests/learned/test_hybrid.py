@@ -206,9 +206,10 @@ def test_onnxruntime_matches_torch(tmp_path, untrained, rig, plane):
     graph = OnnxDepth(export_onnx(model, tmp_path / "hybrid.onnx"))
     out = graph(image.numpy())
     depth = torch.as_tensor(np.asarray(out.depth))
-    # the exact stage's choice may flip at pixels on its thresholds: there the two differ by < 1/2 step of s
+    # the exact stage's choice may flip at pixels on its thresholds: there the two differ by <= 1/2 step of s
     assert float(torch.isclose(depth, ref.depth, rtol=1e-4).float().mean()) > 0.999
-    assert torch.allclose(depth, ref.depth, rtol=5e-3)
+    steps = (truth_sweep(depth, model.z_range) - truth_sweep(ref.depth, model.z_range)).abs() / model.exact.level.step
+    assert float(steps.max()) <= 0.5 + 1e-3
     assert torch.allclose(torch.as_tensor(np.asarray(out.confidence)), ref.confidence, atol=1e-4)
     agree = torch.as_tensor(np.asarray(out.valid)) == ref.valid
     assert float(agree.float().mean()) > 0.999  # pixels at confidence 0.5 may round either way

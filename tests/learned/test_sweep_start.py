@@ -224,6 +224,7 @@ def test_shipped_weights_start_a_textured_plane_within_a_step(setup):
 def test_hybrid_refines_the_learned_start(rig, tmp_path):
     from prismstereo.depth.resample import upsample
     from prismstereo.learned import HybridArchitecture, HybridStereo
+    from prismstereo.learned.hybrid import truth_sweep
 
     with pytest.raises(OptionError, match="Unknown start 'x'. Choose from: classical, learned"):
         HybridArchitecture(start="x")
@@ -246,9 +247,10 @@ def test_hybrid_refines_the_learned_start(rig, tmp_path):
     with torch.no_grad():
         ref = model(capture.image[:, :1].float())
     out = OnnxDepth(export_onnx(model, tmp_path / "hybrid.onnx"))(capture.image[:, :1].float().numpy())
-    depth = torch.as_tensor(np.asarray(out.depth))  # the exact stage may flip at its thresholds (< 1/2 step)
+    depth = torch.as_tensor(np.asarray(out.depth))  # the exact stage may flip at its thresholds (<= 1/2 step)
     assert float(torch.isclose(depth, ref.depth, rtol=1e-4).float().mean()) > 0.999
-    assert torch.allclose(depth, ref.depth, rtol=5e-3)
+    steps = (truth_sweep(depth, model.z_range) - truth_sweep(ref.depth, model.z_range)).abs() / model.exact.level.step
+    assert float(steps.max()) <= 0.5 + 1e-3
     # the weights file holds the first stage too, and a model built from it starts where this one does
     path = model.save(tmp_path / "hybrid.pt")
     with torch.no_grad():
