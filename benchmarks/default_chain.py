@@ -17,9 +17,11 @@ mode on 4 x 4-binned pixels, dense), ``hybrid``
 ``hybrid-learned`` (the same without the exact last stage, ``last_stage='learned'``); the hybrids with the shipped
 weights or ``--hybrid-weights FILE``. Per capture and chain: ``valid`` (co-visible pixels the chain calls valid, and
 the share of them off by more than 1 %), ``dense`` (every co-visible pixel it gives a depth, same), mean relative error
-of the valid ones, and ``@3 %``: the largest share of co-visible pixels a threshold on the confidence keeps with
-<= 3 % of them off by more than 1 %. Then each chain's reliability per confidence band (:data:`BANDS`), the
-photographs and the other captures pooled over the sensors: the band's share of the co-visible pixels with a depth,
+of the valid ones, ``@3 %``: the largest share of co-visible pixels a threshold on the confidence keeps with
+<= 3 % of them off by more than 1 %, and ``hidden``: the valid pixels whose point the other half cannot see (occluded
+or outside the common field of view; right or invalid is the aim) and the share of them off by more than 1 %. Then
+each chain's reliability per confidence band (:data:`BANDS`), the photographs and the other captures pooled over the
+sensors: the band's share of the co-visible pixels with a depth,
 their share off by more than 1 %, and 1 - their mean confidence (what a calibrated confidence predicts for that
 share). Then per sensor the speed: each chain's exported graph in onnxruntime (2 intra-op threads) and StereoSGBM
 (``cv2.setNumThreads(2)``) on that sensor's plane in interleaved rounds (``benchmarks/_timing.py``; the learned graph
@@ -155,6 +157,9 @@ def score(res, rel: torch.Tensor, covisible: torch.Tensor) -> dict[str, float]:
     out["mean"] = 100 * float(rel[sel].mean()) if sel.any() else float("nan")
     sel = (res.confidence > 0) & covisible & torch.isfinite(rel)
     out["@3"] = best_coverage(res.confidence[sel], rel[sel] <= 0.01, total, bad=0.03)[0]
+    hidden = res.valid & ~covisible & torch.isfinite(rel)  # valid where the other half cannot see the point
+    out["hidden"] = int(hidden.sum())
+    out["hidden bad"] = 100 * float((rel[hidden] > 0.01).double().mean()) if hidden.any() else float("nan")
     return out
 
 
@@ -190,7 +195,7 @@ def accuracy(rig: BiPrismRig, chains: list[str], args: argparse.Namespace, model
     photo_share: dict[str, list[float]] = {c: [] for c in chains}
     print(f"\n{rig.image_width} x {rig.image_height}:")
     print(f"{'capture':26s} {'chain':14s} {'valid %':>8s} {'bad %':>6s} {'dense %':>8s} {'bad %':>6s} "
-          f"{'mean %':>7s} {'@3 %':>6s}")
+          f"{'mean %':>7s} {'@3 %':>6s} {'hidden px':>9s} {'bad %':>6s}")
     for name, (capture_rig, cap) in caps.items():
         w = capture_rig.reference_width
         gt, covisible = cap["depth"][..., :w].double(), cap["covisible"][..., :w]
@@ -208,7 +213,7 @@ def accuracy(rig: BiPrismRig, chains: list[str], args: argparse.Namespace, model
             if name in PHOTOS:
                 photo_share[chain].append(r["@3"])
             print(f"{name:26s} {chain:14s} {r['valid']:8.1f} {r['valid bad']:6.2f} {r['dense']:8.1f} "
-                  f"{r['dense bad']:6.2f} {r['mean']:7.3f} {r['@3']:6.1f}")
+                  f"{r['dense bad']:6.2f} {r['mean']:7.3f} {r['@3']:6.1f} {r['hidden']:9d} {r['hidden bad']:6.1f}")
     return photo_share
 
 

@@ -108,6 +108,7 @@ def test_default_chain_score_counts_valid_and_dense_pixels():
     assert r["dense"] == pytest.approx(100 * 8 / 9) and r["dense bad"] == pytest.approx(100 * 2 / 8)
     # the most confident first: four 500s (0.9), 501 (0.8), then 510 (0.7: 1 of 6 wrong > 3 %): 5 of 9 kept
     assert r["@3"] == pytest.approx(100 * 5 / 9)
+    assert r["hidden"] == 1 and r["hidden bad"] == 0.0  # the valid pixel the other half cannot see, right
 
 
 def _code_strings(path: Path) -> dict[str, str]:
