@@ -83,6 +83,7 @@ XDIST_GROUPS = {
     "tests/classical/test_temporal.py": "temporal model and sequences",
     "tests/export/test_graph.py": "exported graph and captures",
     "tests/learned/test_hybrid.py": "hybrid model",
+    "tests/learned/test_exact_stage.py": "exact stage (its plane)",
     "tests/cli/test_calibrate.py": "calibration bench",
     "tests/jobs/test_jobs.py::test_ray_writes_the_same_files_and_survives_a_dead_worker": "local ray",
     "tests/classical/test_dense.py": "weak-texture models (weak)",
