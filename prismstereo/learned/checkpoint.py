@@ -2,22 +2,26 @@
 (:mod:`prismstereo.learned.hybrid_train`, :mod:`prismstereo.learned.start_train`).
 
 A run is the trained module, its optimiser and learning-rate schedule, the generator that draws its batches and the
-checkpoint's path (``<out>.ckpt``); :func:`take_step` is one step of it. :func:`save_checkpoint` writes them with the
-losses so far, the next step and the seconds spent; :func:`resume` loads them into a run built with the same options,
-so that a run stopped and started again ends with the uninterrupted run's result. A checkpoint of other steps or
-another architecture is ignored.
+checkpoint's path (``<out>.ckpt``); :func:`take_step` is one step of it and :func:`run_steps` the steps of a run, each
+on a training set drawn by its number of captures. :func:`save_checkpoint` writes them with the losses so far, the
+next step and the seconds spent; :func:`resume` loads them into a run built with the same options, so that a run
+stopped and started again ends with the uninterrupted run's result. A checkpoint of other steps or another
+architecture is ignored.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import torch
 from torch import nn
+from tqdm.auto import tqdm
 
-__all__ = ["Run", "resume", "save_checkpoint", "take_step"]
+__all__ = ["Run", "resume", "run_steps", "save_checkpoint", "take_step"]
 
 
 class Run(NamedTuple):
@@ -80,3 +84,27 @@ def take_step(run: Run, loss: torch.Tensor, clip: float = 1.0) -> float:
     run.optimiser.step()
     run.schedule.step()
     return loss.item()
+
+
+def run_steps(run: Run, architecture: Any, losses: torch.Tensor, first: int, seconds: float, counts: torch.Tensor,
+              loss_of: Callable[[int, torch.Generator], torch.Tensor], *, checkpoint_every: int, progress: bool,
+              desc: str) -> float:
+    """Steps ``first`` to the last of ``run``: each draws a training set by ``counts`` (its captures) from the run's
+    generator, takes :func:`take_step` on ``loss_of(set, generator)`` and writes ``losses``; a checkpoint every
+    ``checkpoint_every`` steps (0: none). Returns ``seconds`` plus this call's wall time.
+
+    Example:
+        >>> seconds = run_steps(run, arch, losses, first, seconds, counts, loss_of, checkpoint_every=100,
+        ...                     progress=False, desc="train")  # doctest: +SKIP
+    """
+    steps = losses.shape[0]
+    run.module.train()
+    start = time.perf_counter()
+    bar = tqdm(range(first, steps), desc=desc, disable=not progress, initial=first, total=steps)
+    for step in bar:
+        v = int(torch.multinomial(counts, 1, generator=run.gen))
+        losses[step] = take_step(run, loss_of(v, run.gen))
+        bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
+        if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
+            save_checkpoint(run, architecture, losses, step + 1, seconds + time.perf_counter() - start)
+    return seconds + time.perf_counter() - start

@@ -21,17 +21,15 @@ The shipped ``weights/hybrid.pt``: the command is in the comment below the impor
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import nn
-from tqdm.auto import tqdm
 
 from prismstereo.epipolar.sweep import sweep_to_depth
 from prismstereo.errors import check_int
-from prismstereo.learned.checkpoint import Run, resume, save_checkpoint, take_step
+from prismstereo.learned.checkpoint import Run, resume, run_steps
 from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, RefinementInputs
 from prismstereo.learned.hybrid_data import HybridSet, training_rigs, training_sets
 from prismstereo.learned.train import TrainResult, warmup_cosine
@@ -193,22 +191,16 @@ def _optimise(run: Run, models: list[HybridStereo], sets: list[HybridSet], losse
     """Steps ``first`` to the last of :func:`train_hybrid` (module docstring), each on a rig variant drawn by its
     number of captures, writing ``losses`` and a checkpoint every ``checkpoint_every`` steps. Returns ``seconds`` plus
     this run's wall time."""
-    steps = losses.shape[0]
-    weights = torch.tensor([float(d.s.shape[0]) for d in sets])
-    run.module.train()
-    start = time.perf_counter()
-    bar = tqdm(range(first, steps), desc="train hybrid", disable=not progress, initial=first, total=steps)
-    for step in bar:
-        v = int(torch.multinomial(weights, 1, generator=run.gen))
+
+    def loss_of(v: int, gen: torch.Generator) -> torch.Tensor:
         data, model = sets[v], models[v]
-        pick = torch.randint(data.s.shape[0], (batch_size,), generator=run.gen)
-        inputs, truth, window, size = _batch(model, data, pick, crop, run.gen)
-        loss = hybrid_loss(model, inputs, *truth, window, size)
-        losses[step] = take_step(run, loss)
-        bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
-        if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
-            save_checkpoint(run, arch, losses, step + 1, seconds + time.perf_counter() - start)
-    return seconds + time.perf_counter() - start
+        pick = torch.randint(data.s.shape[0], (batch_size,), generator=gen)
+        inputs, truth, window, size = _batch(model, data, pick, crop, gen)
+        return hybrid_loss(model, inputs, *truth, window, size)
+
+    counts = torch.tensor([float(d.s.shape[0]) for d in sets])
+    return run_steps(run, arch, losses, first, seconds, counts, loss_of, checkpoint_every=checkpoint_every,
+                     progress=progress, desc="train hybrid")
 
 
 def validity_threshold(models: list[HybridStereo], sets: list[HybridSet], bad: float = VALID_BAD) -> float:

@@ -19,16 +19,14 @@ The shipped ``weights/start.pt``: the command is in the comment below the import
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
-from tqdm.auto import tqdm
 
 from prismstereo.errors import check_int
-from prismstereo.learned.checkpoint import Run, resume, save_checkpoint, take_step
+from prismstereo.learned.checkpoint import Run, resume, run_steps
 from prismstereo.learned.hybrid_data import Rendered, render_set, training_rigs
 from prismstereo.learned.network import normalise_image
 from prismstereo.learned.sweep_start import (
@@ -257,19 +255,13 @@ def _optimise(run: Run, models: list[SweepStart], sets: list[StartSet], losses: 
               seconds: float, arch: StartArchitecture, batch_size: int, checkpoint_every: int,
               progress: bool) -> float:
     """Steps ``first`` to the last (module docstring); returns ``seconds`` plus this run's wall time."""
-    steps = losses.shape[0]
-    weights = torch.tensor([float(d.grey.shape[0]) for d in sets])
-    run.module.train()
-    start = time.perf_counter()
-    bar = tqdm(range(first, steps), desc="train start", disable=not progress, initial=first, total=steps)
-    for step in bar:
-        v = int(torch.multinomial(weights, 1, generator=run.gen))
+
+    def loss_of(v: int, gen: torch.Generator) -> torch.Tensor:
         data, model = sets[v], models[v]
-        pick = torch.randint(data.grey.shape[0], (batch_size,), generator=run.gen)
-        image = _jitter(data.grey[pick], model.rig.binned(2).reference_width, run.gen)
-        loss = start_loss(model, image, data.truth[pick], data.known[pick])
-        losses[step] = take_step(run, loss)
-        bar.set_postfix(loss=f"{losses[max(0, step - 49):step + 1].mean():.3f}")
-        if checkpoint_every and (step + 1) % checkpoint_every == 0 and step + 1 < steps:
-            save_checkpoint(run, arch, losses, step + 1, seconds + time.perf_counter() - start)
-    return seconds + time.perf_counter() - start
+        pick = torch.randint(data.grey.shape[0], (batch_size,), generator=gen)
+        image = _jitter(data.grey[pick], model.rig.binned(2).reference_width, gen)
+        return start_loss(model, image, data.truth[pick], data.known[pick])
+
+    counts = torch.tensor([float(d.grey.shape[0]) for d in sets])
+    return run_steps(run, arch, losses, first, seconds, counts, loss_of, checkpoint_every=checkpoint_every,
+                     progress=progress, desc="train start")
