@@ -15,16 +15,6 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 Z = (450.0, 1000.0)
 
 
-@pytest.fixture(scope="module")
-def rig():
-    return thesis_setup1().downscaled(2)
-
-
-@pytest.fixture(scope="module")
-def plane(rig):
-    return render(rig, fronto_parallel_plane(rig, 600.0, seed=3), ImageFormation(supersample=2, noise_sigma=1 / 255))
-
-
 def test_exact_last_stage_keeps_a_textured_plane_as_exact_as_the_classical_model(rig, plane):
     exact, learned = (HybridStereo(rig, Z, last_stage=last).eval() for last in ("exact", "learned"))
     assert exact.describe()["last_stage"] == "exact" and f"exact band +-{EXACT_BAND}" in exact.summary()

@@ -22,7 +22,6 @@ from prismstereo.learned.hybrid import (
 )
 from prismstereo.learned.hybrid_data import hybrid_set, photo_scene, photographs, training_rigs
 from prismstereo.learned.hybrid_train import hybrid_loss, train_hybrid, validity_threshold
-from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -30,19 +29,9 @@ Z = (450.0, 1000.0)
 
 
 @pytest.fixture(scope="module")
-def rig():
-    return thesis_setup1().downscaled(2)
-
-
-@pytest.fixture(scope="module")
 def untrained(rig):
     torch.manual_seed(0)
     return HybridStereo(rig, Z, weights=None).eval()
-
-
-@pytest.fixture(scope="module")
-def plane(rig):
-    return render(rig, fronto_parallel_plane(rig, 600.0, seed=3), ImageFormation(supersample=2, noise_sigma=1 / 255))
 
 
 @pytest.fixture(scope="module")
