@@ -398,14 +398,14 @@ class HybridStereo(nn.Module):
         """
         dtype = self.coefficients.dtype
         self._check(image)
-        grey = F.avg_pool2d(to_grey(image.to(dtype)), 2)
+        grey = F.avg_pool2d(full := to_grey(image.to(dtype)), 2)  # full: the exact stage's at full resolution
         s, logit = self.refine(self.initial_binned(grey))[-1]
         confidence = torch.sigmoid(logit)
         size = (self.rig.image_height, self.rig.reference_width)
         if self.exact is not None and self.exact.binning == 2:  # the exact last stage on the binned grid
             s = self.exact(grey, s)
         if self.exact is not None and self.exact.binning == 1:  # ... at full resolution
-            s = self.exact(to_grey(image.to(dtype)), s)
+            s = self.exact(full, s)
             match = torch.cat(series_at(self.exact.level.series, s), 1)
             confidence = upsample(confidence, 2, size, mode="bilinear")
         else:
