@@ -186,12 +186,10 @@ def print_reliability(counts: dict[tuple[str, str], torch.Tensor]) -> None:
         print(f"{chain:9s} {group:11s} " + " ".join(f"{x:>19s}" for x in cells))
 
 
-def accuracy(rig: BiPrismRig, chains: list[str], args: argparse.Namespace, models: dict, counts: dict
-             ) -> dict[str, list[float]]:
-    """Print every chain's scores on ``rig``'s captures; add to the reliability ``counts``; return each chain's @3 %
-    shares of the photographs."""
-    caps = {name: (rig, cap) for name, cap in captures(rig, args.cache).items()}
-    caps.update(more_captures(rig, args.cache))
+def accuracy(rig: BiPrismRig, caps: dict[str, tuple[BiPrismRig, dict]], chains: list[str], args: argparse.Namespace,
+             models: dict, counts: dict) -> dict[str, list[float]]:
+    """Print every chain's scores on ``rig``'s captures ``caps`` (name -> (rig, capture)); add to the reliability
+    ``counts``; return each chain's @3 % shares of the photographs."""
     photo_share: dict[str, list[float]] = {c: [] for c in chains}
     print(f"\n{rig.image_width} x {rig.image_height}:")
     print(f"{'capture':26s} {'chain':14s} {'valid %':>8s} {'bad %':>6s} {'dense %':>8s} {'bad %':>6s} "
@@ -217,11 +215,10 @@ def accuracy(rig: BiPrismRig, chains: list[str], args: argparse.Namespace, model
     return photo_share
 
 
-def speed(rig: BiPrismRig, chains: list[str], args: argparse.Namespace, models: dict,
+def speed(rig: BiPrismRig, plane: dict, chains: list[str], args: argparse.Namespace, models: dict,
           photo_share: dict[str, list[float]]) -> dict[str, float]:
-    """Time each chain's exported graph and StereoSGBM on ``rig``'s plane in interleaved rounds; print and return
-    the paired ratios."""
-    plane = more_captures(rig, args.cache)["plane 525 mm setup 1" if rig == thesis_setup1() else "plane 525 mm"][1]
+    """Time each chain's exported graph and StereoSGBM on ``rig``'s capture ``plane`` in interleaved rounds; print and
+    return the paired ratios."""
     image = plane["image"][:, :1].float()
     left, right = opencv_halves(image, rig.reference_width, False)
     sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=disparities(pixel_sweep(rig, Z_RANGE)), blockSize=5)
@@ -301,9 +298,12 @@ def main() -> None:
     for sensor in sensors:
         rig = SENSORS[sensor]()
         models: dict[tuple[str, BiPrismRig], torch.nn.Module] = {}
-        shares[sensor] = accuracy(rig, chains, args, models, counts)
+        caps = {name: (rig, cap) for name, cap in captures(rig, args.cache).items()}
+        caps.update(more_captures(rig, args.cache))
+        shares[sensor] = accuracy(rig, caps, chains, args, models, counts)
         if not args.accuracy_only:
-            ratios[sensor] = speed(rig, chains, args, models, shares[sensor])
+            plane = caps["plane 525 mm setup 1" if rig == thesis_setup1() else "plane 525 mm"][1]
+            ratios[sensor] = speed(rig, plane, chains, args, models, shares[sensor])
     print_reliability(dict(sorted(counts.items())))
     if args.accuracy_only:
         return
