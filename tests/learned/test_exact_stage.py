@@ -68,17 +68,15 @@ def test_config_and_shape_errors(rig):
         stage(grey, torch.zeros(2, 1, rig.image_height // 2, rig.reference_width // 2))
 
 
-@pytest.mark.parametrize("sensor", ["256x192 setup 1", "512x384 setup 1", "480x360 other rig"])
-def test_the_same_weights_run_on_three_sensors(sensor, rig, plane):
-    """The shipped weights and the exact stage on sensors and a rig no training saw: a textured plane within 0.1 %."""
-    if sensor.startswith("512"):
-        other, capture = rig, plane
-    else:
-        other = thesis_setup1().downscaled(4) if sensor.startswith("256") else thesis_setup1().replace(
-            alpha_deg=9.0, refractive_index=1.517, focal_length_mm=12.0, prism_thickness_mm=8.0,
-            apex_distance_mm=150.0, pixel_size_mm=0.0074, image_width=480, image_height=360,
-            principal_point=(239.5, 179.5))
-        capture = render(other, fronto_parallel_plane(other, 600.0, seed=4), ImageFormation(noise_sigma=1 / 255))
+@pytest.mark.parametrize("sensor", ["256x192 setup 1", "480x360 other rig"])
+def test_the_same_weights_run_on_other_sensors(sensor):
+    """The shipped weights and the exact stage on sensors and a rig no training saw (512 x 384: the plane test above):
+    a textured plane within 0.1 %."""
+    other = thesis_setup1().downscaled(4) if sensor.startswith("256") else thesis_setup1().replace(
+        alpha_deg=9.0, refractive_index=1.517, focal_length_mm=12.0, prism_thickness_mm=8.0,
+        apex_distance_mm=150.0, pixel_size_mm=0.0074, image_width=480, image_height=360,
+        principal_point=(239.5, 179.5))
+    capture = render(other, fronto_parallel_plane(other, 600.0, seed=4), ImageFormation(noise_sigma=1 / 255))
     model = HybridStereo(other, Z).eval()
     with torch.inference_mode():
         out = model(capture.image)
