@@ -4,10 +4,10 @@
 Three models compute depth of the reference (left) half of a capture, all on the exact sweep and with one output,
 :class:`~prismstereo.depth.result.DepthResult`:
 
-* ``'hybrid'`` (:class:`~prismstereo.learned.HybridStereo`): the classical chain on 4 x 4 bins refined by small
-  learned 2-D stages; the default where it was trained and measured (:func:`default_kind`);
+* ``'hybrid'`` (:class:`~prismstereo.learned.HybridStereo`): the classical chain on binned blocks refined by small
+  learned 2-D stages and the classical band's exact fit; the default from 512 x 384 up (:func:`default_kind`);
 * ``'classical'`` (:class:`~prismstereo.classical.PrismStereo`): window costs, coarse to fine, every option in a
-  :class:`~prismstereo.classical.StereoConfig`; the default on small sensors;
+  :class:`~prismstereo.classical.StereoConfig`; the default on very small sensors;
 * ``'learned'`` (:class:`~prismstereo.learned.LearnedStereo`): a 3-D cost volume at 1/4 (dense, slow).
 
 The CLI, the ONNX export and its cache, the jobs, the stream and the notebooks all build models here, and run them
@@ -31,10 +31,13 @@ if TYPE_CHECKING:
     from prismstereo.classical import StereoConfig, TemporalDepth, TemporalOptions
     from prismstereo.depth.result import DepthResult
 
-__all__ = ["MODEL_KINDS", "DepthModel", "ModelKind", "ModelSpec", "build_model", "default_kind", "describe_model"]
+__all__ = ["HYBRID_MIN_SIDE", "MODEL_KINDS", "DepthModel", "ModelKind", "ModelSpec", "build_model", "default_kind",
+           "describe_model"]
 
 ModelKind = Literal["hybrid", "classical", "learned"]
 MODEL_KINDS: tuple[str, ...] = ("hybrid", "classical", "learned")
+HYBRID_MIN_SIDE = 192
+"""The shorter side (px) of the reference half from which the hybrid is the default (:func:`default_kind`)."""
 LEARNED_OPTIONS: tuple[str, ...] = ("num_hypotheses", "scale", "with_match")
 """The options a ``'learned'`` model takes in ``config`` (keyword arguments of
 :class:`~prismstereo.learned.LearnedStereo`)."""
@@ -77,20 +80,19 @@ class DepthModel(Protocol):
 
 
 def default_kind(rig: BiPrismRig) -> Literal["hybrid", "classical"]:
-    """The model a capture of ``rig`` gets by default: ``'hybrid'`` where the classical default itself starts from
-    a binned level (:func:`~prismstereo.classical.defaults.default_downsample` > 1: the reference half at least
-    384 px on its shorter side, the sensors the hybrid is trained and measured on), else ``'classical'``. On smaller
-    sensors the hybrid's 4 x 4 blocks are large against the surfaces: its block level fattens a near surface over
-    the far one beside it by more than its refinement reaches, which the classical chain's full-resolution search
-    does not (``docs/design.md``, *The models*).
+    """The model a capture of ``rig`` gets by default: ``'hybrid'`` where the reference half is at least
+    :data:`HYBRID_MIN_SIDE` px on its shorter side and the sensor divides into the hybrid's 4 x 4 blocks, else
+    ``'classical'``. The hybrid's stages run where the classical default fits its band (2 x 2 bins from 384 px, else
+    the full sensor), so they see a surface in about as many pixels on every sensor; below that side its classical
+    level's blocks are large against the surfaces and the classical chain matches it (``docs/benchmarks.md``,
+    *One default*: the hybrid ahead on every capture at 512 x 384, mixed at 256 x 192).
 
     Example:
-        >>> [default_kind(thesis_setup1().downscaled(k)) for k in (1, 2)]
-        ['hybrid', 'classical']
+        >>> [default_kind(thesis_setup1().downscaled(k)) for k in (1, 2, 4)]
+        ['hybrid', 'hybrid', 'classical']
     """
-    from prismstereo.classical.defaults import default_downsample
-
-    return "hybrid" if default_downsample(rig) > 1 else "classical"
+    blocks = rig.image_width % 4 == 0 and rig.image_height % 4 == 0
+    return "hybrid" if blocks and min(rig.image_height, rig.reference_width) >= HYBRID_MIN_SIDE else "classical"
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -6,20 +6,23 @@ import torch
 
 from prismstereo import OptionError, thesis_setup1, thesis_setup2
 from prismstereo.classical import PrismStereo, TemporalOptions
-from prismstereo.classical.defaults import default_downsample
 from prismstereo.conventions import to_grey
 from prismstereo.learned import HYBRID_WEIGHTS, HybridStereo, LearnedStereo, WeightsError
-from prismstereo.models import DepthModel, ModelSpec, build_model, default_kind, describe_model
+from prismstereo.models import HYBRID_MIN_SIDE, DepthModel, ModelSpec, build_model, default_kind, describe_model
 
 SMALL = thesis_setup1().downscaled(8)  # 128 x 96
 Z = (400.0, 700.0)
 
 
-def test_default_kind_follows_the_classical_binning():
-    for k in (1, 2, 4, 8):
-        rig = thesis_setup1().downscaled(k)
-        assert default_kind(rig) == ("hybrid" if default_downsample(rig) > 1 else "classical")
-    assert default_kind(thesis_setup1()) == "hybrid" and default_kind(thesis_setup2()) == "hybrid"
+def test_default_kind_is_the_hybrid_from_512_x_384():
+    kinds = [default_kind(thesis_setup1().downscaled(k)) for k in (1, 2, 4, 8)]
+    assert kinds == ["hybrid", "hybrid", "classical", "classical"]
+    assert default_kind(thesis_setup2()) == "hybrid"
+    # the rule's edge: the reference half's shorter side, and a sensor the hybrid's 4 x 4 blocks divide
+    rig = thesis_setup1().downscaled(2)
+    side = min(rig.image_height, rig.reference_width)
+    assert side >= HYBRID_MIN_SIDE > thesis_setup1().downscaled(4).reference_width
+    assert default_kind(rig.replace(image_width=510, principal_point=(254.5, 191.5))) == "classical"
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,6 @@ from torch import nn
 from prismstereo.classical.config import StereoConfig
 from prismstereo.classical.defaults import default_downsample, resolve_level
 from prismstereo.classical.level import DepthLevel
-from prismstereo.depth.resample import upsample
 from prismstereo.errors import ShapeError, check_shape
 from prismstereo.geometry.rig import BiPrismRig
 
@@ -51,7 +50,8 @@ def exact_config(rig: BiPrismRig, z_range_mm: tuple[float, float]) -> StereoConf
 
 
 class ExactStage(nn.Module):
-    """The classical band's fit around an estimate on the 2 x 2-binned grid (module docstring).
+    """The classical band's fit around an estimate on the grid where the classical default fits its band (module
+    docstring), the grid of the hybrid's last learned stage.
 
     Args:
         rig: the full-resolution rig.
@@ -63,17 +63,17 @@ class ExactStage(nn.Module):
 
     Example:
         >>> stage = ExactStage(thesis_setup1().downscaled(2), (450.0, 900.0))
-        >>> s = torch.zeros(1, 1, 192, 128)  # the estimate on the 2 x 2-binned grid
-        >>> stage.binning, stage(torch.rand(1, 1, 384, 512), s).shape  # a small sensor: fitted at full resolution
+        >>> s = torch.zeros(1, 1, 384, 256)  # a small sensor: the estimate and the fit at full resolution
+        >>> stage.binning, stage(torch.rand(1, 1, 384, 512), s).shape
         (1, torch.Size([1, 1, 384, 256]))
     """
 
     def __init__(self, rig: BiPrismRig, z_range_mm: tuple[float, float]) -> None:
         super().__init__()
         self.binning = default_downsample(rig)
-        grid = rig.binned(2) if self.binning == 2 else rig
+        grid = rig.binned(self.binning)
         self.level = DepthLevel(grid, z_range_mm, exact_config(grid, z_range_mm), placed_by=2)
-        self.estimate_size = (rig.binned(2).image_height, rig.binned(2).reference_width)
+        self.estimate_size = (grid.image_height, grid.reference_width)
 
     @property
     def rig(self) -> BiPrismRig:
@@ -85,21 +85,18 @@ class ExactStage(nn.Module):
 
         Args:
             grey: (B, 1, H', W') the grey capture on the stage's grid (:attr:`rig`'s sensor).
-            s: (B, 1, h, w) the estimate's sweep coordinate on the 2 x 2-binned grid (its reference half).
+            s: (B, 1, H', W'_ref) the estimate's sweep coordinate on the stage's grid (its reference half).
 
         Returns:
-            (B, 1, H', W'_ref) s on the stage's grid: the band's fit where it is valid and within
-            :data:`EXACT_AGREEMENT` steps of the estimate, else the estimate (bilinearly on a full-resolution grid).
+            (B, 1, H', W'_ref) s: the band's fit where it is valid and within :data:`EXACT_AGREEMENT` steps of the
+            estimate, else the estimate.
 
         Raises:
-            ShapeError: ``s`` not on the 2 x 2-binned grid, ``grey`` not of the stage's sensor.
+            ShapeError: ``s`` or ``grey`` not on the stage's grid.
         """
         check_shape(s, ["B", 1, *self.estimate_size], "s")
         level = self.level
         reference, other = level.split(grey)
-        size = tuple(reference.shape[-2:])
-        if self.binning == 1:  # the estimate carried to the full-resolution grid
-            s = upsample(s, 2, size, mode="bilinear")
         if reference.shape[0] != s.shape[0]:
             raise ShapeError(f"grey has {reference.shape[0]} images, s {s.shape[0]}")
         s0 = s.detach().clamp(-1.0, 1.0)

@@ -1,6 +1,9 @@
 """HybridStereo: the exact classical sweep at its cheap binned level, then a learned image-guided 2-D refinement.
 
-Data path (one capture, both halves as recorded; k = ``block``; (h, w) the reference half binned 2 x 2):
+Data path (one capture, both halves as recorded). The stages work on a b x b-binned grid, b = 2 where the classical
+default fits its band on the 2 x 2-binned grid (:func:`~prismstereo.classical.defaults.default_downsample`: reference
+half >= 384 px on its shorter side), else 1: a surface covers about as many of its pixels on every sensor. (h, w) is
+the reference half on that grid, k = ``block`` * b / 2 the classical level's binning:
 
 1. :class:`~prismstereo.classical.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band) with the
    'dense' preset (:func:`classical_config`): the exact plane sweep on the k x k-binned capture gives every covered
@@ -8,9 +11,9 @@ Data path (one capture, both halves as recorded; k = ``block``; (h, w) the refer
    (:meth:`~prismstereo.classical.model.PrismStereo.block_estimate`); or, with ``HybridArchitecture(start='learned')``,
    the learned first stage (:class:`~prismstereo.learned.sweep_start.SweepStart`, on 8 x 8 bins, carried to that
    grid bilinearly);
-2. refinement stages, first on that k x k grid (``quarter``, block 4: twice the reach per layer), then on the
-   2 x 2-binned grid (``iterations``; the maps carried over bilinearly, block centres kept: pixel j of that grid is
-   at full-sensor 2 j + 1/2). Each samples the other half of the normalised binned capture
+2. refinement stages, first on that grid (``quarter``, block 4: the 2b x 2b-binned grid, twice the reach per layer),
+   then on the stages' grid (``iterations``; the maps carried over bilinearly, block centres kept: pixel j of a
+   b x b-binned grid is at full-sensor b j + (b - 1) / 2). Each samples the other half of the normalised capture
    (:func:`~prismstereo.learned.network.normalise_image`) along every reference pixel's exact sweep (the binned
    rig's sweep polynomials, thesis eq. 4.1-4.10 done exactly: :func:`sweep_match`) at s + o steps for offsets
    o = -2 ... 2 (a step is <= 1 px at the stage's resolution:
@@ -19,12 +22,11 @@ Data path (one capture, both halves as recorded; k = ``block``; (h, w) the refer
    the estimate's local relief and the classical confidence and coverage predicts a residual of s in steps and a
    confidence logit;
 3. the exact last stage (``last_stage='exact'``, the default; :mod:`~prismstereo.learned.exact_stage`): the
-   classical band's fit on the exact sweep around the estimate, where the classical default fits its own band (the
-   2 x 2-binned grid on large sensors, else the full sensor), replaces the estimate where it is valid and agrees
-   with it (a regressed estimate carries a smooth bias of a tenth of a step on textured surfaces, the smoothed fit
-   does not). The confidence is the learned one;
-4. s and the confidence bilinearly to full resolution (where they are not there yet), depth exact from s (thesis
-   eq. 6.1-6.10 via the sweep).
+   classical band's fit on the exact sweep around the estimate, on the stages' grid, replaces the estimate where it
+   is valid and agrees with it (a regressed estimate carries a smooth bias of a tenth of a step on textured
+   surfaces, the smoothed fit does not). The confidence is the learned one;
+4. s and the confidence bilinearly to full resolution (b = 2), depth exact from s (thesis eq. 6.1-6.10 via the
+   sweep).
 
 The weights are the CNNs only; the sweep, masks and the classical level are built from the rig and range the model
 is constructed with, so the same weights run on any rig whose sensor the block divides.
@@ -35,25 +37,24 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from pathlib import Path
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.classical import PrismStereo, StereoConfig, TemporalDepth, TemporalOptions, preset
-from prismstereo.classical.defaults import default_hypotheses
+from prismstereo.classical.defaults import default_downsample, default_hypotheses
 from prismstereo.conventions import to_grey
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
-from prismstereo.epipolar.series import series_at
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_match, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.exact_stage import EXACT_BAND, ExactStage
 from prismstereo.learned.network import normalise_image
-from prismstereo.learned.refinement import HybridArchitecture, RefinementCNN
+from prismstereo.learned.refinement import HybridArchitecture, RefinementCNN, RefinementInputs
 from prismstereo.learned.sweep_start import SweepStart, load_start
 from prismstereo.learned.weights import WeightsError, read_weights, write_weights
 from prismstereo.matching.aggregate import box_filter
@@ -73,24 +74,6 @@ FILL_RADIUS = 3
 VALID_CONFIDENCE = 0.5  # the validity threshold of weights without a calibrated one (``valid_confidence``)
 LAST_STAGES = ("exact", "learned")
 """What gives the final depth (:class:`HybridStereo`'s ``last_stage``)."""
-
-
-class RefinementInputs(NamedTuple):
-    """The classical estimate on its k x k-binned grid (h_k, w_k) and the normalised 2 x 2-binned capture
-    (:meth:`HybridStereo.initial`; training computes it once per capture).
-
-    Attributes:
-        image: (B, 2, h, W2) the normalised 2 x 2-binned capture (both halves).
-        s: (B, 1, h_k, w_k) sweep coordinate of the classical estimate; where it has none, the mean of its covered
-            blocks within :data:`FILL_RADIUS` (:func:`~prismstereo.matching.band.extend_estimate`), else 0.
-        confidence: (B, 1, h_k, w_k) its calibrated confidence (0 where it has no depth).
-        covered: (B, 1, h_k, w_k) 1 where it has a depth, else 0.
-    """
-
-    image: torch.Tensor
-    s: torch.Tensor
-    confidence: torch.Tensor
-    covered: torch.Tensor
 
 
 def load_hybrid_weights(path: str | Path) -> tuple[HybridArchitecture, dict[str, torch.Tensor], dict[str, Any]]:
@@ -119,6 +102,7 @@ class HybridStereo(nn.Module):
             is valid and agrees) or ``'learned'`` (the learned estimate as it is); see the module docstring.
 
     Attributes:
+        binning: b, the stages' grid's binning (2 or 1; module docstring).
         valid_confidence: the confidence from which a depth is valid: the threshold calibrated on the training
             captures (:func:`~prismstereo.learned.hybrid_train.validity_threshold`, in the weights' metadata),
             else :data:`VALID_CONFIDENCE`.
@@ -163,9 +147,9 @@ class HybridStereo(nn.Module):
         self.valid_confidence = float(metadata.get("valid_confidence", VALID_CONFIDENCE))
         if rig.image_width % arch.block or rig.image_height % arch.block:
             raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by block {arch.block}")
-        k = arch.block
+        self.binning = b = default_downsample(rig)
         z = default_z_range(rig) if z_range is None else check_z_range(rig, z_range)
-        self.classical = PrismStereo(rig, z, classical_config(k))
+        self.classical = PrismStereo(rig, z, classical_config(arch.block * b // 2))
         self.stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.iterations)])
         self.quarter_stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.quarter)])
         # the learned first stage: the shipped one unless the weights file holds its own
@@ -179,30 +163,19 @@ class HybridStereo(nn.Module):
             if self.start is not None and any(k.startswith("start.") for k in state):
                 self.start.load_weights({k[6:]: v for k, v in state.items() if k.startswith("start.")})
         self.rig = rig
-        self.half = half = rig.binned(2)
+        self.half = half = rig.binned(b)
         z = self.classical.z_range
         self.last_stage = last_stage
         self.exact = ExactStage(rig, z) if last_stage == "exact" else None
         # a step of s: the sweep's largest pixel spacing at the half resolution is <= 1 px per step
         self.step = 2.0 / (default_hypotheses(half, z) - 1)
-        f64 = torch.float64
-        v, u = torch.meshgrid(torch.arange(half.image_height, dtype=f64), torch.arange(half.reference_width,
-                                                                                       dtype=f64), indexing="ij")
-        coefficients = sweep_coefficients(fit_sweep(half, z), torch.stack([u, v], -1)).permute(2, 3, 0, 1)
-        self.register_buffer("coefficients", coefficients.to(torch.get_default_dtype()), persistent=False)
-        quarter = rig.binned(4)
+        self.register_buffer("coefficients", _sweep_grid(half, z), persistent=False)
+        quarter = rig.binned(2 * b)
         self.quarter_size = (quarter.image_height, quarter.reference_width)
         self.quarter_step = 2.0 / (default_hypotheses(quarter, z) - 1)
-        quarter_coefficients = torch.zeros(0)
-        if arch.quarter:
-            v, u = torch.meshgrid(torch.arange(quarter.image_height, dtype=f64),
-                                  torch.arange(quarter.reference_width, dtype=f64), indexing="ij")
-            quarter_coefficients = sweep_coefficients(fit_sweep(quarter, z), torch.stack([u, v], -1)).permute(
-                2, 3, 0, 1)
-        self.register_buffer("quarter_coefficients", quarter_coefficients.to(torch.get_default_dtype()),
+        self.register_buffer("quarter_coefficients", _sweep_grid(quarter, z) if arch.quarter else torch.zeros(0),
                              persistent=False)
-        v, u = torch.meshgrid(torch.arange(rig.image_height, dtype=f64), torch.arange(rig.reference_width, dtype=f64),
-                              indexing="ij")
+        v, u = _pixels(rig)
         rays = trace_pixels(rig, torch.stack([u, v], -1))
         self.register_buffer("rays_valid", (rays.valid & rays.left).view(1, 1, *u.shape), persistent=False)
 
@@ -261,12 +234,14 @@ class HybridStereo(nn.Module):
 
         Example:
             >>> summary = HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None).summary()
-            >>> summary.startswith("hybrid: classical block level ("), "on 4x4-binned pixels" in summary
+            >>> summary.startswith("hybrid: classical block level ("), "on 2x2-binned pixels" in summary  # small sensor
             (True, True)
         """
         a = self.architecture
         count = sum(v.numel() for v in self.weights().values())
-        stages = " and ".join(f"{n} at 1/{k}" for n, k in ((a.quarter, 4), (a.iterations, 2)) if n)
+        grids = {1: "full resolution", 2: "1/2", 4: "1/4"}
+        stages = " and ".join(f"{n} at {grids[k * self.binning]}" for n, k in ((a.quarter, 2), (a.iterations, 1))
+                              if n)
         first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/8)" if self.start is not None
                  else f"classical block level ({self.classical.summary()})")
         last = "" if self.exact is None else f", then the exact band +-{EXACT_BAND} " + (
@@ -279,7 +254,7 @@ class HybridStereo(nn.Module):
         return write_weights(path, HYBRID_FORMAT, self.architecture, self.weights(), {**self.metadata, **metadata})
 
     def initial(self, image: torch.Tensor) -> RefinementInputs:
-        """Steps 1-2: the classical estimate on the 2 x 2-binned grid and the normalised binned capture.
+        """Steps 1-2: the classical estimate and the normalised capture on the stages' grid.
 
         Args:
             image: (B, C, H, W) captures in [0, 1] of the rig's sensor.
@@ -288,23 +263,24 @@ class HybridStereo(nn.Module):
             RefinementInputs, (B, *, h, w) maps.
         """
         self._check(image)
-        return self.initial_binned(F.avg_pool2d(to_grey(image.to(self.coefficients.dtype)), 2))
+        return self.initial_binned(_binned(to_grey(image.to(self.coefficients.dtype)), self.binning))
 
     def initial_binned(self, grey: torch.Tensor) -> RefinementInputs:
-        """:meth:`initial` of the 2 x 2-binned grey capture ``grey`` (B, 1, H/2, W/2) (training keeps captures so).
+        """:meth:`initial` of the grey capture ``grey`` (B, 1, H/b, W/b) on the stages' grid (b = :attr:`binning`;
+        training keeps captures so).
 
         Example:
-            >>> model = HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None)
-            >>> model.initial_binned(torch.rand(1, 1, 96, 128)).s.shape  # on the 4 x 4-binned grid
-            torch.Size([1, 1, 48, 32])
+            >>> model = HybridStereo(thesis_setup1().downscaled(2), (450.0, 1000.0), weights=None)
+            >>> model.binning, model.initial_binned(torch.rand(1, 1, 384, 512)).s.shape  # the classical grid
+            (1, torch.Size([1, 1, 192, 128]))
         """
         k = self.architecture.block
         image = normalise_image(grey)
         with torch.no_grad():
-            if self.start is not None:  # the learned first stage on 8 x 8 bins, carried to the 4 x 4 grid
-                out = self.start(image)
-                s, confidence, covered = upsample(torch.cat([out.s, out.confidence, out.covered], 1), 2,
-                                                  self.quarter_size, mode="bilinear").split(1, 1)
+            if self.start is not None:  # the learned first stage on 8 x 8 bins, carried to the classical grid
+                out = self.start(image if self.binning == 2 else normalise_image(F.avg_pool2d(grey, 2)))
+                s, confidence, covered = upsample(torch.cat([out.s, out.confidence, out.covered], 1),
+                                                  4 // self.binning, self.quarter_size, mode="bilinear").split(1, 1)
                 return RefinementInputs(image, s, confidence, (covered > 0.5).to(grey.dtype))
             block = self.classical.block_estimate(grey if k == 2 else F.avg_pool2d(grey, k // 2))
             s = extend_estimate(block.s, block.covered, FILL_RADIUS).s
@@ -328,7 +304,7 @@ class HybridStereo(nn.Module):
             image: (B, 2, h, W2) the normalised binned capture at the stage's resolution.
             s: (B, 1, h', w') sweep coordinates of the reference pixels from row, column ``window`` on (training
                 refines crops).
-            quarter: on the 4 x 4-binned grid (else the 2 x 2-binned one).
+            quarter: on the quarter stages' grid (else the stages' grid).
         """
         n = self.architecture.offsets
         b, _, h, w = s.shape
@@ -353,15 +329,14 @@ class HybridStereo(nn.Module):
 
     def refine(self, inputs: RefinementInputs, window: tuple[int, int] = (0, 0),
                size: tuple[int, int] | None = None) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """Steps 2-4: the stages at 1/4 on the classical grid, the maps bilinearly onto the 2 x 2-binned grid (block
-        centres kept: pixel j of that grid is at full-sensor 2 j + 1/2), the stages at 1/2. Returns every stage's s
-        and confidence logit on the 2 x 2-binned grid, (B, 1, h, w) each.
+        """Step 2: the quarter stages on the classical grid, the maps bilinearly onto the stages' grid (block centres
+        kept), its stages. Returns every stage's s and confidence logit on the stages' grid, (B, 1, h, w) each.
 
         Args:
             inputs: the classical estimate, or a crop of it from row, column ``window`` of its grid on (its
                 ``image`` the whole capture; training refines crops).
             window: the crop's origin on the classical grid.
-            size: (h, w) on the 2 x 2-binned grid; None: the whole reference half.
+            size: (h, w) on the stages' grid; None: the whole reference half.
         """
         s, confidence, covered = inputs.s, inputs.confidence, inputs.covered
         f = self.architecture.block // 2
@@ -391,33 +366,47 @@ class HybridStereo(nn.Module):
             calibrated threshold); confidence (B, 1, H, W_ref) in
             [0, 1] (trained as the probability of a depth within 1 % of the truth; 0 exactly where there is no
             depth); index into :attr:`depths`; match (B, 2, H, W_ref), the match of the last stage's grid
-            (interpolated from the 2 x 2-binned one, or the exact sweep at full resolution).
+            (interpolated from the stages' grid where it is binned).
 
         Raises:
             ShapeError: an image that is not (B, 1 or 3, H, W) of the rig's sensor, or not floating point.
         """
-        dtype = self.coefficients.dtype
+        dtype, b = self.coefficients.dtype, self.binning
         self._check(image)
-        grey = F.avg_pool2d(full := to_grey(image.to(dtype)), 2)  # full: the exact stage's at full resolution
+        grey = _binned(to_grey(image.to(dtype)), b)
         s, logit = self.refine(self.initial_binned(grey))[-1]
         confidence = torch.sigmoid(logit)
-        size = (self.rig.image_height, self.rig.reference_width)
-        if self.exact is not None and self.exact.binning == 2:  # the exact last stage on the binned grid
+        if self.exact is not None:
             s = self.exact(grey, s)
-        if self.exact is not None and self.exact.binning == 1:  # ... at full resolution
-            s = self.exact(full, s)
-            match = torch.cat(series_at(self.exact.level.series, s), 1)
-            confidence = upsample(confidence, 2, size, mode="bilinear")
-        else:
-            match = sweep_match(self.coefficients, s)[0] * 2.0 + 0.5  # full-sensor pixels
-            # each map on its own: the exported graph keeps only what its outputs need (not the match)
-            s, confidence, match = (upsample(t, 2, size, mode="bilinear") for t in (s, confidence, match))
+        match = sweep_match(self.coefficients, s)[0] * b + (b - 1) / 2  # full-sensor pixels
+        if b > 1:  # each map on its own: the exported graph keeps only what its outputs need (not the match)
+            size = (self.rig.image_height, self.rig.reference_width)
+            s, confidence, match = (upsample(t, b, size, mode="bilinear") for t in (s, confidence, match))
         confidence = confidence * self.rays_valid.to(dtype)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
         out = image.dtype
         return DepthResult(depth.to(out), confidence >= self.valid_confidence, confidence.to(out),
                            ((s + 1.0) / self.classical.step).to(out), match.to(out))
+
+
+def _pixels(rig: BiPrismRig) -> tuple[torch.Tensor, torch.Tensor]:
+    """(v, u) (H, W_ref) float64 pixel coordinates of the rig's reference half."""
+    f64 = torch.float64
+    return torch.meshgrid(torch.arange(rig.image_height, dtype=f64), torch.arange(rig.reference_width, dtype=f64),
+                          indexing="ij")
+
+
+def _sweep_grid(rig: BiPrismRig, z_range: tuple[float, float]) -> torch.Tensor:
+    """(K, 2, H, W_ref) sweep coefficients of every reference pixel of ``rig`` (:func:`sweep_match`'s)."""
+    v, u = _pixels(rig)
+    return sweep_coefficients(fit_sweep(rig, z_range), torch.stack([u, v], -1)).permute(2, 3, 0, 1).to(
+        torch.get_default_dtype())
+
+
+def _binned(grey: torch.Tensor, b: int) -> torch.Tensor:
+    """``grey`` box-averaged over b x b blocks (itself for b = 1: an exported pooling of 1 is a copy)."""
+    return grey if b == 1 else F.avg_pool2d(grey, b)
 
 
 def _crop(t: torch.Tensor, window: tuple[int, int], size: tuple[int, int]) -> torch.Tensor:

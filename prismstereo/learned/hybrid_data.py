@@ -151,14 +151,14 @@ def _photometric(image: torch.Tensor, w_ref: int, gen: torch.Generator) -> torch
 
 
 class Rendered(NamedTuple):
-    """One rig variant's rendered captures on the 2 x 2-binned grid (what the cache keeps; h, w the binned reference
-    half, W2 the binned sensor width).
+    """One rig variant's rendered captures on a b x b-binned grid (what the cache keeps; h, w the binned reference
+    half, W2 the binned sensor width; b = 2 for the sensors the hybrid is trained on).
 
     Attributes:
-        grey: (N, 1, h, W2) the 2 x 2-binned grey captures (8-bit values in [0, 1]).
-        truth: (N, 1, h, w) true sweep coordinate over the variant's range (the mean over each 2 x 2 block), NaN where
+        grey: (N, 1, h, W2) the binned grey captures (8-bit values in [0, 1]).
+        truth: (N, 1, h, w) true sweep coordinate over the variant's range (the mean over each b x b block), NaN where
             unknown.
-        known: (N, 1, h, w) bool, blocks the other half sees whose four true depths agree within half a step.
+        known: (N, 1, h, w) bool, blocks the other half sees whose true depths agree within half a step.
         rays: (N, 1, h, w) bool, blocks with a true depth (the confidence's domain).
     """
 
@@ -192,29 +192,33 @@ class HybridSet(NamedTuple):
 
 
 def render_set(name: str, rig: BiPrismRig, z_range_mm: tuple[float, float], count: int, *, seed: int = 0,
-               cache: str | Path | None = None, progress: bool = False) -> Rendered:
-    """Render ``count`` captures through one rig variant (photographs and procedural kinds in turn), or read them
-    from ``cache``.
+               cache: str | Path | None = None, progress: bool = False, binning: int = 2) -> Rendered:
+    """Render ``count`` captures through one rig variant (photographs and procedural kinds in turn), binned
+    ``binning`` x ``binning`` (1 or 2: the hybrid's stage grid, :attr:`HybridStereo.binning`), or read them from
+    ``cache``.
 
     Raises:
-        OptionError: ``count`` < 1.
+        OptionError: ``count`` < 1, ``binning`` not 1 or 2.
 
     Example:
         >>> rendered = render_set("small", thesis_setup1().downscaled(4), (450.0, 1000.0), 1)  # doctest: +SKIP
     """
     if isinstance(count, bool) or not isinstance(count, int) or count < 1:
         raise OptionError(f"count must be an int >= 1, got {count!r}")
+    if isinstance(binning, bool) or binning not in (1, 2):
+        raise OptionError(f"binning must be 1 or 2, got {binning!r}")
     path = None
     if cache is not None:
         key = f"{name}_{rig.image_width}x{rig.image_height}_{z_range_mm[0]:g}-{z_range_mm[1]:g}".replace(" ", "_")
-        path = Path(cache) / f"rendered_{key}_{count}_{seed}.pt"
+        path = Path(cache) / f"rendered_{key}_{count}_{seed}{'' if binning == 2 else f'_b{binning}'}.pt"
         if path.is_file():
             blob = torch.load(path, weights_only=True)
             return Rendered(*(blob[k] for k in Rendered._fields))
     gen = torch.Generator().manual_seed(seed)
     photos = photographs()
     w_ref = rig.reference_width
-    step = 2.0 / (default_hypotheses(rig.binned(2), z_range_mm) - 1)
+    b = binning
+    step = 2.0 / (default_hypotheses(rig.binned(b), z_range_mm) - 1)
     rows: dict[str, list[torch.Tensor]] = {k: [] for k in Rendered._fields}
     from tqdm.auto import tqdm
 
@@ -229,13 +233,13 @@ def render_set(name: str, rig: BiPrismRig, z_range_mm: tuple[float, float], coun
         image = _photometric(capture.image.float().mean(1, keepdim=True), w_ref, gen)
         depth = capture.depth[..., :w_ref].float()
         truth = truth_sweep(depth, z_range_mm)
-        h, w = depth.shape[-2] // 2, depth.shape[-1] // 2
-        block = F.unfold(torch.nan_to_num(truth, nan=1e3), 2, stride=2).view(1, 4, h, w)
-        seen = F.avg_pool2d(capture.covisible[..., :w_ref].float(), 2) > 0.99
-        finite = F.avg_pool2d(torch.isfinite(depth).float(), 2) > 0.99
+        h, w = depth.shape[-2] // b, depth.shape[-1] // b
+        block = F.unfold(torch.nan_to_num(truth, nan=1e3), b, stride=b).view(1, b * b, h, w)
+        seen = F.avg_pool2d(capture.covisible[..., :w_ref].float(), b) > 0.99
+        finite = F.avg_pool2d(torch.isfinite(depth).float(), b) > 0.99
         known = seen & finite & ((block.amax(1, keepdim=True) - block.amin(1, keepdim=True)) < 0.5 * step)
         mean = block.mean(1, keepdim=True)
-        for key, value in (("grey", F.avg_pool2d(image, 2)), ("truth", torch.where(finite, mean, math.nan)),
+        for key, value in (("grey", F.avg_pool2d(image, b)), ("truth", torch.where(finite, mean, math.nan)),
                            ("known", known), ("rays", finite)):
             rows[key].append(value)
     data = Rendered(*(torch.cat(rows[k]) for k in Rendered._fields))
@@ -258,8 +262,9 @@ def hybrid_set(name: str, rig: BiPrismRig, z_range_mm: tuple[float, float], coun
     Example:
         >>> data = hybrid_set("small", thesis_setup1().downscaled(4), (450.0, 1000.0), 1)  # doctest: +SKIP
     """
-    rendered = render_set(name, rig, z_range_mm, count, seed=seed, cache=cache, progress=progress)
     model = model or HybridStereo(rig, z_range_mm, weights=None)
+    rendered = render_set(name, rig, z_range_mm, count, seed=seed, cache=cache, progress=progress,
+                          binning=model.binning)
     with torch.no_grad():
         parts = [model.initial_binned(chunk) for chunk in rendered.grey.split(8)]
     image, s, confidence, covered = (torch.cat(t) for t in zip(*parts, strict=True))

@@ -8,6 +8,7 @@ relief and the classical confidence, and predicts a residual and a confidence lo
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -15,7 +16,7 @@ from torch import nn
 
 from prismstereo.errors import OptionError, check_int
 
-__all__ = ["DILATIONS", "STARTS", "HybridArchitecture", "RefinementCNN"]
+__all__ = ["DILATIONS", "STARTS", "HybridArchitecture", "RefinementCNN", "RefinementInputs"]
 
 STARTS = ("classical", "learned")
 """What the refinement stages start from (:attr:`HybridArchitecture.start`)."""
@@ -99,3 +100,22 @@ class RefinementCNN(nn.Module):
         for conv in self.convs:
             x = F.leaky_relu(conv(x), 0.1)
         return self.head(x)
+
+
+class RefinementInputs(NamedTuple):
+    """The classical estimate on its k x k-binned grid (h_k, w_k) and the normalised capture on the stages' grid
+    (:meth:`~prismstereo.learned.hybrid.HybridStereo.initial`; training computes it once per capture).
+
+    Attributes:
+        image: (B, 2, h, W2) the normalised capture on the stages' grid (both halves).
+        s: (B, 1, h_k, w_k) sweep coordinate of the classical estimate; where it has none, the mean of its covered
+            blocks within :data:`~prismstereo.learned.hybrid.FILL_RADIUS`
+            (:func:`~prismstereo.matching.band.extend_estimate`), else 0.
+        confidence: (B, 1, h_k, w_k) its calibrated confidence (0 where it has no depth).
+        covered: (B, 1, h_k, w_k) 1 where it has a depth, else 0.
+    """
+
+    image: torch.Tensor
+    s: torch.Tensor
+    confidence: torch.Tensor
+    covered: torch.Tensor

@@ -11,8 +11,8 @@ from prismstereo.learned import HYBRID_WEIGHTS
 
 def test_which_model_the_flags_ask_for(tmp_path):
     """--model; else the classical model with a preset, a config or a search option, the hybrid with --weights,
-    else the rig's default (the hybrid on the sensors it is trained for); options of another model refused."""
-    large, small = thesis_setup1(), thesis_setup1().downscaled(2)
+    else the rig's default (the hybrid from 512 x 384 up); options of another model refused."""
+    large, small = thesis_setup1(), thesis_setup1().downscaled(4)
     weights = str(HYBRID_WEIGHTS)
     (tmp_path / "c.json").write_text('{"search": {"coarse_factor": 2}}')
 

@@ -64,7 +64,8 @@ def test_a_hybrid_whose_last_stage_is_at_one_quarter(rig):
     model = HybridStereo(rig, Z, weights=None, architecture=HybridArchitecture(quarter=2, iterations=0)).eval()
     image = torch.rand(1, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(1))
     stages = model.refine(model.initial(image))
-    assert len(model.stages) == 0 and len(stages) == 2 and "2 at 1/4 (" in model.summary()
+    assert model.binning == 1 and len(model.stages) == 0 and len(stages) == 2  # a small sensor: quarter stages at 1/2
+    assert "2 at 1/2 (" in model.summary()
     assert stages[-1][0].shape == (1, 1, model.half.image_height, model.half.reference_width)
     assert model(image).depth.shape == (1, 1, rig.image_height, rig.reference_width)
 
@@ -92,9 +93,9 @@ def test_untrained_stage_keeps_the_classical_estimate(untrained, plane):
 def test_uncovered_blocks_start_from_their_covered_neighbours(untrained, plane):
     # the classical level leaves a margin at the sensor's edges; those blocks start near the truth, not at s = 0
     inputs = untrained.initial(plane.image)
-    w = untrained.rig.reference_width
-    truth = truth_sweep(torch.nn.functional.avg_pool2d(plane.depth[..., :w].double(), 4), untrained.z_range)
-    seen = torch.nn.functional.avg_pool2d(plane.covisible[..., :w].double(), 4) > 0.99
+    w, k = untrained.rig.reference_width, 2 * untrained.binning  # the classical grid's bins
+    truth = truth_sweep(torch.nn.functional.avg_pool2d(plane.depth[..., :w].double(), k), untrained.z_range)
+    seen = torch.nn.functional.avg_pool2d(plane.covisible[..., :w].double(), k) > 0.99
     covered = inputs.covered > 0
     filled = seen & ~covered
     assert filled.any()
@@ -205,10 +206,10 @@ def test_onnxruntime_matches_torch(tmp_path, untrained, rig, plane):
 
 
 def test_training_data(data, small):
-    rig = small.rig
-    h, w = rig.image_height // 2, rig.reference_width // 2
-    assert data.image.shape == (1, 2, h, rig.image_width // 2)
-    for t in (data.s, data.confidence, data.covered):  # the classical grid, 4 x 4-binned
+    rig, b = small.rig, small.binning  # a small sensor: the stages at full resolution
+    h, w = rig.image_height // b, rig.reference_width // b
+    assert b == 1 and data.image.shape == (1, 2, h, rig.image_width // b)
+    for t in (data.s, data.confidence, data.covered):  # the classical grid, 2 b x 2 b-binned
         assert t.shape == (1, 1, h // 2, w // 2)
     for t in (data.truth, data.known, data.rays):
         assert t.shape == (1, 1, h, w)
@@ -275,8 +276,9 @@ def test_steps_follow_the_range(rig, untrained, z_range):
     narrow = untrained  # over Z = 450-1000 mm
     model = narrow if z_range == Z else HybridStereo(rig, z_range, weights=None)
     valid = model.rays_valid[0, 0]
-    for coefficients, step, factor in ((model.coefficients, model.step, 2), (model.quarter_coefficients,
-                                                                           model.quarter_step, 4)):
+    b = model.binning
+    for coefficients, step, factor in ((model.coefficients, model.step, b), (model.quarter_coefficients,
+                                                                           model.quarter_step, 2 * b)):
         h, w = coefficients.shape[-2:]
         inside = valid[factor // 2::factor, factor // 2::factor][:h, :w]
         moves = []

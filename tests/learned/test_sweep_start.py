@@ -237,9 +237,10 @@ def test_hybrid_refines_the_learned_start(rig, tmp_path):
     with torch.no_grad():
         inputs = model.initial(image)
         out = model.start(normalise_image(torch.nn.functional.avg_pool2d(image, 2)))
-        carried = upsample(out.s, 2, tuple(inputs.s.shape[-2:]), mode="bilinear")
-    assert torch.allclose(inputs.s, carried)
-    assert inputs.s.shape[-2:] == (rig.image_height // 4, rig.binned(4).reference_width)
+        carried = upsample(out.s, 4 // model.binning, tuple(inputs.s.shape[-2:]), mode="bilinear")
+    assert torch.allclose(inputs.s, carried)  # from 8 x 8 bins to the classical grid's 2 b x 2 b
+    k = 2 * model.binning
+    assert inputs.s.shape[-2:] == (rig.image_height // k, rig.binned(k).reference_width)
     # the exported graph runs the first stage too (a textured capture: the shipped start's picks are clear)
     from prismstereo.export import OnnxDepth, export_onnx
 
