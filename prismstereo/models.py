@@ -31,13 +31,16 @@ if TYPE_CHECKING:
     from prismstereo.classical import StereoConfig, TemporalDepth, TemporalOptions
     from prismstereo.depth.result import DepthResult
 
-__all__ = ["HYBRID_MIN_SIDE", "MODEL_KINDS", "DepthModel", "ModelKind", "ModelSpec", "build_model", "default_kind",
-           "describe_model"]
+__all__ = ["HYBRID_MIN_SIDE", "HYBRID_OPTIONS", "MODEL_KINDS", "DepthModel", "ModelKind", "ModelSpec", "build_model",
+           "default_kind", "describe_model"]
 
 ModelKind = Literal["hybrid", "classical", "learned"]
 MODEL_KINDS: tuple[str, ...] = ("hybrid", "classical", "learned")
 HYBRID_MIN_SIDE = 192
 """The shorter side (px) of the reference half from which the hybrid is the default (:func:`default_kind`)."""
+HYBRID_OPTIONS: tuple[str, ...] = ("last_stage",)
+"""The options a ``'hybrid'`` model takes in ``config`` (keyword arguments of
+:class:`~prismstereo.learned.HybridStereo`: ``{"last_stage": "learned"}`` leaves out the exact last stage)."""
 LEARNED_OPTIONS: tuple[str, ...] = ("num_hypotheses", "scale", "with_match")
 """The options a ``'learned'`` model takes in ``config`` (keyword arguments of
 :class:`~prismstereo.learned.LearnedStereo`)."""
@@ -106,8 +109,8 @@ class ModelSpec:
             the rig's default (:func:`default_kind`).
         z_range: (z_min, z_max) mm; None: :func:`~prismstereo.depth.range.default_z_range` of the rig.
         config: the model's options: for ``'classical'`` a :class:`~prismstereo.classical.StereoConfig`, a preset's
-            name or a dict of options on top of the default; for ``'learned'`` a dict of :data:`LEARNED_OPTIONS`;
-            ``'hybrid'`` takes none.
+            name or a dict of options on top of the default; for ``'learned'`` a dict of :data:`LEARNED_OPTIONS`,
+            for ``'hybrid'`` one of :data:`HYBRID_OPTIONS`.
         weights: ``'hybrid'`` and ``'learned'``: a weights file written by ``prismstereo train``; None: the
             shipped weights.
 
@@ -136,11 +139,10 @@ class ModelSpec:
         kind = self.resolved_kind
         if kind == "classical" and self.weights is not None:
             raise OptionError("weights are the hybrid's or the learned model's, not the classical model's")
-        if kind == "hybrid" and self.config is not None:
-            raise OptionError("config sets the classical model's options (or the learned model's), not the hybrid's")
-        if kind == "learned" and self.config is not None:
-            if not isinstance(self.config, Mapping) or set(self.config) - set(LEARNED_OPTIONS):
-                raise OptionError(f"the learned model's config is a dict of {', '.join(LEARNED_OPTIONS)}, got "
+        if kind in ("hybrid", "learned") and self.config is not None:
+            options = HYBRID_OPTIONS if kind == "hybrid" else LEARNED_OPTIONS
+            if not isinstance(self.config, Mapping) or set(self.config) - set(options):
+                raise OptionError(f"the {kind} model's config is a dict of {', '.join(options)}, got "
                                   f"{self.config!r}")
         if self.weights is not None and not Path(self.weights).is_file():
             from prismstereo.learned import WeightsError
@@ -167,7 +169,7 @@ class ModelSpec:
         if kind == "hybrid":
             from prismstereo.learned import HybridStereo
 
-            return HybridStereo(self.rig, z_range, weights=weights).eval()
+            return HybridStereo(self.rig, z_range, weights=weights, **dict(self.config or {})).eval()
         from prismstereo.learned import LearnedStereo
 
         return LearnedStereo(self.rig, z_range, weights=weights, **dict(self.config or {})).eval()
@@ -208,7 +210,7 @@ def build_model(rig: BiPrismRig, kind: ModelKind | None = None, z_range: tuple[f
             rig's default (:func:`default_kind`).
         z_range: (z_min, z_max) mm; None: the rig's default (:func:`~prismstereo.depth.range.default_z_range`).
         config: the model's options (:class:`ModelSpec`): the classical model's config, preset or dict of options,
-            or the learned model's dict of :data:`LEARNED_OPTIONS`.
+            or the learned model's dict of :data:`LEARNED_OPTIONS` (the hybrid's: :data:`HYBRID_OPTIONS`).
         weights: the hybrid's or the learned model's weights file; None: the shipped weights.
 
     Returns:

@@ -71,8 +71,11 @@ def test_build_model_and_spec_pick_the_kind_and_refuse_options_of_another_model(
         ModelSpec(rig=SMALL, kind="sgbm")
     with pytest.raises(OptionError, match="weights are the hybrid's or the learned model's"):
         ModelSpec(rig=SMALL, kind="classical", weights=HYBRID_WEIGHTS)
-    with pytest.raises(OptionError, match="config sets the classical model's options"):
+    with pytest.raises(OptionError, match="the hybrid model's config is a dict of last_stage, got 'fast'"):
         ModelSpec(rig=SMALL, kind="hybrid", config="fast")
+    assert build_model(SMALL, "hybrid", Z, {"last_stage": "learned"}).exact is None
+    with pytest.raises(OptionError, match="Unknown last_stage 'band'. Choose from: 'exact', 'learned'"):
+        build_model(SMALL, "hybrid", Z, {"last_stage": "band"})
     with pytest.raises(OptionError, match="the learned model's config is a dict of num_hypotheses"):
         ModelSpec(rig=SMALL, kind="learned", config={"coarse_factor": 2})
     with pytest.raises(WeightsError, match="does not exist"):

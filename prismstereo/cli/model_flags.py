@@ -1,7 +1,7 @@
 """The model flags ``prismstereo depth`` and ``prismstereo export`` share, and what they ask for: a
-:class:`~prismstereo.models.ModelSpec` (``--model``, ``--weights``, the classical model's ``--preset`` /
-``--config`` with the search options on top, ``--z-range``). Errors of the library about an option set by a flag
-name the flag.
+:class:`~prismstereo.models.ModelSpec` (``--model``, ``--weights``, the hybrid's ``--last-stage``, the classical
+model's ``--preset`` / ``--config`` with the search options on top, ``--z-range``). Errors of the library about an
+option set by a flag name the flag.
 """
 
 from __future__ import annotations
@@ -77,7 +77,13 @@ def model_spec(args: argparse.Namespace, rig: BiPrismRig) -> ModelSpec:
                                f"{args.model}'s")
     if (args.model == "classical" or classical) and args.weights is not None:
         raise PrismStereoError("--weights is the hybrid's or the learned model's, not the classical model's")
-    kind = args.model or ("classical" if classical else "hybrid" if args.weights is not None else None)
+    if args.last_stage is not None and (classical or args.model not in (None, "hybrid")):
+        raise PrismStereoError(f"--last-stage is the hybrid's, not the {args.model or 'classical'} model's")
+    hybrid = args.weights is not None or args.last_stage is not None
+    kind = args.model or ("classical" if classical else "hybrid" if hybrid else None)
+    if args.last_stage is not None:
+        return ModelSpec(rig=rig, kind="hybrid", z_range=args.z_range, config={"last_stage": args.last_stage},
+                         weights=args.weights)
     spec = ModelSpec(rig=rig, kind=kind, z_range=args.z_range, weights=args.weights)
     if spec.resolved_kind == "classical":
         config = _classical_config(args)
@@ -99,7 +105,8 @@ def range_note(args: argparse.Namespace, z_range: tuple[float, float]) -> str:
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """The model flags of ``depth`` and ``export``: ``--z-range``, ``--hypotheses``, ``--downsample``,
-    ``--full-band``, ``--band-edges``, ``--model``, ``--weights``, ``--preset``, ``--config``, ``--dense``."""
+    ``--full-band``, ``--band-edges``, ``--model``, ``--last-stage``, ``--weights``, ``--preset``, ``--config``,
+    ``--dense``."""
     parser.add_argument("--z-range", type=float, nargs=2, default=None, metavar=("ZMIN", "ZMAX"),
                         help="depths searched (mm); default from the rig's common field of view "
                              "(prismstereo.depth.default_z_range)")
@@ -120,14 +127,19 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                              "judges, reject where thresholds do (a binned level)")
     parser.add_argument("--model", choices=MODEL_KINDS, default=None,
                         help="the depth model (prismstereo.build_model): hybrid (HybridStereo: the exact sweep on "
-                             "4 x 4 bins refined by learned 2-D stages, a depth and confidence for every pixel), "
+                             "binned blocks refined by learned 2-D stages, a depth and confidence for every pixel), "
                              "classical (PrismStereo, its settings from --preset / --config and the options above) "
                              "or learned (LearnedStereo; --hypotheses: its D, default: neighbours 0.69 px apart on "
                              "the sweep at its 1/4 resolution). Default: classical with --preset, --config or a "
-                             "search option, hybrid with --weights, else the rig's default "
-                             "(prismstereo.models.default_kind: hybrid when the reference half is >= 384 px on its "
-                             "shorter side). On videos and sequences under the temporal prior the hybrid computes "
-                             "the key frames and the classical model's band tracks between them")
+                             "search option, hybrid with --weights or --last-stage, else the rig's default "
+                             "(prismstereo.models.default_kind: hybrid from 512 x 384 up, when the reference half "
+                             "is >= 192 px on its shorter side). On videos and sequences under the temporal prior "
+                             "the hybrid computes the key frames and the classical model's band tracks between them")
+    parser.add_argument("--last-stage", choices=("exact", "learned"), default=None,
+                        help="the hybrid's last stage: exact (default: the classical band's exact fit where it "
+                             "agrees with the learned estimate; textured surfaces as precise as the classical "
+                             "model) or learned (the learned estimate as it is: about a fifth faster, planes about "
+                             "twice the classical model's error)")
     parser.add_argument("--weights", default=None, metavar="FILE.pt",
                         help="the hybrid's or (--model learned) the learned model's weights, written by prismstereo "
                              "train (default: the shipped ones)")

@@ -30,14 +30,16 @@ class HybridArchitecture:
     """The hyper-parameters that shape the weights (stored beside them).
 
     Attributes:
-        block: k, the binning of the classical level (2 or 4).
+        block: k, the classical level's bins in units of half a pixel of the stages' grid (2 or 4: 2 x 2 or 4 x 4
+            bins of a sensor whose stages run 2 x 2-binned, half that where they run at full resolution;
+            :attr:`~prismstereo.learned.hybrid.HybridStereo.binning`).
         channels: C, channels of each refinement CNN.
         layers: 3 x 3 convolutions per CNN (2-8, dilations 1, 2, 4, 8, 1, ...), the output head included.
         offsets: the cost curve is sampled at s + o steps for o = -offsets ... +offsets.
-        iterations: refinement stages at 1/2, each with its own CNN (0: the last stage is at 1/4, its estimate carried
-            to 1/2 bilinearly; needs ``quarter`` >= 1).
-        quarter: refinement stages at 1/4 before them (block 4 only: on the classical level's own grid, with twice
-            the reach per layer).
+        iterations: refinement stages on the stages' grid, each with its own CNN (0: the last stage is on the
+            classical level's grid, its estimate carried over bilinearly; needs ``quarter`` >= 1).
+        quarter: refinement stages on the classical level's grid before them (block 4 only: twice the reach per
+            layer).
         start: what the stages start from: ``'classical'`` (the classical block level) or ``'learned'`` (the learned
             first stage, :class:`~prismstereo.learned.sweep_start.SweepStart`, on 8 x 8 bins; block 4 only).
 

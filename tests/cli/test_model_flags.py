@@ -37,6 +37,12 @@ def test_which_model_the_flags_ask_for(tmp_path):
         spec("--weights", weights, "--downsample", "2")
     with pytest.raises(PrismStereoError, match="--weights is the hybrid's"):
         spec("--weights", weights, "--model", "classical")
+    last = spec("--last-stage", "learned", rig=small)  # the hybrid, on any sensor
+    assert last.resolved_kind == "hybrid" and last.config == {"last_stage": "learned"}
+    with pytest.raises(PrismStereoError, match="--last-stage is the hybrid's, not the learned model's"):
+        spec("--model", "learned", "--last-stage", "exact")
+    with pytest.raises(PrismStereoError, match="--last-stage is the hybrid's, not the classical model's"):
+        spec("--preset", "fast", "--last-stage", "exact")
     with pytest.raises(PrismStereoError, match="--preset and --config exclude each other"):
         spec("--preset", "fast", "--config", str(tmp_path / "c.json"))
     with pytest.raises(PrismStereoError, match="--hypotheses must be an int >= 2"):
