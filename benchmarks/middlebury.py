@@ -1,7 +1,8 @@
 """The matcher on real photographs: ``prismstereo match``'s matcher vs OpenCV on the Middlebury pairs.
 
 Prints, for the Tsukuba and Venus pairs of shared/data/middlebury (their README gives the ground truth's scale)
-and scikit-image's Motorcycle (Middlebury 2014, 741 x 500, sub-pixel truth; held out from every training), bad>1px (percentage of pixels with ground truth whose disparity is off by more than 1 px; missing output counts as
+and scikit-image's Motorcycle (Middlebury 2014, 741 x 500, sub-pixel truth; held out from every training),
+bad>1px (percentage of pixels with ground truth whose disparity is off by more than 1 px; missing output counts as
 bad: for prismstereo the pixels neither valid nor filled, for OpenCV its invalid value), the ratio to StereoSGBM
 and the time per pair (2 threads; other jobs on the machine make the times longer), side by side for:
 
