@@ -90,8 +90,9 @@ BENCHMARKS: dict[str, Benchmark] = {
         "threshold keeps at <= 3 % bad, the reliability of each chain's confidence per band, and each chain's "
         "exported graph against StereoSGBM on each sensor in the same run. `hybrid` is the default (learned stages "
         "and the exact last stage), `hybrid-learned` the same without its exact last stage. The hybrid is the "
-        "default of `prismstereo depth` (captures) and `prismstereo export` where the classical default bins "
-        "(`prismstereo.models.default_kind`: 1024 x 768 and 1920 x 1080 here; the classical chain at 512 x 384).\n\n"
+        "default of `prismstereo depth` (captures) and `prismstereo export` from 512 x 384 up "
+        "(`prismstereo.models.default_kind`: all three sensors here); its stages run where the classical default "
+        "fits its band (2 x 2 bins at 1024 x 768 and 1920 x 1080, the full sensor at 512 x 384).\n\n"
         "![time against the photographs' share kept at <= 3 % bad, every chain](frontier.png)"),
     "middlebury": Benchmark(
         "middlebury.py", (), "The rectified matcher on the Middlebury pairs",
