@@ -167,7 +167,7 @@ class HybridStereo(nn.Module):
         z = self.classical.z_range
         self.last_stage = last_stage
         self.exact = ExactStage(rig, z) if last_stage == "exact" else None
-        # a step of s: the sweep's largest pixel spacing at the half resolution is <= 1 px per step
+        # a step of s: the sweep's largest pixel spacing on the stages' grid is <= 1 px per step
         self.step = 2.0 / (default_hypotheses(half, z) - 1)
         self.register_buffer("coefficients", _sweep_grid(half, z), persistent=False)
         quarter = rig.binned(2 * b)
