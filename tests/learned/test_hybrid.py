@@ -20,7 +20,7 @@ from prismstereo.learned.hybrid import (
     load_hybrid_weights,
     truth_sweep,
 )
-from prismstereo.learned.hybrid_data import hybrid_set, photo_scene, photographs, training_rigs
+from prismstereo.learned.hybrid_data import hybrid_set, photo_scene, photographs, render_set, training_rigs
 from prismstereo.learned.hybrid_train import hybrid_loss, train_hybrid, validity_threshold
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -223,6 +223,8 @@ def test_training_data(data, small):
         photographs(("lena",))
     with pytest.raises(OptionError, match="count must be an int >= 1"):
         hybrid_set("test", rig, Z, 0)
+    with pytest.raises(OptionError, match="binning must be 1 or 2, got 4"):
+        render_set("test", rig, Z, 1, binning=4)
 
 
 def test_loss_and_training_resume_from_a_checkpoint(tmp_path, data, small, monkeypatch):
