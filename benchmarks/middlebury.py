@@ -58,7 +58,7 @@ def bad_percent(disparity: np.ndarray, valid: np.ndarray, gt: np.ndarray) -> flo
 def main() -> None:
     set_torch_threads(2)
     cv2.setNumThreads(2)
-    print(f"{'scene':8s} {'method':27s} {'bad>1px %':>10s} {'x SGBM':>8s} {'ms':>8s}")
+    print(f"{'scene':10s} {'method':27s} {'bad>1px %':>10s} {'x SGBM':>8s} {'ms':>8s}")
     for scene, (_, _, num_disp) in SCENES.items():
         rgb_l, rgb_r, gt = pair(scene)
         left, right = (torch.from_numpy(x).permute(2, 0, 1).float() / 255 for x in (rgb_l, rgb_r))
@@ -80,7 +80,7 @@ def main() -> None:
             rows.append((name, bad_percent(disp, disp >= 0, gt), ms))
         sgbm = rows[1][1]
         for name, bad, ms in rows:
-            print(f"{scene:8s} {name:27s} {bad:10.2f} {bad / sgbm:8.2f} {ms:8.0f}")
+            print(f"{scene:10s} {name:27s} {bad:10.2f} {bad / sgbm:8.2f} {ms:8.0f}")
 
 
 if __name__ == "__main__":
