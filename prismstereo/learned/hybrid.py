@@ -59,6 +59,7 @@ from prismstereo.learned.sweep_start import SweepStart, load_start
 from prismstereo.learned.weights import WeightsError, read_weights, write_weights
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.band import extend_estimate
+from prismstereo.matching.sweep_sampler import block_centres
 from prismstereo.runtime import sample_bilinear
 
 __all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "LAST_STAGES", "HybridStereo", "RefinementInputs", "classical_config",
@@ -175,9 +176,9 @@ class HybridStereo(nn.Module):
         self.quarter_step = 2.0 / (default_hypotheses(quarter, z) - 1)
         self.register_buffer("quarter_coefficients", _sweep_grid(quarter, z) if arch.quarter else torch.zeros(0),
                              persistent=False)
-        v, u = _pixels(rig)
-        rays = trace_pixels(rig, torch.stack([u, v], -1))
-        self.register_buffer("rays_valid", (rays.valid & rays.left).view(1, 1, *u.shape), persistent=False)
+        uv = _pixels(rig)
+        rays = trace_pixels(rig, uv)
+        self.register_buffer("rays_valid", (rays.valid & rays.left).view(1, 1, *uv.shape[:2]), persistent=False)
 
     @property
     def z_range(self) -> tuple[float, float]:
@@ -390,18 +391,14 @@ class HybridStereo(nn.Module):
                            ((s + 1.0) / self.classical.step).to(out), match.to(out))
 
 
-def _pixels(rig: BiPrismRig) -> tuple[torch.Tensor, torch.Tensor]:
-    """(v, u) (H, W_ref) float64 pixel coordinates of the rig's reference half."""
-    f64 = torch.float64
-    return torch.meshgrid(torch.arange(rig.image_height, dtype=f64), torch.arange(rig.reference_width, dtype=f64),
-                          indexing="ij")
+def _pixels(rig: BiPrismRig) -> torch.Tensor:
+    """(H, W_ref, 2) float64 (u, v) of the pixels of the rig's reference half."""
+    return block_centres(rig.image_height, rig.reference_width, 1, torch.zeros((), dtype=torch.float64))
 
 
 def _sweep_grid(rig: BiPrismRig, z_range: tuple[float, float]) -> torch.Tensor:
     """(K, 2, H, W_ref) sweep coefficients of every reference pixel of ``rig`` (:func:`sweep_match`'s)."""
-    v, u = _pixels(rig)
-    return sweep_coefficients(fit_sweep(rig, z_range), torch.stack([u, v], -1)).permute(2, 3, 0, 1).to(
-        torch.get_default_dtype())
+    return sweep_coefficients(fit_sweep(rig, z_range), _pixels(rig)).permute(2, 3, 0, 1).to(torch.get_default_dtype())
 
 
 def _binned(grey: torch.Tensor, b: int) -> torch.Tensor:
