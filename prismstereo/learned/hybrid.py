@@ -245,8 +245,7 @@ class HybridStereo(nn.Module):
                               if n)
         first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/8)" if self.start is not None
                  else f"classical block level ({self.classical.summary()})")
-        last = "" if self.exact is None else f", then the exact band +-{EXACT_BAND} " + (
-            "at full resolution" if self.exact.binning == 1 else f"at 1/{self.exact.binning}")
+        last = "" if self.exact is None else f", then the exact band +-{EXACT_BAND} at {grids[self.exact.binning]}"
         return (f"hybrid: {first}, then learned 2-D stages: "
                 f"{stages} ({a.layers} x {a.channels} ch, {count} parameters){last}")
 
