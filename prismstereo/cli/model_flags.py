@@ -61,8 +61,9 @@ def _classical_config(args: argparse.Namespace):
 
 def model_spec(args: argparse.Namespace, rig: BiPrismRig) -> ModelSpec:
     """What the flags ask for: ``--model``, else the classical model with ``--preset``, ``--config`` or a search
-    option, the hybrid with ``--weights``, else the rig's default (:func:`~prismstereo.models.default_kind`). Sets
-    ``args.dense`` to the written maps' rule (the classical config's ``dense``).
+    option, the hybrid with ``--weights`` or ``--last-stage``, else the rig's default
+    (:func:`~prismstereo.models.default_kind`). Sets ``args.dense`` to the written maps' rule (the classical config's
+    ``dense``).
 
     Raises:
         PrismStereoError: options of another model, ``--preset`` with ``--config``, a bad config or flag.
@@ -79,11 +80,10 @@ def model_spec(args: argparse.Namespace, rig: BiPrismRig) -> ModelSpec:
         raise PrismStereoError("--weights is the hybrid's or the learned model's, not the classical model's")
     if args.last_stage is not None and (classical or args.model not in (None, "hybrid")):
         raise PrismStereoError(f"--last-stage is the hybrid's, not the {args.model or 'classical'} model's")
-    hybrid = args.weights is not None or args.last_stage is not None
-    kind = args.model or ("classical" if classical else "hybrid" if hybrid else None)
     if args.last_stage is not None:
         return ModelSpec(rig=rig, kind="hybrid", z_range=args.z_range, config={"last_stage": args.last_stage},
                          weights=args.weights)
+    kind = args.model or ("classical" if classical else "hybrid" if args.weights is not None else None)
     spec = ModelSpec(rig=rig, kind=kind, z_range=args.z_range, weights=args.weights)
     if spec.resolved_kind == "classical":
         config = _classical_config(args)
