@@ -12,7 +12,7 @@ defocus renders are ``benchmarks/dense_depth.py``'s (shared cache).
 Chains: ``accurate`` (:class:`~prismstereo.PrismStereo`'s defaults: the pyramid with the calibrated confidence),
 ``dense`` (its 'dense' preset), ``learned`` (:class:`~prismstereo.learned.LearnedStereo`, hypotheses by range;
 only when asked for by ``--chains``: seconds a capture), ``block`` (the classical level of the hybrid alone: block
-mode on 4 x 4-binned pixels, dense), ``hybrid``
+mode on 4 x 4-binned pixels, 2 x 2 where the hybrid's stages run at full resolution (512 x 384), dense), ``hybrid``
 (:class:`~prismstereo.learned.HybridStereo`, the default: learned stages and the exact last stage) and
 ``hybrid-learned`` (the same without the exact last stage, ``last_stage='learned'``); the hybrids with the shipped
 weights or ``--hybrid-weights FILE``. Per capture and chain: ``valid`` (co-visible pixels the chain calls valid, and
