@@ -17,6 +17,7 @@ __all__ = [
     "PrismStereoError",
     "RigError",
     "ShapeError",
+    "ImageValueError",
     "OptionError",
     "CalibrationError",
     "check_shape",
@@ -38,6 +39,10 @@ class RigError(PrismStereoError, ValueError):
 
 class ShapeError(PrismStereoError, ValueError):
     """A tensor argument has the wrong shape."""
+
+
+class ImageValueError(PrismStereoError, ValueError):
+    """A capture's values are outside [0, 1] (e.g. 8-bit levels passed as floats)."""
 
 
 class OptionError(PrismStereoError, ValueError):

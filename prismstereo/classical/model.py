@@ -27,6 +27,7 @@ from prismstereo.classical.level import DepthLevel
 from prismstereo.classical.prior import TemporalOptions
 from prismstereo.classical.temporal import TemporalDepth, supports_temporal
 from prismstereo.conventions import to_grey
+from prismstereo.depth.bad_pixels import BAD_PIXEL_REACH, BadPixels, discard
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import sweep_to_depth
@@ -116,6 +117,7 @@ class PrismStereo(nn.Module):
                                          DepthLevel(rig, z_range, final_config, placed_by=k)])
         else:  # one level, on the capture binned by k (block values) or at full resolution
             self.levels = nn.ModuleList([DepthLevel(rig.binned(k) if k > 1 else rig, z_range, resolved.levels[0])])
+        self.bad_pixels = BadPixels(rig, self.z_range, radius=BAD_PIXEL_REACH * k)
 
     @property
     def config(self) -> StereoConfig:
@@ -239,11 +241,12 @@ class PrismStereo(nn.Module):
         it is one graph for the whole batch.
         """
         check_shape(image, ["B", "C", "H", "W"], "image")
+        image, touched = self.bad_pixels(image)
         image = to_grey(image)  # the one grey rule: a colour capture and its grey give the same depth
         if image.shape[0] > 1 and not tracing():
             parts = per_image(self._forward, image)
-            return DepthResult(*(torch.cat(ts, 0) for ts in zip(*parts, strict=True)))
-        return self._forward(image)
+            return discard(DepthResult(*(torch.cat(ts, 0) for ts in zip(*parts, strict=True))), touched)
+        return discard(self._forward(image), touched)
 
     def _placement(self, image: torch.Tensor):
         """The pyramid's binned level's placement of the final band (None for one level)."""

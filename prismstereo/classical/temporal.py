@@ -45,6 +45,7 @@ from torch import nn
 from prismstereo.classical.defaults import resolve_level
 from prismstereo.classical.level import DepthLevel
 from prismstereo.classical.prior import BandPrior, TemporalOptions, TrackedDepth, band_prior
+from prismstereo.depth.bad_pixels import discard
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.series import series_at
@@ -223,6 +224,7 @@ class TemporalDepth(nn.Module):
                 raise ShapeError(f"the prior's {name} must have shape {shape}, got {tuple(t.shape)}")
         if prior.placed.dtype != torch.bool:
             raise ShapeError(f"the prior's placed must be bool, got {prior.placed.dtype}")
+        image, touched = self.model.bad_pixels(image)  # non-finite pixels: the model's rule (no depth where they reach)
         level, k = self.level, self.downsample
         with torch.no_grad():  # the prior only places the band
             z_range = torch.tensor(final.z_range, dtype=image.dtype, device=image.device)
@@ -241,11 +243,16 @@ class TemporalDepth(nn.Module):
         estimate = level.search_band(ref, other, s0, reach, ~prior.placed, None, fine=self.fine,
                                      calibration=self.calibration, free_offset=0.5)
         result = level.finish(estimate)
+        if k > 1:
+            binned = F.max_pool2d(touched.to(result.confidence), k, ceil_mode=True) > 0
+            result = discard(result, crop(binned, *result.depth.shape[-2:]))
+        else:
+            result = discard(result, touched)
         with torch.no_grad():  # the next frame's prior, from the band's own result (not binned again from its
             # interpolation)
             following = band_prior(result.depth, result.valid, result.confidence, z_range=final.z_range,
                                    min_confidence=self.options.min_prior_confidence)
-        return TrackedDepth(result if k == 1 else self.full_resolution(result), following)
+        return TrackedDepth(result if k == 1 else discard(self.full_resolution(result), touched), following)
 
     def forward(self, image: torch.Tensor, prior_depth: torch.Tensor, prior_valid: torch.Tensor,
                 prior_confidence: torch.Tensor) -> DepthResult:

@@ -19,6 +19,7 @@ import torch
 from prismstereo.cli.model_flags import add_model_arguments, flag_errors, model_spec, range_note
 from prismstereo.errors import PrismStereoError
 from prismstereo.geometry.presets import load_rig
+from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.io import DEPTH_FILE_FORMATS
 from prismstereo.predictor import BACKENDS
 
@@ -72,16 +73,22 @@ def _check_flags(args: argparse.Namespace) -> torch.Tensor | None:
     return pose
 
 
-def _tasks(args: argparse.Namespace, pose: torch.Tensor | None):
-    """The job's tasks and write options (:func:`~prismstereo.jobs.plan`, its errors naming the flags)."""
-    from prismstereo.jobs import Selection, WriteOptions, plan
+def _tasks(args: argparse.Namespace, pose: torch.Tensor | None, rig: BiPrismRig):
+    """The job's tasks and write options (:func:`~prismstereo.jobs.plan`, its errors naming the flags), every input's
+    first image read (:func:`~prismstereo.jobs.check_inputs`): a bad input fails before the model is built."""
+    from prismstereo.jobs import Selection, WriteOptions, check_inputs, plan
 
     options = WriteOptions(args.format, args.ply, args.dense, args.png_scale, pose,
                            Path(args.preview_video) if args.preview_video else None, args.preview_fps)
     tasks = plan(args.images, Path(args.out), options, Selection(args.every, args.start, args.stop),
                  skip_existing=args.skip_existing, names=PLAN_FLAGS)
+    tasks = check_inputs(tasks, (rig.image_height, rig.image_width))  # read before the model is built
     if len(tasks) == 1 and tasks[0].error is not None:
         raise PrismStereoError(tasks[0].error)  # one input: its error is the command's
+    if all(t.error is not None for t in tasks):
+        for task in tasks:
+            print(f"prismstereo: failed: {task.source}: {task.error}", file=sys.stderr)
+        raise PrismStereoError(f"none of the {len(tasks)} inputs can be processed")
     return tasks, options
 
 
@@ -106,7 +113,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     rig = load_rig(args.rig)
     spec = model_spec(args, rig)  # the model's flags fail early, and set args.dense for the outputs
     pose = _check_flags(args)
-    tasks, options = _tasks(args, pose)
+    tasks, options = _tasks(args, pose, rig)
     runnable = [t for t in tasks if t.error is None and t.first < len(t.outputs)]
     tracked = any(t.sequence for t in runnable) and args.temporal
     temporal = TemporalOptions(downsample=args.temporal_binning) if tracked else None

@@ -21,6 +21,7 @@ a face's infinite plane, serve the solvers of :mod:`prismstereo.geometry.project
 
 from __future__ import annotations
 
+import math
 from typing import Literal, NamedTuple
 
 import torch
@@ -351,9 +352,25 @@ def check_rig_images(rig: BiPrismRig, samples: int = 33) -> None:
     rays = trace_pixel_rays(rig.parameters(uv), uv, "auto")
     for name, mask in (("left", rays.left), ("right", ~rays.left)):
         if not bool((rays.valid & mask).any()):
-            raise RigError(
-                f"no pixel of the {name} half-image sees through the prism: its rays miss the prism "
-                f"or are totally internally reflected (alpha={rig.alpha_deg} deg, n={rig.refractive_index}, "
-                f"d={rig.prism_offset_x_mm} mm, tilt={rig.prism_tilt_deg})"
-            )
+            raise RigError(f"no pixel of the {name} half-image sees through the prism: "
+                           f"{_why_blind(rig, rays, mask, name)}")
 
+
+def _why_blind(rig: BiPrismRig, rays: RayBundle, mask: torch.Tensor, half: str) -> str:
+    """What makes the ``half`` of ``rig`` blind (its traced ``rays`` where ``mask``), and the fields to change."""
+    t_o, scale = rig.apex_distance_mm, rig.pixel_size_mm / rig.focal_length_mm
+    left, right = t_o * (-0.5 - rig.cx) * scale, t_o * (rig.image_width - 0.5 - rig.cx) * scale
+    d = rig.prism_offset_x_mm
+    span = f"the field of view spans x = {left:.4g} to {right:.4g} mm at the apex depth ({t_o:.4g} mm)"
+    if not any(rig.prism_tilt_deg) and (d <= left if half == "left" else d >= right):
+        return f"its apex line x = {d:g} mm (prism_offset_x_mm) is outside it: {span}"
+    # a ray meets the face within the prism when it enters before the back plane
+    inside = rays.entries[..., 2] <= t_o + rig.prism_thickness_mm * (1 + 1e-9)
+    if bool((inside & mask).any()):
+        return (f"its rays are totally internally reflected in the glass: a smaller angle (alpha_deg "
+                f"{rig.alpha_deg:g}) or index (refractive_index {rig.refractive_index:g}) lets them out")
+    reach = rig.prism_thickness_mm / math.tan(math.radians(rig.alpha_deg))
+    return (f"its rays miss the prism, whose faces end {reach:.4g} mm from the apex line (prism_thickness_mm / tan "
+            f"alpha_deg) while {span}: bring the prism closer (apex_distance_mm), make it thicker "
+            f"(prism_thickness_mm) or its angle smaller (alpha_deg); prism_offset_x_mm {d:g}, prism_tilt_deg "
+            f"{rig.prism_tilt_deg}")

@@ -6,7 +6,8 @@ What a long job needs, for ``prismstereo depth`` and for Python callers, by resp
   per capture, ``<stem>_000000.<format>``, ... per sequence frame), collisions and outputs that would overwrite an
   input refused, and with ``skip_existing`` what an earlier run already wrote marked (a sequence resumes at its
   first missing frame). Pure: it reads no image and writes nothing; its errors (:class:`PlanError`) name its
-  arguments, which the CLI names by its flags.
+  arguments, which the CLI names by its flags. :func:`check_inputs` then reads each input's first image before any
+  model is built (a capture that does not decode or is of another size fails in a second, not after the build).
 * the pipeline (:class:`Pipeline`, :mod:`~prismstereo.jobs.pipeline`): one process's
   :class:`~prismstereo.predictor.Predictor` and writers; the next captures or frames are decoded on a reader thread
   and the finished ones written on a writer thread (bounded queues, outputs in input order) while the model runs.
@@ -26,8 +27,8 @@ Example:
 
 from prismstereo.jobs.executors import Executor, InProcess, WorkerProcesses
 from prismstereo.jobs.pipeline import Pipeline, TaskReport
-from prismstereo.jobs.plan import Outputs, PlanError, Selection, Task, WriteOptions, plan
+from prismstereo.jobs.plan import Outputs, PlanError, Selection, Task, WriteOptions, check_inputs, plan
 from prismstereo.jobs.run import JobSummary, run
 
 __all__ = ["Executor", "InProcess", "JobSummary", "Outputs", "Pipeline", "PlanError", "Selection", "Task",
-           "TaskReport", "WorkerProcesses", "WriteOptions", "plan", "run"]
+           "TaskReport", "WorkerProcesses", "WriteOptions", "check_inputs", "plan", "run"]

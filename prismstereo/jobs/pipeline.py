@@ -18,7 +18,7 @@ import torch
 
 from prismstereo.errors import OptionError, PrismStereoError
 from prismstereo.io import replacing
-from prismstereo.jobs.plan import Outputs, Task, WriteOptions
+from prismstereo.jobs.plan import Outputs, Task, WriteOptions, size_error
 from prismstereo.predictor import Predictor
 from prismstereo.threads import ThreadPlan, thread_plan, torch_threads
 
@@ -245,11 +245,8 @@ class Pipeline:
             image = read_image(path)
         except _FAILURES as exc:
             return str(exc)
-        rig = self.rig
-        h, w = image.shape[-2:]
-        if (w, h) != (rig.image_width, rig.image_height):
-            return f"image {path} is {w}x{h} px but the rig's sensor is {rig.image_width}x{rig.image_height} px"
-        return to_grey(image), image
+        error = size_error(path, image, (self.rig.image_height, self.rig.image_width))
+        return error if error else (to_grey(image), image)
 
     def run_captures(self, tasks: Sequence[Task], batch_size: int = 1) -> Iterator[TaskReport]:
         """Depth of single captures, ``batch_size`` at a time: the next batch is read while this one runs and the

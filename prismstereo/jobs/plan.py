@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import contextlib
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -11,7 +12,8 @@ import torch
 from prismstereo.errors import PrismStereoError
 from prismstereo.io import DEPTH_SUFFIXES
 
-__all__ = ["ARGUMENTS", "Outputs", "PlanError", "Selection", "Task", "WriteOptions", "plan"]
+__all__ = ["ARGUMENTS", "Outputs", "PlanError", "Selection", "Task", "WriteOptions", "check_inputs", "plan",
+           "size_error"]
 
 
 class Outputs(NamedTuple):
@@ -176,12 +178,30 @@ def _check_arguments(inputs: Sequence[str | Path], out: Path, options: WriteOpti
     elif suffix:
         raise PlanError("{out} must end in .npy, .png or .tiff (one image) or be a directory, got {path}", names,
                         path=out)
+    _check_writable(out if not (suffix in DEPTH_SUFFIXES and not out.is_dir()) else out.parent, names)
+    if options.preview_video is not None:
+        _check_writable(options.preview_video.parent, names, "preview_video")
     if not sequences and (selection != Selection() or options.preview_video is not None):
         raise PlanError("{every}, {start}, {stop} and {preview_video} need a video, a directory or a glob of images",
                         names)
     if options.preview_video is not None and (len(inputs) > 1 or skip_existing):
         raise PlanError("{preview_video} needs a single video or sequence and no {skip_existing}", names)
     return fmt or DEPTH_SUFFIXES.get(suffix, "npy")
+
+
+def _check_writable(folder: Path, names: dict[str, str], argument: str = "out") -> None:
+    """A PlanError unless ``folder`` can be created (its nearest existing ancestor is a writable directory)."""
+    import os
+
+    existing = folder.absolute()
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise PlanError("{" + argument + "} {path}: {existing} is not a directory", names, path=folder,
+                        existing=existing)
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise PlanError("{" + argument + "} {path}: no permission to write in {existing}", names, path=folder,
+                        existing=existing)
 
 
 def _capture_task(source: str, out: Path, fmt: str, options: WriteOptions, protected: dict[Path, str]) -> Task:
@@ -233,3 +253,77 @@ def _check_collisions(tasks: list[Task], protected: dict[Path, str], names: dict
                     raise PlanError("{first} and {second} would both write {path}", names, first=written[key],
                                     second=task.source, path=path)
                 written[key] = task.source
+
+
+def size_error(source: str, image: torch.Tensor, size: tuple[int, int]) -> str | None:
+    """Why the (C, H, W) ``image`` read from ``source`` is not a capture of the sensor ``size`` (H, W), else None."""
+    h, w = image.shape[-2:]
+    if (h, w) != tuple(size):
+        return f"image {source} is {w}x{h} px but the rig's sensor is {size[1]}x{size[0]} px"
+    return None
+
+
+def _input_error(task: Task, size: tuple[int, int]) -> str | None:
+    """Why ``task``'s first image to process cannot be read as a capture of ``size``, else None."""
+    from prismstereo.io import read_image
+    from prismstereo.stream.video import read_frames
+
+    try:
+        if not task.sequence:
+            return size_error(task.source, read_image(task.source), size)
+        every, start, _ = task.selection
+        index = start + task.first * every
+        frame = next(read_frames(task.source, start=index, stop=index + 1), None)
+        if frame is None:
+            return f"no frame {index} in {task.source}"
+        return size_error(f"{task.source} (frame {index})", frame.image, size)
+    except PrismStereoError as exc:
+        return str(exc)
+
+
+@contextlib.contextmanager
+def _c_stderr_silenced() -> Iterator[None]:
+    """Discard what C libraries write to the process's stderr meanwhile (libpng's "Read Error" on a truncated file:
+    the error returned says it in one line). Used before any progress bar writes there."""
+    import os
+    import sys
+    import tempfile
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no file descriptor 2 (an embedding host): nothing to silence
+        yield
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
+def check_inputs(tasks: Sequence[Task], size: tuple[int, int]) -> list[Task]:
+    """The tasks with their inputs read before any model is built: each capture still to write decoded and sized,
+    and each sequence's first frame to process (a sequence's later frames are read as it runs). A task that fails
+    gets its :attr:`Task.error`; the others are unchanged. Captures are decoded on a few threads.
+
+    Args:
+        tasks: :func:`plan`'s tasks.
+        size: (H, W) of the rig's sensor.
+
+    Returns:
+        The tasks, in order.
+
+    Example:
+        >>> tasks = check_inputs(plan(["missing.png"], Path("out"), WriteOptions()), (768, 1024))
+        >>> tasks[0].error
+        'image not found: missing.png'
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    todo = [k for k, t in enumerate(tasks) if t.error is None and t.first < len(t.outputs)]
+    with _c_stderr_silenced(), ThreadPoolExecutor(max_workers=min(4, max(1, len(todo)))) as pool:
+        errors = dict(zip(todo, pool.map(lambda k: _input_error(tasks[k], size), todo), strict=True))
+    return [t._replace(error=errors[k]) if errors.get(k) else t for k, t in enumerate(tasks)]

@@ -46,6 +46,7 @@ from torch import nn
 from prismstereo.classical import PrismStereo, StereoConfig, TemporalDepth, TemporalOptions, preset
 from prismstereo.classical.defaults import default_downsample, default_hypotheses
 from prismstereo.conventions import to_grey
+from prismstereo.depth.bad_pixels import BadPixels, discard
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_match, sweep_to_depth
@@ -179,6 +180,7 @@ class HybridStereo(nn.Module):
         uv = _pixels(rig)
         rays = trace_pixels(rig, uv)
         self.register_buffer("rays_valid", (rays.valid & rays.left).view(1, 1, *uv.shape[:2]), persistent=False)
+        self.bad_pixels = BadPixels(half, z)  # screens the stages' grid: a bin with a bad pixel is bad
 
     @property
     def z_range(self) -> tuple[float, float]:
@@ -373,7 +375,7 @@ class HybridStereo(nn.Module):
         """
         dtype, b = self.coefficients.dtype, self.binning
         self._check(image)
-        grey = _binned(to_grey(image.to(dtype)), b)
+        grey, touched = self.bad_pixels(_binned(to_grey(image.to(dtype)), b))  # non-finite values stay so
         s, logit = self.refine(self.initial_binned(grey))[-1]
         confidence = torch.sigmoid(logit)
         if self.exact is not None:
@@ -382,12 +384,13 @@ class HybridStereo(nn.Module):
         if b > 1:  # each map on its own: the exported graph keeps only what its outputs need (not the match)
             size = (self.rig.image_height, self.rig.reference_width)
             s, confidence, match = (upsample(t, b, size, mode="bilinear") for t in (s, confidence, match))
+            touched = upsample(touched.to(dtype), b, size) > 0
         confidence = confidence * self.rays_valid.to(dtype)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
         out = image.dtype
-        return DepthResult(depth.to(out), confidence >= self.valid_confidence, confidence.to(out),
-                           ((s + 1.0) / self.classical.step).to(out), match.to(out))
+        return discard(DepthResult(depth.to(out), confidence >= self.valid_confidence, confidence.to(out),
+                                   ((s + 1.0) / self.classical.step).to(out), match.to(out)), touched)
 
 
 def _pixels(rig: BiPrismRig) -> torch.Tensor:

@@ -29,6 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from prismstereo.conventions import to_grey
+from prismstereo.depth.bad_pixels import BAD_PIXEL_REACH, BadPixels, discard
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, evaluate_sweep, fit_sweep, sweep_coefficients, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_shape
@@ -280,6 +281,7 @@ class LearnedStereo(nn.Module):
         uv = torch.stack([u, v], -1)
         rays = trace_pixels(rig, uv)
         self.register_buffer("rays_valid", (rays.valid & rays.left).view(1, 1, h, w_ref), persistent=False)
+        self.bad_pixels = BadPixels(rig, self.z_range, radius=BAD_PIXEL_REACH * s)
         if self.with_match:
             coefficients = sweep_coefficients(fit_sweep(rig, self.z_range), uv)
         else:
@@ -379,8 +381,7 @@ class LearnedStereo(nn.Module):
                  if not k.startswith("volume.")}  # the CNNs only: the volume's grid comes from the rig
         return write_weights(path, FORMAT, self.architecture, state, {**self.metadata, **metadata})
 
-    def _parts(self, image: torch.Tensor) -> _Parts:
-        """Everything up to the final index (training uses this directly)."""
+    def _check(self, image: torch.Tensor) -> None:
         check_shape(image, ["B", "C", "H", "W"], "image")
         if not torch.is_floating_point(image):
             raise ShapeError(f"image must be a floating-point tensor in [0, 1], got {image.dtype}")
@@ -388,6 +389,10 @@ class LearnedStereo(nn.Module):
         if image.shape[1] not in (1, 3) or tuple(image.shape[-2:]) != (rig.image_height, rig.image_width):
             raise ShapeError(f"image must be (B, 1 or 3, {rig.image_height}, {rig.image_width}), got "
                              f"{tuple(image.shape)}")
+
+    def _parts(self, image: torch.Tensor) -> _Parts:
+        """Everything up to the final index (training uses this directly)."""
+        self._check(image)
         dtype = self.volume.depths.dtype
         x = normalise_image(image.to(dtype))
         volume = self.volume(self.features(x))
@@ -397,7 +402,7 @@ class LearnedStereo(nn.Module):
         regression = depth_regression(cost, self.volume.depths, self.volume.valid)
         d = self.num_hypotheses
         low = self.depth_to_index(regression.depth)
-        w_ref = rig.reference_width
+        w_ref = self.rig.reference_width
         s = self.architecture.scale
         inside_low = self.volume.valid.any(0).view(1, 1, *self.volume.valid.shape[1:]).to(dtype)
         up = F.interpolate(torch.cat([low, regression.confidence, inside_low.expand_as(low)], 1), scale_factor=s,
@@ -426,6 +431,8 @@ class LearnedStereo(nn.Module):
         Raises:
             ShapeError: an image that is not (B, 1 or 3, H, W) of the rig's sensor, or not floating point.
         """
+        self._check(image)
+        image, touched = self.bad_pixels(image)
         parts = self._parts(image)
         depth = self.index_to_depth(parts.index)
         confidence = torch.sigmoid(parts.logit) * parts.inside.to(parts.logit.dtype)
@@ -436,4 +443,5 @@ class LearnedStereo(nn.Module):
         else:
             match = torch.full_like(depth, math.nan).expand(-1, 2, -1, -1)
         out = image.dtype
-        return DepthResult(depth.to(out), valid, confidence.to(out), parts.index.to(out), match.to(out))
+        return discard(DepthResult(depth.to(out), valid, confidence.to(out), parts.index.to(out), match.to(out)),
+                       touched)

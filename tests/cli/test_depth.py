@@ -206,6 +206,9 @@ def test_directory_of_two_images_batched_with_ply(scene, tmp_path, capsys):
     "args,message",
     [
         (["{junk}", "--out", "{tmp}/d.npy"], "cannot decode image"),
+        (["{empty}", "--out", "{tmp}/d.npy"], "cannot decode image"),
+        (["{truncated}", "--out", "{tmp}/d.npy"], "cannot decode image"),
+        (["{junk}", "{empty}", "--out", "{tmp}/o"], "none of the 2 inputs can be processed"),
         (["{tmp}/missing.png", "--out", "{tmp}/d.npy"], "image not found"),
         (["{small}", "--out", "{tmp}/d.npy"], "is 64x48 px but the rig's sensor is 128x96 px"),
         (["{far}", "--out", "{tmp}/d.npy", "--z-range", "100", "500"], "not beyond the prism's back plane"),
@@ -224,13 +227,23 @@ def test_directory_of_two_images_batched_with_ply(scene, tmp_path, capsys):
         (["{far}", "--out", "{tmp}/d.png", "--png-scale", "0"], "--png-scale must be a positive number"),
     ],
 )
-def test_errors(scene, tmp_path, capsys, args, message):
+def test_errors(scene, tmp_path, capsys, monkeypatch, args, message):
+    """Every bad input or flag fails with one line (after one per failed input), a bad input before the model is
+    built."""
+    from prismstereo.predictor import Predictor
+
     (tmp_path / "junk.png").write_bytes(b"not an image")
+    (tmp_path / "empty.png").write_bytes(b"")
+    (tmp_path / "truncated.png").write_bytes((scene / "far.png").read_bytes()[:300])
     write_image(tmp_path / "small.png", torch.rand(1, 48, 64))
     names = {"junk": tmp_path / "junk.png", "small": tmp_path / "small.png", "far": scene / "far.png",
-             "dir": scene, "tmp": tmp_path}
+             "dir": scene, "tmp": tmp_path, "empty": tmp_path / "empty.png", "truncated": tmp_path / "truncated.png"}
+    if args[0] != "{far}":  # a bad input: found before the model is built
+        monkeypatch.setattr(Predictor, "__init__", lambda *a, **k: pytest.fail("a model was built"))
     assert _run(scene, *[a.format(**names) for a in args]) == 2
-    err = capsys.readouterr().err.splitlines()[-1]  # after the progress bar of an input read too late to fail early
+    lines = capsys.readouterr().err.splitlines()
+    assert all(line.startswith("prismstereo: failed:") for line in lines[:-1]), lines  # no progress bar
+    err = lines[-1]
     assert err.startswith("prismstereo: error:") and message.format(**names) in err
     assert (scene / "far.png").exists() and read_image(scene / "far.png").shape == (1, 96, 128)
 

@@ -146,14 +146,25 @@ def test_geometry_whole_half_misses_prism():
     # apex 40 mm to the right: every ray hits the left face, the right half-image sees nothing
     rig = thesis_setup1().replace(prism_offset_x_mm=40.0)  # no ray tracing in the constructor
     assert rig.prism_offset_x_mm == 40.0
-    _assert_geometry_rejected(rig, "no pixel of the right half-image sees through the prism")
+    _assert_geometry_rejected(rig, "no pixel of the right half-image sees through the prism: its apex line x = 40 "
+                                   r"mm \(prism_offset_x_mm\) is outside it: the field of view spans x = -16.19 to "
+                                   "16.19 mm")
 
 
 def test_geometry_whole_half_total_internal_reflection():
     # alpha 75 deg, n 2: inside the glass the rays meet the back plane beyond the critical angle
     rig = thesis_setup1().replace(alpha_deg=75.0, refractive_index=2.0)
     assert (rig.alpha_deg, rig.refractive_index) == (75.0, 2.0)
-    _assert_geometry_rejected(rig, "no pixel of the left half-image .* totally internally reflected")
+    _assert_geometry_rejected(rig, "no pixel of the left half-image .* totally internally reflected in the glass: a "
+                                   r"smaller angle \(alpha_deg 75\) or index \(refractive_index 2\)")
+
+
+def test_geometry_prism_too_far_names_the_fields():
+    # 1e12 mm away the field of view is ~1e11 mm wide and the faces end 50 mm from the apex line: every ray misses
+    with pytest.raises(RigError, match=r"left half-image .* its rays miss the prism, whose faces end 49.93 mm .* "
+                                       r"bring the prism closer \(apex_distance_mm\), make it thicker "
+                                       r"\(prism_thickness_mm\)"):
+        check_rig_images(thesis_setup1().replace(apex_distance_mm=1e12))
 
 
 def test_presets_pass_the_geometric_check():

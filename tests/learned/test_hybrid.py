@@ -191,6 +191,8 @@ def test_onnxruntime_matches_torch(tmp_path, untrained, rig, plane):
             p.normal_(0.0, 0.05)
     noise = torch.rand(1, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(4))
     image = torch.cat([noise, plane.image[:, :1]])  # the plane: the exact last stage replaces most of it
+    image[1, :, 100:104, 50:54] = float("nan")  # bad pixels: the graph drops the same pixels
+    image[1, :, 200, rig.reference_width + 80] = float("inf")
     with torch.no_grad():
         ref = model(image)
     graph = OnnxDepth(export_onnx(model, tmp_path / "hybrid.onnx"))
@@ -203,6 +205,8 @@ def test_onnxruntime_matches_torch(tmp_path, untrained, rig, plane):
     assert torch.allclose(torch.as_tensor(np.asarray(out.confidence)), ref.confidence, atol=1e-4)
     agree = torch.as_tensor(np.asarray(out.valid)) == ref.valid
     assert float(agree.float().mean()) > 0.999  # pixels at confidence 0.5 may round either way
+    dropped = torch.as_tensor(np.asarray(out.confidence)) == 0
+    assert torch.equal(dropped, ref.confidence == 0) and dropped[1, :, 100:104, 50:54].all()
 
 
 def test_training_data(data, small):
