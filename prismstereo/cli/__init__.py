@@ -3,12 +3,13 @@
 Commands: ``rig show``, ``rig preset`` (:mod:`~prismstereo.cli.rig`), ``render``, ``fov``, ``design``, ``match``,
 ``depth``, ``export``, ``calibrate``, ``train``, ``demo`` (each :mod:`prismstereo.cli.<command>`, registering itself
 with its ``add_parser``); ``--version``. Errors of the library (:class:`~prismstereo.errors.PrismStereoError`) end
-the command with one line and status 2.
+the command with one line and status 2; Ctrl-C and SIGTERM with one line (what was written) and status 130 / 143.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -16,7 +17,7 @@ from prismstereo import __version__
 from prismstereo.cli import calibrate, demo, depth, design, export, fov, match, render, rig, train
 from prismstereo.errors import PrismStereoError
 
-__all__ = ["build_parser", "main"]
+__all__ = ["Terminated", "build_parser", "main"]
 
 COMMANDS = (rig, render, fov, design, match, depth, export, calibrate, train, demo)
 
@@ -38,11 +39,36 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not hasattr(args, "func"):
         parser.print_help(sys.stderr)
         return 2
+    terminate = _on_sigterm()
     try:
         return args.func(args)
     except PrismStereoError as exc:
         print(f"prismstereo: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated): the command's own line says what is left
+        detail = f": {exc}" if str(exc) else ""
+        print(f"prismstereo: interrupted{detail}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    finally:
+        if terminate is not None:
+            signal.signal(signal.SIGTERM, terminate)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM while a command runs: it unwinds as Ctrl-C does (files closed, partial ones removed); exit 143."""
+
+
+def _on_sigterm():
+    """Turn SIGTERM into :class:`Terminated` while the command runs; returns the previous handler (None where
+    signals cannot be set: not the main thread)."""
+
+    def terminated(signum, frame):
+        raise Terminated()
+
+    try:
+        return signal.signal(signal.SIGTERM, terminated)
+    except ValueError:
+        return None
 
 
 if __name__ == "__main__":  # pragma: no cover

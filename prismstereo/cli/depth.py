@@ -126,7 +126,11 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     outputs = sum(len(t.outputs) - t.first for t in runnable)
     print(f"{range_note(args, predictor.z_range)}, {predictor.summary}{cached}, backend {args.backend}{where}; "
           f"{outputs} depth maps to write from {len(runnable)} of {len(tasks)} inputs")
-    result = run(tasks, Pipeline(predictor, options=options), executor=executor, batch_size=args.batch_size)
+    try:
+        result = run(tasks, Pipeline(predictor, options=options), executor=executor, batch_size=args.batch_size)
+    except KeyboardInterrupt as exc:  # the same kind (Ctrl-C or SIGTERM), saying what is on disk
+        written = sum(o.exist() for t in runnable for o in t.outputs[t.first:])
+        raise type(exc)(f"{written} of {outputs} depth maps written; rerun with --skip-existing to resume") from None
     print(result.describe())
     if len(tasks) == 1 and result.failed:
         raise PrismStereoError(result.failed[0].error)
@@ -141,7 +145,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("images", metavar="IMAGE", nargs="+",
                        help="full sensor image(s): 8/16-bit grey or RGB PNG/TIFF/JPEG of the rig's size; or one "
                             "video file (.mp4, .avi, .mkv, ...), directory of images or quoted glob ('frames/*.png'),"
-                            " written as OUT/<stem>_000000.<format>, ... numbered from 0 in frame order")
+                            " written as OUT/<image stem>.<format> (a video's frames as OUT/<stem>_000000.<format>, "
+                            "... numbered from 0)")
     depth.add_argument("--rig", required=True, help="rig JSON file or preset name")
     depth.add_argument("--out", required=True,
                        help="OUT.npy or OUT.tiff (float32 mm, NaN invalid) or OUT.png (16-bit mm x scale, 0 "

@@ -3,7 +3,7 @@
 What a long job needs, for ``prismstereo depth`` and for Python callers, by responsibility:
 
 * the plan (:func:`plan`, :mod:`~prismstereo.jobs.plan`): every output named before any work (``<stem>.<format>``
-  per capture, ``<stem>_000000.<format>``, ... per sequence frame), collisions and outputs that would overwrite an
+  per capture or image of a sequence, ``<stem>_000000.<format>``, ... per video frame), collisions and outputs that would overwrite an
   input refused, and with ``skip_existing`` what an earlier run already wrote marked (a sequence resumes at its
   first missing frame). Pure: it reads no image and writes nothing; its errors (:class:`PlanError`) name its
   arguments, which the CLI names by its flags. :func:`check_inputs` then reads each input's first image before any

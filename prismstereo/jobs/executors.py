@@ -108,6 +108,9 @@ _WORKER: dict[str, Pipeline] = {}
 
 
 def _start_worker(pipeline: Pipeline, threads: int) -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent stops them
     _WORKER["pipeline"] = pipeline.for_process(threads)
 
 
@@ -144,13 +147,19 @@ class WorkerProcesses:
         with ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context(method),
                                  initializer=_start_worker, initargs=(pipeline, threads)) as pool:
             futures = {pool.submit(_work, unit, batch_size): unit for unit in units}
-            for future in as_completed(futures):
-                try:
-                    done = future.result()
-                except BrokenProcessPool as exc:
-                    done = [(i, TaskReport(t.source, 0, 0, (), 0.0, f"its worker process died ({exc})"))
-                            for i, t in futures[future]]
-                for i, report in done:
-                    deliver(i, report)
-                    tick(report.written)
+            try:
+                for future in as_completed(futures):
+                    try:
+                        done = future.result()
+                    except BrokenProcessPool as exc:
+                        done = [(i, TaskReport(t.source, 0, 0, (), 0.0, f"its worker process died ({exc})"))
+                                for i, t in futures[future]]
+                    for i, report in done:
+                        deliver(i, report)
+                        tick(report.written)
+            except KeyboardInterrupt:  # stop now: the workers' unfinished files are temporary ones (removed)
+                for process in list(getattr(pool, "_processes", {}).values()):
+                    process.terminate()
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
         return self.workers

@@ -110,8 +110,9 @@ def plan(inputs: Sequence[str | Path], out: Path, options: WriteOptions, selecti
     """The tasks of a job: each input's outputs, checked before any work (it reads no image and writes nothing).
 
     ``out`` is a directory (created when written to), or for a single capture a ``.npy`` / ``.png`` / ``.tiff``
-    file. A capture writes ``out/<stem>.<format>``, a sequence (video, directory of images, glob) one file per
-    selected frame, ``out/<name>_000000.<format>``, ... (:func:`~prismstereo.stream.video.sequence_name`). An input
+    file. A capture writes ``out/<stem>.<format>``, a sequence one file per selected frame: a directory or glob of
+    images each image's ``out/<stem>.<format>``, a video ``out/<name>_000000.<format>``, ... numbered from 0
+    (:func:`~prismstereo.stream.video.sequence_name`). An input
     that cannot be opened, or a selection that keeps no frame of it, becomes a task with an ``error`` (reported, the
     others still run); outputs that collide or would overwrite an input raise.
 
@@ -221,14 +222,17 @@ def _sequence_task(source: str, out: Path, fmt: str, options: WriteOptions, sele
 
     try:
         total = sequence_length(source)
-        if not is_video_file(source):
-            protected.update({p.resolve(): source for p in sequence_files(source)})
+        files = [] if is_video_file(source) else sequence_files(source)
+        protected.update({p.resolve(): source for p in files})
     except PrismStereoError as exc:
         return Task(source, True, (), selection=selection, error=str(exc))
     stop = total if selection.stop is None else min(selection.stop, total)
     count = max(0, -(-(stop - selection.start) // selection.every))
-    name = sequence_name(source)
-    outputs = tuple(_outputs(out, f"{name}_{k:06d}", out / f"{name}_{k:06d}.{fmt}", options) for k in range(count))
+    if files:  # images keep their names
+        stems = [p.stem for p in files[selection.start:stop:selection.every]]
+    else:  # a video's frames are numbered
+        stems = [f"{sequence_name(source)}_{k:06d}" for k in range(count)]
+    outputs = tuple(_outputs(out, stem, out / f"{stem}.{fmt}", options) for stem in stems)
     error = None if count else str(PlanError("{start} {first} selects no frame: {source} has {total} frames", names,
                                              first=selection.start, source=source, total=total))
     return Task(source, True, outputs, selection=selection, error=error)

@@ -59,7 +59,7 @@ def run(tasks: Sequence[Task], pipeline: Pipeline, *, executor: Executor | None 
             :class:`~prismstereo.jobs.executors.WorkerProcesses` or
             :class:`~prismstereo.jobs.ray_executor.RayCluster`.
         batch_size: captures per model call (>= 1).
-        progress: show the bar (stderr).
+        progress: show the bar (stderr, where it is a terminal).
         report: called with each task's report as it completes (default: print its lines).
 
     Returns:
@@ -80,7 +80,8 @@ def run(tasks: Sequence[Task], pipeline: Pipeline, *, executor: Executor | None 
     start = time.perf_counter()
     reports: dict[int, TaskReport] = {}
     total = sum(len(t.outputs) - t.first for t in tasks if t.error is None)
-    with tqdm(total=total, unit="map", file=sys.stderr, desc="depth", disable=not progress) as bar:
+    # one bar on a terminal; none where stderr is a file or a pipe (a log would hold every redraw)
+    with tqdm(total=total, unit="map", file=sys.stderr, desc="depth", disable=None if progress else True) as bar:
 
         def deliver(i: int, rep: TaskReport) -> None:
             reports[i] = rep
@@ -99,8 +100,10 @@ def run(tasks: Sequence[Task], pipeline: Pipeline, *, executor: Executor | None 
             else:
                 todo.append((i, task))
         work = units(todo, batch_size)
-        workers = executor.run(work, pipeline, batch_size, deliver, bar.update) if work else 1
-    _remove_partials(tasks)
+        try:
+            workers = executor.run(work, pipeline, batch_size, deliver, bar.update) if work else 1
+        finally:  # also when interrupted: only whole files are left
+            _remove_partials(tasks)
     ordered = tuple(reports[i] for i in range(len(tasks)))
     return JobSummary(ordered, time.perf_counter() - start, workers)
 

@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -372,3 +373,51 @@ def test_export_learned(scene, tmp_path, capsys):
     runner = OnnxDepth(tmp_path / "l.onnx")
     assert '"model": "LearnedStereo"' in runner.metadata["prismstereo.config"]
     assert runner(torch.rand(1, 1, 96, 128)).depth.shape == (1, 1, 96, 64)
+
+
+def test_an_interrupted_folder_run_leaves_whole_files_and_resumes(scene, tmp_path):
+    """A real SIGINT to the command while it writes: one line, exit 130, only whole files; --skip-existing ends it."""
+    import signal
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(100):
+        (frames / f"f{k:03d}.png").write_bytes((scene / "far.png").read_bytes())
+    out = tmp_path / "out"
+    args = ["depth", str(frames), "--rig", str(scene / "small.json"), "--out", str(out), "--z-range", "400", "700",
+            "--no-temporal", "--model", "classical"]
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "prismstereo.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while len(list(out.glob("*.npy"))) < 5 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    written = sorted(out.iterdir())
+    assert err.strip().splitlines()[-1] == (f"prismstereo: interrupted: {len(written)} of 100 depth maps written; "
+                                            "rerun with --skip-existing to resume")
+    assert 0 < len(written) < 100 and all(p.suffix == ".npy" and not p.name.startswith(".") for p in written)
+    for path in written:
+        assert np.load(path).shape == (96, 64)  # whole files
+    assert main([*args, "--skip-existing"]) == 0
+    assert len(list(out.iterdir())) == 100
+
+
+def test_sigterm_ends_a_run_with_status_143(scene, tmp_path, monkeypatch, capsys):
+    import signal
+
+    from prismstereo.jobs import Pipeline
+
+    write = Pipeline._write
+
+    def write_then_terminate(self, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return write(self, *args, **kwargs)
+
+    monkeypatch.setattr(Pipeline, "_write", write_then_terminate)
+    previous = signal.getsignal(signal.SIGTERM)
+    assert _run(scene, scene / "far.png", scene / "near.png", "--out", tmp_path / "o", "--z-range", 400, 700) == 143
+    assert capsys.readouterr().err.strip().startswith("prismstereo: interrupted: ")
+    assert signal.getsignal(signal.SIGTERM) == previous
+    assert not list((tmp_path / "o").glob(".*"))

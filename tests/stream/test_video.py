@@ -338,7 +338,8 @@ def test_depth_cli_on_a_video_writes_numbered_frames(clip, tmp_path, capsys, mon
                   "--format", "tiff") == 0
     text = capsys.readouterr().out
     assert "3 depth maps to write from 1 of 1 inputs" in text and "frames/s" in text
-    assert asked == [thread_plan().decode]  # decoded on every core but the graph's
+    # its first frame read before the model is built, then the frames decoded on every core but the graph's
+    assert asked == [None, thread_plan().decode]
     names = sorted(p.name for p in out.iterdir())
     assert names == ["clip_000000.tiff", "clip_000001.tiff", "clip_000002.tiff"]
     for k, z in enumerate(DEPTHS[::2]):
@@ -423,9 +424,9 @@ def test_depth_cli_on_a_directory_and_its_errors(clip, tmp_path, capsys):
     out = tmp_path / "seq"
     assert _depth(clip / "frames", "--rig", clip / "small.json", "--out", out, "--z-range", 400, 700,
                   "--start", 3, "--ply") == 0
-    assert sorted(p.name for p in out.iterdir()) == ["frames_000000.npy", "frames_000000.ply", "frames_000001.npy",
-                                                     "frames_000001.ply"]
-    assert abs(np.nanmedian(np.load(out / "frames_000001.npy")) / DEPTHS[4] - 1) < 0.02
+    # a directory's images keep their names
+    assert sorted(p.name for p in out.iterdir()) == ["f003.npy", "f003.ply", "f004.npy", "f004.ply"]
+    assert abs(np.nanmedian(np.load(out / "f004.npy")) / DEPTHS[4] - 1) < 0.02
     capsys.readouterr()
     cases = [
         ([clip / "clip.avi", "--out", tmp_path / "d.npy"], "--out must be a directory"),
@@ -440,7 +441,8 @@ def test_depth_cli_on_a_directory_and_its_errors(clip, tmp_path, capsys):
          "band for the temporal prior"),  # the small rig's default: one level
         ([clip / "clip.avi", "--out", tmp_path / "o", "--temporal-binning", 64, "--downsample", 2, "--full-band", 2],
          "downsample 64 leaves no level"),
-        ([tmp_path / "copy", "--out", tmp_path / "copy", "--format", "png"], None),
+        ([tmp_path / "copy", "--out", tmp_path / "copy", "--format", "npy"], None),
+        ([tmp_path / "copy", "--out", tmp_path / "copy", "--format", "png"], "would overwrite the input frame"),
     ]
     import shutil
 
