@@ -99,7 +99,9 @@ def _executor(args: argparse.Namespace):
     if args.ray is not None:
         from prismstereo.jobs.ray_executor import RayCluster
 
-        return RayCluster(args.ray), f", on Ray ({args.ray})"
+        cluster = RayCluster(args.ray)
+        cluster.check()  # before the model is built
+        return cluster, f", on Ray ({args.ray})"
     if args.workers > 1:
         return WorkerProcesses(args.workers), f", {args.workers} worker processes"
     return InProcess(), ""
@@ -117,11 +119,11 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     runnable = [t for t in tasks if t.error is None and t.first < len(t.outputs)]
     tracked = any(t.sequence for t in runnable) and args.temporal
     temporal = TemporalOptions(downsample=args.temporal_binning) if tracked else None
+    executor, where = _executor(args)
     with flag_errors(args):
         predictor = Predictor(spec, backend=args.backend, temporal=temporal, spinning=False)
     if tracked and predictor.temporal is None and args.temporal_binning is not None:
         raise PrismStereoError("--temporal-binning: this model has no full-resolution band for the temporal prior")
-    executor, where = _executor(args)
     cached = (" (cached graphs)" if tracked else " (cached graph)") if predictor.cached else ""
     outputs = sum(len(t.outputs) - t.first for t in runnable)
     print(f"{range_note(args, predictor.z_range)}, {predictor.summary}{cached}, backend {args.backend}{where}; "

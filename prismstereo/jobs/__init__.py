@@ -3,11 +3,12 @@
 What a long job needs, for ``prismstereo depth`` and for Python callers, by responsibility:
 
 * the plan (:func:`plan`, :mod:`~prismstereo.jobs.plan`): every output named before any work (``<stem>.<format>``
-  per capture or image of a sequence, ``<stem>_000000.<format>``, ... per video frame), collisions and outputs that would overwrite an
-  input refused, and with ``skip_existing`` what an earlier run already wrote marked (a sequence resumes at its
-  first missing frame). Pure: it reads no image and writes nothing; its errors (:class:`PlanError`) name its
-  arguments, which the CLI names by its flags. :func:`check_inputs` then reads each input's first image before any
-  model is built (a capture that does not decode or is of another size fails in a second, not after the build).
+  per capture or image of a sequence, ``<stem>_000000.<format>``, ... per video frame), collisions and outputs that
+  would overwrite an input refused, and with ``skip_existing`` what an earlier run already wrote marked (a sequence
+  resumes at its first missing frame). Pure: it reads no image and writes nothing; its errors (:class:`PlanError`)
+  name its arguments, which the CLI names by its flags. :func:`check_inputs` then reads each input's first image
+  before any model is built (a capture that does not decode or is of another size fails in a second, not after the
+  build).
 * the pipeline (:class:`Pipeline`, :mod:`~prismstereo.jobs.pipeline`): one process's
   :class:`~prismstereo.predictor.Predictor` and writers; the next captures or frames are decoded on a reader thread
   and the finished ones written on a writer thread (bounded queues, outputs in input order) while the model runs.

@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -11,6 +10,7 @@ import torch
 
 from prismstereo.errors import PrismStereoError
 from prismstereo.io import DEPTH_SUFFIXES
+from prismstereo.quiet import c_stderr_silenced
 
 __all__ = ["ARGUMENTS", "Outputs", "PlanError", "Selection", "Task", "WriteOptions", "check_inputs", "plan",
            "size_error"]
@@ -285,29 +285,6 @@ def _input_error(task: Task, size: tuple[int, int]) -> str | None:
         return str(exc)
 
 
-@contextlib.contextmanager
-def _c_stderr_silenced() -> Iterator[None]:
-    """Discard what C libraries write to the process's stderr meanwhile (libpng's "Read Error" on a truncated file:
-    the error returned says it in one line). Used before any progress bar writes there."""
-    import os
-    import sys
-    import tempfile
-
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError):  # no file descriptor 2 (an embedding host): nothing to silence
-        yield
-        return
-    with tempfile.TemporaryFile() as sink:
-        os.dup2(sink.fileno(), 2)
-        try:
-            yield
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-
-
 def check_inputs(tasks: Sequence[Task], size: tuple[int, int]) -> list[Task]:
     """The tasks with their inputs read before any model is built: each capture still to write decoded and sized,
     and each sequence's first frame to process (a sequence's later frames are read as it runs). A task that fails
@@ -328,6 +305,6 @@ def check_inputs(tasks: Sequence[Task], size: tuple[int, int]) -> list[Task]:
     from concurrent.futures import ThreadPoolExecutor
 
     todo = [k for k, t in enumerate(tasks) if t.error is None and t.first < len(t.outputs)]
-    with _c_stderr_silenced(), ThreadPoolExecutor(max_workers=min(4, max(1, len(todo)))) as pool:
+    with c_stderr_silenced(), ThreadPoolExecutor(max_workers=min(4, max(1, len(todo)))) as pool:
         errors = dict(zip(todo, pool.map(lambda k: _input_error(tasks[k], size), todo), strict=True))
     return [t._replace(error=errors[k]) if errors.get(k) else t for k, t in enumerate(tasks)]

@@ -13,6 +13,7 @@ dead attempt leaves at most a temporary file, which :func:`~prismstereo.jobs.run
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import numpy as np
@@ -22,11 +23,32 @@ from prismstereo.conventions import to_grey
 from prismstereo.errors import PrismStereoError
 from prismstereo.jobs.executors import Deliver, Tick, Unit, work
 from prismstereo.jobs.pipeline import Pipeline, TaskReport
+from prismstereo.quiet import c_stderr_silenced
 from prismstereo.threads import torch_threads
 
-__all__ = ["DepthMapper", "RETRIES", "RayCluster"]
+__all__ = ["DepthMapper", "RAY_CONNECT_SECONDS", "RETRIES", "RayCluster"]
 
 RETRIES = 3  # replacements of a dead actor per unit of work
+RAY_CONNECT_SECONDS = 10  # how long RayCluster.check tries a cluster (unless RAY_gcs_server_port_wait_time_s is set)
+
+
+def _check_port(address: str | None, timeout: float) -> None:
+    """A PrismStereoError unless ``address`` (HOST:PORT or ray://HOST:PORT; None and 'auto' are Ray's to find)
+    accepts a TCP connection within ``timeout`` s: a refused or unroutable address fails here, not after Ray's
+    retries."""
+    import socket
+
+    if address in (None, "auto"):
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise PrismStereoError(f"a Ray address is 'auto', 'local', HOST:PORT or ray://HOST:PORT, got {address!r}")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as exc:
+        reason = "no answer" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
+        raise PrismStereoError(f"cannot connect to the Ray cluster at {address}: {reason} within {timeout:g} s"
+                               ) from None
 
 
 def _ray():
@@ -60,13 +82,44 @@ class RayCluster:
 
     def __init__(self, address: str | None = None) -> None:
         self.address = None if address in (None, "local") else address
+        self._started = False  # connected by check(), to be shut down by run()
+
+    def check(self, timeout: int = RAY_CONNECT_SECONDS) -> None:
+        """Fail fast: connect now (before a model is built), trying for about ``timeout`` seconds (a local instance
+        is started); :meth:`run` then uses this connection.
+
+        Raises:
+            PrismStereoError: Ray is not installed, or the cluster cannot be reached (one line).
+
+        Example:
+            >>> RayCluster("10.255.255.1:6379").check(2)  # doctest: +SKIP
+            Traceback (most recent call last):
+            ...
+            prismstereo.errors.PrismStereoError: cannot connect to the Ray cluster at 10.255.255.1:6379 ...
+        """
+        ray = _ray()
+        if ray.is_initialized():
+            return
+        _check_port(self.address, min(timeout, 5))
+        # Ray retries the cluster's GCS once a second for RAY_gcs_server_port_wait_time_s (default 20)
+        wait = os.environ.setdefault("RAY_gcs_server_port_wait_time_s", str(timeout))
+        try:
+            with c_stderr_silenced():  # its C++ client logs every retry on stderr
+                ray.init(address=self.address, include_dashboard=False, log_to_driver=False,
+                         configure_logging=False)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise PrismStereoError(f"cannot connect to the Ray cluster at {self.address or 'local'} within "
+                                   f"{wait} s: {first}") from None
+        self._started = True
 
     def run(self, units: list[Unit], pipeline: Pipeline, batch_size: int, deliver: Deliver, tick: Tick) -> int:
         """Run ``units`` on Ray actors (:class:`~prismstereo.jobs.executors.Executor`); returns the actor count."""
         ray = _ray()
-        started = not ray.is_initialized()
-        if started:
-            ray.init(address=self.address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+        started = self._started or not ray.is_initialized()
+        if not ray.is_initialized():
+            self.check()
+        self._started = False
         try:
             return _run_actors(ray, units, pipeline, batch_size, deliver, tick)
         finally:
