@@ -9,6 +9,7 @@ error, standard errors of every estimated parameter) plus the before/after value
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -27,7 +28,7 @@ from prismstereo.calibration.parameters import (
 )
 from prismstereo.calibration.problem import RigProblem
 from prismstereo.calibration.solver import levenberg_marquardt, normal_inverse
-from prismstereo.calibration.targets import Board, CornerMethod, ViewDetection, detect_board
+from prismstereo.calibration.targets import Board, CornerMethod, ViewDetection, detect_board, found_instead
 from prismstereo.calibration.uncertainty import DepthUncertainty, depth_uncertainty
 from prismstereo.errors import CalibrationError, RigError
 from prismstereo.geometry.optics import check_rig_images
@@ -207,8 +208,13 @@ def calibrate_board(
     if len(obs.views) < min_views:
         found = [f"{i}: left {'yes' if d.left is not None else 'no'}, right {'yes' if d.right is not None else 'no'}"
                  for i, d in enumerate(detections)]
+        instead = [found_instead(c, rig, board) for c, d in zip(captures, detections, strict=True)
+                   if not isinstance(c, ViewDetection) and (d.left is None or d.right is None)]
+        counts = Counter(text for text in instead if text)
+        hint = "".join(f"; found instead in {n} view{'s' * (n > 1)}: {text} (is the target's size right?)"
+                       for text, n in counts.most_common(2))
         raise CalibrationError(f"board {board.describe()} found in both halves of {len(obs.views)} of "
-                               f"{len(detections)} views, need {min_views} ({'; '.join(found)})")
+                               f"{len(detections)} views, need {min_views}{hint} ({'; '.join(found)})")
     names = [n for n in NAMES if n not in fixed]
     problem = BoardProblem(rig, obs, names, tolerance_vector(rig, tolerances), sigma_px=0.1)
     solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)

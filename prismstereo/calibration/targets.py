@@ -285,6 +285,35 @@ def detect_board(
     return ViewDetection(left, right)
 
 
+def found_instead(image: torch.Tensor | np.ndarray, rig: BiPrismRig, board: Board) -> str | None:
+    """What a capture's halves show where ``board`` was not found, for an error that helps: a checkerboard of another
+    size (OpenCV's detector asked for any board of at least 3 x 3 inner corners), or ChArUco markers of the board's
+    dictionary without its layout; None if nothing.
+
+    Example:
+        >>> found_instead(torch.zeros(1, 768, 1024), thesis_setup1(), parse_target("checkerboard:4x7:6")) is None
+        True
+    """
+    gray = to_gray_u8(image)
+    split = rig.reference_width
+    markers, sizes = 0, []
+    for half in (gray[:, :split], gray[:, split:]):
+        half = np.ascontiguousarray(half)
+        if board.kind == "charuco":
+            detector = cv2.aruco.ArucoDetector(board.charuco_board().getDictionary())
+            _, ids, _ = detector.detectMarkers(half)
+            markers = max(markers, 0 if ids is None else len(ids))
+        flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_LARGER
+        found, _, meta = cv2.findChessboardCornersSBWithMeta(half, (3, 3), flags)
+        if found and meta is not None:
+            sizes.append(tuple(sorted(meta.shape[:2])))
+    if markers:
+        return f"{board.dictionary} markers, but not a {board.cols}x{board.rows} ChArUco board"
+    if sizes:  # the larger where a half shows only part of the board
+        return "a checkerboard of {}x{} inner corners".format(*max(sizes, key=lambda size: size[0] * size[1]))
+    return None
+
+
 def _refined(gray: torch.Tensor, found: HalfDetection, board: Board) -> HalfDetection | None:
     """``found`` with its corners refined by point symmetry; None if fewer than 4 remain (a checkerboard, whose
     corners must all be present, keeps every corner, refined where the refinement converged)."""

@@ -61,7 +61,10 @@ def test_calibrate_cli_writes_a_rig_and_reports(bench, default_run):
     [
         (["--target", "checkerboard:4x7"], "cannot parse target"),
         (["--target", "checkerboard:4x7:6", "--fix", "zoom"], "unknown rig parameter"),
-        (["--target", "checkerboard:9x6:6"], "found in both halves of 0 of 6 views"),
+        (["--target", "checkerboard:9x6:6"], "found in both halves of 0 of 6 views, need 3; found instead in 6 "
+                                             "views: a checkerboard of 4x7 inner corners (is the target's size "
+                                             "right?)"),
+        (["--target", "charuco:5x8:6:4:DICT_4X4_250"], "found instead in 6 views: a checkerboard of 4x7"),
     ],
 )
 def test_calibrate_cli_errors(bench, capsys, extra, message):
