@@ -77,6 +77,11 @@ class Board:
             if not hasattr(cv2.aruco, self.dictionary) or not self.dictionary.startswith("DICT_"):
                 valid = ", ".join(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
                 raise CalibrationError(f"unknown ArUco dictionary {self.dictionary!r}; valid: {valid}")
+            size = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary)).bytesList.shape[0]
+            if self.cols * self.rows // 2 > size:
+                raise CalibrationError(f"a {self.cols}x{self.rows} ChArUco board has {self.cols * self.rows // 2} "
+                                       f"markers but {self.dictionary} only {size}: a larger dictionary or a smaller "
+                                       "board")
 
     @property
     def num_points(self) -> int:

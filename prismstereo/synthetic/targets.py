@@ -96,16 +96,17 @@ def circle_grid_target(
 def calibration_views(
     n: int, seed: int = 0, depth_range_mm: tuple[float, float] = (550.0, 850.0), max_tilt_deg: float = 45.0,
     rows: int = 8, cols: int = 5, square_mm: float = 6.0, spread_mm: tuple[float, float] = (3.0, 15.0),
-    kind: str = "checkerboard",
+    kind: str = "checkerboard", marker_mm: float | None = None, dictionary: str = "DICT_4X4_250",
 ) -> list[Scene]:
     """``n`` boards at seeded random poses for calibration captures: depths uniform in ``depth_range_mm``, tilts
     uniform within +-``max_tilt_deg`` about x and y and +-10 deg about z, centres within +-``spread_mm`` of the axis.
 
     ``kind`` 'checkerboard' (:func:`checkerboard_target`, ``rows`` x ``cols`` squares): the defaults fit a 5 x 8-square
     board of 6 mm (4 x 7 inner corners) into the common field of view of ``thesis_setup1``'s halves, as a board must
-    be seen whole. 'charuco' (:func:`charuco_target`, ``rows`` x ``cols`` squares of ``square_mm``, markers 3/4 of a
-    square, ``DICT_4X4_250``): a board larger than the views, seen partly by each half, e.g. ``rows=12, cols=16,
-    square_mm=8``. Strong tilts are what make a narrow-angle camera's focal length observable.
+    be seen whole. 'charuco' (:func:`charuco_target`, ``rows`` x ``cols`` squares of ``square_mm``, markers of
+    ``marker_mm``, default 3/4 of a square, from ``dictionary``): a board larger than the views, seen partly by each
+    half, e.g. ``rows=12, cols=16, square_mm=8``. Strong tilts are what make a narrow-angle camera's focal length
+    observable.
 
     Example:
         >>> [s.name for s in calibration_views(2)]
@@ -123,5 +124,5 @@ def calibration_views(
             scenes.append(checkerboard_target((x, y, z), (rx, ry, rz), rows=rows, cols=cols, square_mm=square_mm))
         else:
             scenes.append(charuco_target((x, y, z), (rx, ry, rz), cols=cols, rows=rows, square_mm=square_mm,
-                                         marker_mm=0.75 * square_mm))
+                                         marker_mm=marker_mm or 0.75 * square_mm, dictionary=dictionary))
     return scenes

@@ -131,7 +131,15 @@ def test_render_batch_and_16_bit_rgb(tmp_path):
     "extra,message",
     [(["--scene", "plane", "--depth-mm", "100"], "not beyond the prism's back plane"),
      (["--scene", "middlebury", "--depth-mm", "450"], "needs --middlebury DIR"),
-     (["--scene", "plane", "--depth-mm", "400", "500"], "--out must be a directory")],
+     (["--scene", "plane", "--depth-mm", "400", "500"], "--out must be a directory"),
+     (["--scene", "board", "--depth-mm", "500"], "--scene board needs --target SPEC"),
+     (["--scene", "board", "--depth-mm", "500", "--target", "checkerboard:4x7"], "cannot parse target"),
+     (["--scene", "board", "--depth-mm", "500", "--target", "charuco:12x9:10:7:DICT_4X4_50"],
+      "a 12x9 ChArUco board has 54 markers but DICT_4X4_50 only 50"),
+     (["--scene", "plane", "--depth-mm", "500", "--views", "3"], "--views renders boards at random poses"),
+     (["--scene", "board", "--depth-mm", "500", "--views", "0"], "--views must be >= 1"),
+     (["--scene", "board", "--depth-mm", "500", "--views", "2", "--target", "checkerboard:4x7:6"],
+      "--views render a batch: --out must be a directory")],
 )
 def test_render_errors(tmp_path, capsys, extra, message):
     code = main(["render", "--rig", str(_small_rig(tmp_path)), "--out", str(tmp_path / "x.png"), *extra])
