@@ -79,7 +79,7 @@ def _tasks(args: argparse.Namespace, pose: torch.Tensor | None, rig: BiPrismRig)
     from prismstereo.jobs import Selection, WriteOptions, check_inputs, plan
 
     options = WriteOptions(args.format, args.ply, args.dense, args.png_scale, pose,
-                           Path(args.preview_video) if args.preview_video else None, args.preview_fps)
+                           Path(args.preview_video) if args.preview_video else None, args.preview_fps, args.preview)
     tasks = plan(args.images, Path(args.out), options, Selection(args.every, args.start, args.stop),
                  skip_existing=args.skip_existing, names=PLAN_FLAGS)
     tasks = check_inputs(tasks, (rig.image_height, rig.image_width))  # read before the model is built
@@ -152,7 +152,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--rig", required=True, help="rig JSON file or preset name")
     depth.add_argument("--out", required=True,
                        help="OUT.npy or OUT.tiff (float32 mm, NaN invalid) or OUT.png (16-bit mm x scale, 0 "
-                            "invalid, plus OUT_preview.png and OUT.json with the scale) for one image; a directory "
+                            "invalid, plus OUT.json with the scale) for one image, with OUT_preview.png; a directory "
                             "(created) of <stem>.npy/.png/.tiff otherwise")
     add_model_arguments(depth)
     depth.add_argument("--backend", choices=BACKENDS, default="torch",
@@ -182,6 +182,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--preview-video", default=None, metavar="OUT.mp4",
                        help="video / sequence: also write the colour-mapped depth as a video (mp4v)")
     depth.add_argument("--preview-fps", type=float, default=10.0, help="frame rate of --preview-video")
+    depth.add_argument("--no-preview", dest="preview", action="store_false",
+                       help="no <stem>_preview.png (the colour-mapped depth with its colour bar in mm) beside each "
+                            "capture's depth file and each frame's 16-bit PNG")
     depth.add_argument("--no-temporal", dest="temporal", action="store_false",
                        help="video / sequence: every frame on its own (default: the temporal prior, a narrow band "
                             "around the previous frame's depth between key frames; prismstereo.classical.temporal)")

@@ -5,6 +5,7 @@ every file renamed into place whole."""
 from __future__ import annotations
 
 import functools
+import math
 import queue
 import threading
 import time
@@ -84,6 +85,13 @@ def _one_thread(job: Callable[[], Any]) -> Any:
     would otherwise share the cores with a second one, and both wait on each other)."""
     with torch_threads(thread_plan().side):
         return job()
+
+
+def _depth_range(depths: torch.Tensor) -> str:
+    """``depths`` (N,) mm in words: their range and median, or that there is none."""
+    if not depths.numel():
+        return "no valid depth"
+    return f"depth {float(depths.min()):.1f}-{float(depths.max()):.1f} mm (median {float(depths.median()):.1f})"
 
 
 class _Writer:
@@ -194,10 +202,11 @@ class Pipeline:
         opts = self.options
         written = write_depth(files.depth, depth, valid, png_scale=opts.png_scale)
         note = ""
-        if written.format == "png":
+        if files.preview is not None:
             write_depth_preview(files.preview, depth, valid)
-            note = (f", preview {files.preview.name}, {written.scale:g} levels/mm (stored in the PNG and "
-                    f"{files.sidecar.name})")
+            note = f", preview {files.preview.name}"
+        if written.format == "png":
+            note += f", {written.scale:g} levels/mm (stored in the PNG and {files.sidecar.name})"
             if written.clipped:
                 note += (f"; warning: {written.clipped} pixels deeper than {65535 / written.scale:.3f} mm clipped to "
                          "65535 (see --png-scale)")
@@ -290,10 +299,9 @@ class Pipeline:
             return
         self._tick()
         ok = valid & torch.isfinite(depth)
-        median = f"median {float(depth[ok].median()):.1f} mm" if bool(ok.any()) else "no valid depth"
         kind = "with a depth (dense)" if self.options.dense else "valid"
-        line = (f"wrote {task.outputs[0].depth}: {ok.float().mean():.1%} of reference pixels {kind}, {median}"
-                f"{future.result()}")
+        line = (f"wrote {task.outputs[0].depth}: {ok.float().mean():.1%} of reference pixels {kind}, "
+                f"{_depth_range(depth[ok])}{future.result()}")
         ready.append(TaskReport(task.source, 1, 0, (line,), seconds))
 
     # ----------------------------------------------------------------------------- sequences
@@ -311,7 +319,8 @@ class Pipeline:
 
         sel, rig, opts = task.selection, self.rig, self.options
         stream = DepthStream(self.predictor, temporal=self.predictor.temporal is not None)
-        writer, preview, state = _Writer(depth=4), [None], {"written": 0, "error": None}
+        writer, preview = _Writer(depth=4), [None]
+        state = {"written": 0, "error": None, "valid": 0, "pixels": 0, "lo": math.inf, "hi": -math.inf}
 
         def add_preview(picture: np.ndarray) -> None:
             import cv2
@@ -342,6 +351,12 @@ class Pipeline:
                 return False
             try:
                 self._write(files, depth, valid, conf, points, colors)
+                ok = valid & torch.isfinite(depth)
+                state["valid"] += int(ok.sum())
+                state["pixels"] += ok.numel()
+                if bool(ok.any()):
+                    state["lo"], state["hi"] = min(state["lo"], float(depth[ok].min())), max(state["hi"],
+                                                                                          float(depth[ok].max()))
                 if opts.preview_video is not None:
                     from prismstereo.preview import depth_preview
 
@@ -371,16 +386,20 @@ class Pipeline:
             writer.close()
             if preview[0] is not None:
                 preview[0].release()
-        return self._sequence_report(task, stream, state["written"], state["error"])
+        return self._sequence_report(task, stream, state)
 
-    def _sequence_report(self, task: Task, stream: Any, written: int, error: str | None) -> TaskReport:
-        lines = []
+    def _sequence_report(self, task: Task, stream: Any, state: dict[str, Any]) -> TaskReport:
+        lines, written, error = [], state["written"], state["error"]
         if written:
             times = sorted(stream.times_ms)
             first = task.outputs[task.first].depth
             keys = f", {stream.keyframes} key frames" if stream.temporal is not None else ""
             resumed = f" (resumed at output {task.first})" if task.first else ""
+            kind = "with a depth (dense)" if self.options.dense else "valid"
+            spread = (f"depth {state['lo']:.1f}-{state['hi']:.1f} mm" if state["hi"] >= state["lo"] else
+                      "no valid depth")
             lines.append(f"wrote {written} depth files {first.name} ... to {first.parent}{resumed}: "
+                         f"{state['valid'] / max(1, state['pixels']):.1%} of reference pixels {kind}, {spread}; "
                          f"{times[len(times) // 2]:.1f} ms per frame (median of the depth computation), "
                          f"{stream.frames_per_second():.1f} frames/s{keys}"
                          + (f"; preview video {self.options.preview_video}" if self.options.preview_video else ""))

@@ -34,8 +34,10 @@ class Outputs(NamedTuple):
 class WriteOptions(NamedTuple):
     """How results are written: ``format`` 'npy' | 'png' | 'tiff' (None: from a file ``out``'s suffix, else npy),
     ``ply`` point clouds (in the world frame of ``camera_to_world`` (4, 4), if given), ``dense`` (every pixel with
-    a depth, and its confidence), ``png_scale`` (levels per mm; None: automatic), and for a single sequence a
-    colour-mapped ``preview_video`` at ``preview_fps``."""
+    a depth, and its confidence), ``png_scale`` (levels per mm; None: automatic), for a single sequence a
+    colour-mapped ``preview_video`` at ``preview_fps``, and ``preview``: a colour-mapped ``<stem>_preview.png`` (with
+    its colour bar in mm) beside each capture's depth file in any format and each frame's 16-bit PNG (a sequence
+    in another format is previewed by ``preview_video``)."""
 
     format: str | None = None
     ply: bool = False
@@ -44,6 +46,7 @@ class WriteOptions(NamedTuple):
     camera_to_world: torch.Tensor | None = None
     preview_video: Path | None = None
     preview_fps: float = 10.0
+    preview: bool = True
 
 
 class Selection(NamedTuple):
@@ -97,9 +100,10 @@ class PlanError(PrismStereoError, ValueError):
         return self.template.format(**{a: names.get(a, a) for a in ARGUMENTS}, **self.values)
 
 
-def _outputs(folder: Path, stem: str, path: Path, options: WriteOptions) -> Outputs:
+def _outputs(folder: Path, stem: str, path: Path, options: WriteOptions, sequence: bool = False) -> Outputs:
     png = path.suffix.lower() == ".png"
-    return Outputs(path, folder / f"{stem}_preview.png" if png else None,
+    preview = options.preview and (png or not sequence)
+    return Outputs(path, folder / f"{stem}_preview.png" if preview else None,
                    folder / f"{stem}.ply" if options.ply else None,
                    folder / f"{stem}_confidence.npy" if options.dense else None,
                    path.with_suffix(".json") if png else None)
@@ -232,7 +236,7 @@ def _sequence_task(source: str, out: Path, fmt: str, options: WriteOptions, sele
         stems = [p.stem for p in files[selection.start:stop:selection.every]]
     else:  # a video's frames are numbered
         stems = [f"{sequence_name(source)}_{k:06d}" for k in range(count)]
-    outputs = tuple(_outputs(out, stem, out / f"{stem}.{fmt}", options) for stem in stems)
+    outputs = tuple(_outputs(out, stem, out / f"{stem}.{fmt}", options, True) for stem in stems)
     error = None if count else str(PlanError("{start} {first} selects no frame: {source} has {total} frames", names,
                                              first=selection.start, source=source, total=total))
     return Task(source, True, outputs, selection=selection, error=error)

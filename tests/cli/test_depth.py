@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -48,6 +49,13 @@ def test_npy_of_a_plane(scene, tmp_path, capsys):
     assert depth.shape == (96, 64) and depth.dtype == np.float32
     assert np.isnan(depth).any() and np.isfinite(depth).mean() > 0.5
     assert abs(np.nanmedian(depth) / FAR - 1) < 0.02
+    # its one line: the valid share and the depth range; a preview beside the .npy (none with --no-preview)
+    ok = depth[np.isfinite(depth)]
+    assert re.search(rf"wrote {re.escape(str(out))}: \d+\.\d% of reference pixels valid, depth "
+                     rf"{ok.min():.1f}-{ok.max():.1f} mm \(median [\d.]+\), preview far_preview.png", text), text
+    assert read_image(tmp_path / "far_preview.png").shape[0] == 3
+    assert _run(scene, scene / "far.png", "--out", tmp_path / "o.tiff", "--no-preview") == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["far.npy", "far_preview.png", "o.tiff"]
 
 
 def test_png_round_trip_preview_and_ply(scene, tmp_path, capsys):
@@ -193,7 +201,8 @@ def test_directory_of_two_images_batched_with_ply(scene, tmp_path, capsys):
     assert _run(scene, scene / "far.png", scene / "near.png", "--out", out, "--batch-size", "2", "--ply",
                 "--hypotheses", "48") == 0
     assert "48 hypotheses" in capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == ["far.npy", "far.ply", "near.npy", "near.ply"]
+    assert sorted(p.name for p in out.iterdir()) == ["far.npy", "far.ply", "far_preview.png", "near.npy", "near.ply",
+                                                     "near_preview.png"]
     assert abs(np.nanmedian(np.load(out / "far.npy")) / FAR - 1) < 0.02
     assert abs(np.nanmedian(np.load(out / "near.npy")) / NEAR - 1) < 0.02
     from prismstereo.depth import read_ply

@@ -91,7 +91,9 @@ def test_workers_write_the_same_files_and_report_failures(inputs, tmp_path, caps
         assert f"prismstereo: failed: {inputs / 'junk.png'}: cannot decode image" in err
         assert "5 inputs, 7 depth maps written" in out and "1 inputs failed" in out
     names = _files(tmp_path / "w1")
-    assert names == _files(tmp_path / "w2") and len(names) == 14 and "clip_000003.npy" in names
+    # 7 depth maps, 7 point clouds and the 3 captures' previews (the video's frames are .npy: no preview)
+    assert names == _files(tmp_path / "w2") and len(names) == 17 and "clip_000003.npy" in names
+    assert "cap0_preview.png" in names and "clip_000000_preview.png" not in names
     assert not [n for n in names if "partial" in n]
     for name in names:
         if name.endswith(".npy"):
@@ -118,7 +120,8 @@ def test_skip_existing_resumes_images_and_sequences(inputs, tmp_path, capsys):
     assert "resumed at output 2" in text
     after = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
     assert set(after) == set(before)
-    assert sorted(n for n in after if after[n] != before[n]) == ["cap1.npy", "clip_000002.npy", "clip_000003.npy"]
+    assert sorted(n for n in after if after[n] != before[n]) == ["cap1.npy", "cap1_preview.png", "clip_000002.npy",
+                                                                 "clip_000003.npy"]
     resumed = np.load(out / "clip_000003.npy")
     both = np.isfinite(resumed) & np.isfinite(reference)
     assert both.mean() > 0.5 and np.abs(resumed[both] / reference[both] - 1).max() < 0.01
@@ -145,7 +148,7 @@ def test_a_failed_write_leaves_whole_files_only(inputs, tmp_path, monkeypatch):
     summary = run(tasks, Pipeline(Predictor(model)), progress=False, report=lambda r: None)
     assert [r.written for r in summary.reports] == [2, 1]
     assert "No space left on device" in summary.reports[0].error and summary.reports[1].error is None
-    assert _files(tmp_path) == ["cap1.npy", "clip_000000.npy", "clip_000001.npy"]
+    assert _files(tmp_path) == ["cap1.npy", "cap1_preview.png", "clip_000000.npy", "clip_000001.npy"]
     assert read_depth(tmp_path / "clip_000001.npy").shape == (rig.image_height, rig.reference_width)
     assert "1 inputs failed" in summary.describe()
 
@@ -223,8 +226,8 @@ def test_ray_writes_the_same_files_and_survives_a_dead_worker(inputs, tmp_path, 
     out, err = capsys.readouterr()
     assert killed and "on Ray (local)" in out and f"failed: {inputs / 'junk.png'}: cannot decode image" in err
     names = _files(tmp_path / "ray")
-    assert len(names) == 14 and not [n for n in names if "partial" in n]
-    for name in _files(tmp_path / "one"):
+    assert len(names) == 17 and not [n for n in names if "partial" in n]
+    for name in [n for n in _files(tmp_path / "one") if n.endswith(".npy")]:
         a, b = np.load(tmp_path / "one" / name), np.load(tmp_path / "ray" / name)
         np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
         np.testing.assert_allclose(a, b, rtol=1e-5, equal_nan=True)
