@@ -18,6 +18,9 @@ $(STAMP): pyproject.toml constraints.txt
 	# torch first, from the pinned CPU build, so nothing later can pull a CUDA wheel.
 	$(PIP) "torch==2.13.0"
 	$(PIP) -e ".[dev]"
+	# compile what start-up imports (torch's, onnxruntime's and ours) now, once: a host that sets
+	# PYTHONDONTWRITEBYTECODE would otherwise compile them from source at every start
+	$(PYC) $(PY) -c "import prismstereo.cli, prismstereo.predictor, prismstereo.export, prismstereo.jobs, prismstereo.learned, prismstereo.synthetic, onnxruntime, cv2, tqdm"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -21,6 +21,20 @@ def test_console_script_installed():
     assert out.returncode == 0 and __version__ in out.stdout
 
 
+def test_the_install_left_bytecode_for_start_up():
+    """``make``'s install compiles what ``prismstereo depth`` imports: a host that sets PYTHONDONTWRITEBYTECODE does
+    not compile torch, onnxruntime or the package at every start."""
+    import importlib.util
+    import os
+
+    import onnxruntime
+
+    import prismstereo.jobs.pipeline
+
+    for module in (torch, torch.nn.modules.conv, onnxruntime, prismstereo.jobs.pipeline):
+        assert os.path.exists(importlib.util.cache_from_source(module.__file__)), module.__file__
+
+
 def test_rig_show_file(tmp_path, capsys):
     path = tmp_path / "rig.json"
     thesis_setup1().replace(prism_offset_x_mm=2.0).to_json(path)
