@@ -149,6 +149,21 @@ def _per_view_rms(res: torch.Tensor, obs: Observations) -> torch.Tensor:
     return out
 
 
+def _not_found(rig: BiPrismRig, board: Board, captures: Sequence, detections: Sequence[ViewDetection], found: int,
+               needed: int) -> str:
+    """The error of a board found in too few views: per view which halves show it, and what the others show instead
+    (:func:`~prismstereo.calibration.targets.found_instead`)."""
+    views = [f"{i}: left {'yes' if d.left is not None else 'no'}, right {'yes' if d.right is not None else 'no'}"
+             for i, d in enumerate(detections)]
+    instead = [found_instead(c, rig, board) for c, d in zip(captures, detections, strict=True)
+               if not isinstance(c, ViewDetection) and (d.left is None or d.right is None)]
+    counts = Counter(text for text in instead if text)
+    hint = "".join(f"; found instead in {n} view{'s' * (n > 1)}: {text} (is the target's size right?)"
+                   for text, n in counts.most_common(2))
+    return (f"board {board.describe()} found in both halves of {found} of {len(detections)} views, need {needed}"
+            f"{hint} ({'; '.join(views)})")
+
+
 def calibrate_board(
     rig: BiPrismRig,
     captures: Sequence[torch.Tensor | np.ndarray | ViewDetection],
@@ -206,15 +221,7 @@ def calibrate_board(
                   for c in tqdm(captures, desc="detect", disable=not progress, leave=False)]
     obs = gather_observations(detections, board)
     if len(obs.views) < min_views:
-        found = [f"{i}: left {'yes' if d.left is not None else 'no'}, right {'yes' if d.right is not None else 'no'}"
-                 for i, d in enumerate(detections)]
-        instead = [found_instead(c, rig, board) for c, d in zip(captures, detections, strict=True)
-                   if not isinstance(c, ViewDetection) and (d.left is None or d.right is None)]
-        counts = Counter(text for text in instead if text)
-        hint = "".join(f"; found instead in {n} view{'s' * (n > 1)}: {text} (is the target's size right?)"
-                       for text, n in counts.most_common(2))
-        raise CalibrationError(f"board {board.describe()} found in both halves of {len(obs.views)} of "
-                               f"{len(detections)} views, need {min_views}{hint} ({'; '.join(found)})")
+        raise CalibrationError(_not_found(rig, board, captures, detections, len(obs.views), min_views))
     names = [n for n in NAMES if n not in fixed]
     problem = BoardProblem(rig, obs, names, tolerance_vector(rig, tolerances), sigma_px=0.1)
     solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)

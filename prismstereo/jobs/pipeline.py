@@ -87,6 +87,15 @@ def _one_thread(job: Callable[[], Any]) -> Any:
         return job()
 
 
+def _tally(state: dict[str, Any], depth: torch.Tensor, valid: torch.Tensor) -> None:
+    """Add a written frame's valid pixels and depth range to a sequence's ``state``."""
+    ok = valid & torch.isfinite(depth)
+    state["valid"] += int(ok.sum())
+    state["pixels"] += ok.numel()
+    if bool(ok.any()):
+        state["lo"], state["hi"] = min(state["lo"], float(depth[ok].min())), max(state["hi"], float(depth[ok].max()))
+
+
 def _depth_range(depths: torch.Tensor) -> str:
     """``depths`` (N,) mm in words: their range and median, or that there is none."""
     if not depths.numel():
@@ -351,12 +360,7 @@ class Pipeline:
                 return False
             try:
                 self._write(files, depth, valid, conf, points, colors)
-                ok = valid & torch.isfinite(depth)
-                state["valid"] += int(ok.sum())
-                state["pixels"] += ok.numel()
-                if bool(ok.any()):
-                    state["lo"], state["hi"] = min(state["lo"], float(depth[ok].min())), max(state["hi"],
-                                                                                          float(depth[ok].max()))
+                _tally(state, depth, valid)
                 if opts.preview_video is not None:
                     from prismstereo.preview import depth_preview
 

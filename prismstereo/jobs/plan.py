@@ -264,7 +264,12 @@ def _check_collisions(tasks: list[Task], protected: dict[Path, str], names: dict
 
 
 def size_error(source: str, image: torch.Tensor, size: tuple[int, int]) -> str | None:
-    """Why the (C, H, W) ``image`` read from ``source`` is not a capture of the sensor ``size`` (H, W), else None."""
+    """Why the (C, H, W) ``image`` read from ``source`` is not a capture of the sensor ``size`` (H, W), else None.
+
+    Example:
+        >>> size_error("a.png", torch.zeros(1, 48, 64), (96, 128))
+        "image a.png is 64x48 px but the rig's sensor is 128x96 px"
+    """
     h, w = image.shape[-2:]
     if (h, w) != tuple(size):
         return f"image {source} is {w}x{h} px but the rig's sensor is {size[1]}x{size[0]} px"
