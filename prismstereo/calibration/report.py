@@ -51,6 +51,8 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
     unc = result.depth_uncertainty
     parts = [f"{100 * float(s):.2f} % at {float(z):.0f} mm"
              for z, s in zip(unc.depth_mm, unc.relative_std, strict=True)]
+    if len({p.split(" at ")[0] for p in parts}) == 1 and len(parts) > 1:  # one value: said once, with its depths
+        parts = [f"{parts[0].split(' at ')[0]} from {float(unc.depth_mm[0]):.0f} to {float(unc.depth_mm[-1]):.0f} mm"]
     lines += ["", f"depth uncertainty from the calibration (1 sigma, fixed parameters at their tolerance): "
               f"{', '.join(parts)}"]
     lines += ["", f"{'view':<24} {'left RMS px':>11} {'right RMS px':>12}"]

@@ -135,6 +135,13 @@ def test_result_report_and_plot(calibrated, tmp_path):
     text = format_report(result, [f"img{i}.png" for i in range(9)])
     assert text.startswith("Calibrated from 9 views") and "img8.png" in text and "(fixed)" in text
     assert "prism_thickness_mm" in text and "roll_deg" in text
+    # the depth uncertainty in one line: each depth's value, or one value once with its depths
+    line = next(t for t in text.splitlines() if t.startswith("depth uncertainty from the calibration"))
+    values = [f"{100 * float(v):.2f} %" for v in result.depth_uncertainty.relative_std]
+    assert all(v in line for v in values) and (line.count(" % ") == 1) == (len(set(values)) == 1), line
+    same = result._replace(depth_uncertainty=result.depth_uncertainty._replace(
+        relative_std=result.depth_uncertainty.relative_std * 0 + 0.001))
+    assert "0.10 % from " in format_report(same)
     plot_residuals(result, tmp_path / "r.png")
     assert (tmp_path / "r.png").stat().st_size > 10_000
 
