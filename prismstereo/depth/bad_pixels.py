@@ -84,23 +84,29 @@ class BadPixels(nn.Module):
     def __init__(self, rig: BiPrismRig, z_range: tuple[float, float], *, radius: int = BAD_PIXEL_REACH) -> None:
         super().__init__()
         check_int(radius, "radius", 0)
-        h, w, w_ref = rig.image_height, rig.image_width, rig.reference_width
-        self.size, self.radius = (h, w, w_ref), radius
-        f = 2 * BLOCK  # the sweep test's blocks
-        hc, wc = math.ceil(h / f), math.ceil(w_ref / f)
-        centres = block_centres(hc, wc, f, torch.zeros((), dtype=torch.float64))
-        coefficients = sweep_coefficients(fit_sweep(rig, z_range), centres).permute(2, 0, 1, 3)  # (N, hc, wc, 2)
-        self.steps = steps = sweep_hypotheses(coefficients, max_step_px=f, stride=1)
-        uv = positions_at(coefficients, torch.linspace(-1.0, 1.0, steps, dtype=torch.float64))  # (S, hc, wc, 2)
-        # grid_sample units of the 8 x 8 block map of the full sensor (ceil(h / 8) x ceil(w / 8) blocks)
-        scale = torch.tensor([math.ceil(w / f) * f, math.ceil(h / f) * f], dtype=torch.float64)
-        grid = (uv + 0.5) / scale * 2 - 1
-        self.register_buffer("grid", grid.permute(1, 0, 2, 3).reshape(1, hc, steps * wc, 2).float(),
-                             persistent=False)
+        self.rig, self.z_range = rig, (float(z_range[0]), float(z_range[1]))
+        self.size, self.radius = (rig.image_height, rig.image_width, rig.reference_width), radius
         # in blocks: the window, half a block of spread of the sweeps within a block, half a sampling step and the
         # rounding of a position to its block (sweep test); the window (own test)
-        self.margin = math.ceil((radius + 1.5 * f) / f)
+        self.margin = math.ceil((radius + 1.5 * 2 * BLOCK) / (2 * BLOCK))
         self.own_margin = math.ceil(radius / BLOCK)
+        self.register_buffer("anchor", torch.zeros(0), persistent=False)  # where the model is (its device)
+        self._grid: torch.Tensor | None = None  # the sweeps' sampling grid, made when first needed
+        self.steps = 0
+
+    def _sweep_grid(self, like: torch.Tensor) -> torch.Tensor:
+        """(1, hc, S wc, 2) ``grid_sample`` positions of the 8 x 8 blocks' sweeps at S steps <= 8 px apart in the
+        8 x 8 block map of the full sensor; fitted on first use (a model without bad pixels never needs it)."""
+        if self._grid is None:
+            (h, w, w_ref), f = self.size, 2 * BLOCK
+            hc, wc = math.ceil(h / f), math.ceil(w_ref / f)
+            centres = block_centres(hc, wc, f, torch.zeros((), dtype=torch.float64))
+            coefficients = sweep_coefficients(fit_sweep(self.rig, self.z_range), centres).permute(2, 0, 1, 3)
+            self.steps = steps = sweep_hypotheses(coefficients, max_step_px=f, stride=1)
+            uv = positions_at(coefficients, torch.linspace(-1.0, 1.0, steps, dtype=torch.float64))  # (S, hc, wc, 2)
+            scale = torch.tensor([math.ceil(w / f) * f, math.ceil(h / f) * f], dtype=torch.float64)
+            self._grid = ((uv + 0.5) / scale * 2 - 1).permute(1, 0, 2, 3).reshape(1, hc, steps * wc, 2)
+        return self._grid.to(like)
 
     def _touched(self, blocks: torch.Tensor) -> torch.Tensor:
         """(B, 1, H, W_ref) touched reference pixels of the 4 x 4 bad blocks (B, 1, ceil(H / 4), ceil(W / 4))."""
@@ -116,7 +122,7 @@ class BadPixels(nn.Module):
         other = F.max_pool2d(other, 2, 2, ceil_mode=True)
         m = self.margin
         other = F.max_pool2d(F.max_pool2d(other, (1, 2 * m + 1), 1, (0, m)), (2 * m + 1, 1), 1, (m, 0))
-        grid = self.grid.to(blocks).expand(blocks.shape[0], -1, -1, -1)
+        grid = self._sweep_grid(blocks).expand(blocks.shape[0], -1, -1, -1)
         hits = F.grid_sample(other, grid, mode="nearest", padding_mode="zeros", align_corners=False)
         hits = hits.view(blocks.shape[0], 1, grid.shape[1], self.steps, -1).amax(dim=3)  # (B, 1, hc, wc)
         hits = hits.repeat_interleave(2, dim=2).repeat_interleave(2, dim=3)[..., :own.shape[-2], :ref]
@@ -140,9 +146,9 @@ class BadPixels(nn.Module):
         h, w, w_ref = self.size
         if tuple(image.shape[-2:]) != (h, w):
             raise ShapeError(f"image is {image.shape[-1]}x{image.shape[-2]} px but the rig's sensor is {w}x{h}")
-        if image.device != self.grid.device:
+        if image.device != self.anchor.device:
             where = "the meta device (a tensor without data)" if image.is_meta else str(image.device)
-            raise ShapeError(f"image is on {where} but the model is on {self.grid.device}: a capture with data on "
+            raise ShapeError(f"image is on {where} but the model is on {self.anchor.device}: a capture with data on "
                              f"the model's device (model.to(device))")
         probe = image * 0.0  # 0 where finite, NaN where not (cheaper than isfinite)
         clean = torch.where(probe != probe, 0.0, image)
