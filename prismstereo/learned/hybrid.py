@@ -46,7 +46,7 @@ from torch import nn
 from prismstereo.classical import PrismStereo, StereoConfig, TemporalDepth, TemporalOptions, preset
 from prismstereo.classical.defaults import default_downsample, default_hypotheses
 from prismstereo.conventions import to_grey
-from prismstereo.depth.bad_pixels import BadPixels, discard
+from prismstereo.depth.bad_pixels import BadPixels
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
 from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_match, sweep_to_depth
@@ -377,20 +377,21 @@ class HybridStereo(nn.Module):
         self._check(image)
         grey, touched = self.bad_pixels(_binned(to_grey(image.to(dtype)), b))  # non-finite values stay so
         s, logit = self.refine(self.initial_binned(grey))[-1]
-        confidence = torch.sigmoid(logit)
+        if b > 1:  # a bin next to a touched one too: the bilinear upsample below then gives 0 on every touched pixel
+            touched = F.max_pool2d(touched.to(dtype), 3, 1, 1) > 0
+        confidence = torch.sigmoid(logit) * (~touched).to(dtype)  # no depth where bad pixels reach (so invalid)
         if self.exact is not None:
             s = self.exact(grey, s)
         match = sweep_match(self.coefficients, s)[0] * b + (b - 1) / 2  # full-sensor pixels
         if b > 1:  # each map on its own: the exported graph keeps only what its outputs need (not the match)
             size = (self.rig.image_height, self.rig.reference_width)
             s, confidence, match = (upsample(t, b, size, mode="bilinear") for t in (s, confidence, match))
-            touched = upsample(touched.to(dtype), b, size) > 0
         confidence = confidence * self.rays_valid.to(dtype)
         z_range = torch.tensor(self.z_range, dtype=s.dtype, device=s.device)
         depth = sweep_to_depth(s, z_range)
         out = image.dtype
-        return discard(DepthResult(depth.to(out), confidence >= self.valid_confidence, confidence.to(out),
-                                   ((s + 1.0) / self.classical.step).to(out), match.to(out)), touched)
+        return DepthResult(depth.to(out), confidence >= self.valid_confidence, confidence.to(out),
+                           ((s + 1.0) / self.classical.step).to(out), match.to(out))
 
 
 def _pixels(rig: BiPrismRig) -> torch.Tensor:

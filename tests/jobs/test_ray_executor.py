@@ -25,7 +25,7 @@ def test_an_unreachable_cluster_fails_fast_with_one_line(tmp_path, monkeypatch, 
     from prismstereo.predictor import Predictor
 
     thesis_setup1().downscaled(8).to_json(tmp_path / "rig.json")
-    write_image(tmp_path / "capture.png", torch.rand(1, 96, 128))
+    write_image(tmp_path / "capture.png", torch.full((1, 96, 128), 0.5))  # never read: the address fails first
 
     monkeypatch.setattr(Predictor, "__init__", lambda *a, **k: pytest.fail("a model was built"))
     capsys.readouterr()
