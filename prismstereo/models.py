@@ -58,8 +58,10 @@ class DepthModel(Protocol):
     Methods:
         ``model(image)``: (B, C, H, W) captures in [0, 1] (C = 1, or 3: its
         :func:`~prismstereo.conventions.to_grey`) -> :class:`~prismstereo.depth.result.DepthResult` of
-        (B, *, H, W_ref) tensors; ``describe()``: what the model is, JSON-ready (the ONNX metadata and cache key);
-        ``summary()``: one line; ``tracker(options)``: the temporal band that tracks its depth through a video
+        (B, *, H, W_ref) tensors (NaN or infinite pixels: no depth where they reach,
+        :mod:`~prismstereo.depth.bad_pixels`; values outside [0, 1]: :class:`~prismstereo.errors.ImageValueError`);
+        ``describe()``: what the model is, JSON-ready (the ONNX metadata and cache key); ``summary()``: one line;
+        ``tracker(options)``: the temporal band that tracks its depth through a video
         (:class:`~prismstereo.classical.TemporalDepth`), or None.
 
     Example:

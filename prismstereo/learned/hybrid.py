@@ -375,7 +375,8 @@ class HybridStereo(nn.Module):
         """
         dtype, b = self.coefficients.dtype, self.binning
         self._check(image)
-        grey, touched = self.bad_pixels(_binned(to_grey(image.to(dtype)), b))  # non-finite values stay so
+        # screened on the stages' grid: a bin holding a non-finite pixel is non-finite itself
+        grey, touched = self.bad_pixels(_binned(to_grey(image.to(dtype)), b))
         s, logit = self.refine(self.initial_binned(grey))[-1]
         if b > 1:  # a bin next to a touched one too: the bilinear upsample below then gives 0 on every touched pixel
             touched = F.max_pool2d(touched.to(dtype), 3, 1, 1) > 0
