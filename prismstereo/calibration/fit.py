@@ -194,7 +194,7 @@ def calibrate_board(
             units, absolute; ``inf`` for none): how well the nominal rig is known.
         corners: sub-pixel corner method of :func:`~prismstereo.calibration.targets.detect_board` for images
             ('symmetric' or 'opencv').
-        progress: progress bars for detection and the fit.
+        progress: progress bars for detection and the fit (where stderr is a terminal).
 
     Returns:
         CalibrationResult.
@@ -218,7 +218,7 @@ def calibrate_board(
     if len(captures) < min_views:
         raise CalibrationError(f"too few views: {len(captures)} captures, need at least {min_views}")
     detections = [c if isinstance(c, ViewDetection) else detect_board(c, rig, board, corners=corners)
-                  for c in tqdm(captures, desc="detect", disable=not progress, leave=False)]
+                  for c in tqdm(captures, desc="detect", disable=None if progress else True, leave=False)]
     obs = gather_observations(detections, board)
     if len(obs.views) < min_views:
         raise CalibrationError(_not_found(rig, board, captures, detections, len(obs.views), min_views))

@@ -218,7 +218,7 @@ def calibrate_self(
         outlier_sigma: after a first fit, matches whose residual exceeds this many sigma (of one coordinate; the
             residual is essentially across the curve, the depth absorbs the rest) are dropped and the fit repeated.
         gate_px: the nominal rig's gate on the matches (:func:`gate`), applied to given correspondences too.
-        progress: progress bars.
+        progress: progress bars (where stderr is a terminal).
 
     Returns:
         CalibrationResult: ``views`` are the captures, ``view_rms_px`` the right-half residual per capture (left
@@ -256,7 +256,7 @@ def _matches(rig: BiPrismRig, captures: Sequence[torch.Tensor | np.ndarray | Cor
     seeded random subset, kept in capture order)."""
     found = [gate(rig, c, gate_px) if isinstance(c, Correspondences) else find_correspondences(c, rig, view=i,
                                                                                                gate_px=gate_px)
-             for i, c in enumerate(tqdm(captures, desc="match", disable=not progress, leave=False))]
+             for i, c in enumerate(tqdm(captures, desc="match", disable=None if progress else True, leave=False))]
     corr = Correspondences(*(torch.cat(t) for t in zip(*found, strict=True)))
     if corr.left.shape[0] < min_correspondences:
         raise CalibrationError(f"{corr.left.shape[0]} correspondences between the halves, need {min_correspondences}: "

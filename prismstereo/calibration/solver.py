@@ -66,7 +66,7 @@ def levenberg_marquardt(
         cost_tolerance: stop when a kept step lowers the cost by less than this fraction.
         step_tolerance: stop when |dx_i| <= tol (|x_i| + tol) for every i.
         initial_damping: Marquardt's lambda at the start.
-        progress: show a tqdm bar of the iterations (with the RMS residual).
+        progress: show a tqdm bar of the iterations (with the RMS residual) where stderr is a terminal.
         description: the bar's label.
 
     Returns:
@@ -88,7 +88,7 @@ def levenberg_marquardt(
         return LMResult(x, cost, initial, 0, False, "the cost is not finite at the start (NaN or inf residuals)")
     lam = initial_damping
     message, converged = f"reached max_iterations = {max_iterations}", False
-    bar = tqdm(total=max_iterations, desc=description, disable=not progress, leave=False)
+    bar = tqdm(total=max_iterations, desc=description, disable=None if progress else True, leave=False)
     it = 0
     try:
         for it in range(1, max_iterations + 1):

@@ -268,7 +268,7 @@ def render(
         rig: the rig.
         scenes: a :class:`~prismstereo.synthetic.scenes.Scene` or a sequence of them (the batch).
         formation: image formation options, default :class:`ImageFormation` () (3x3 supersampling, 8 bits).
-        progress: show a progress bar over the batch.
+        progress: show a progress bar over the batch (where stderr is a terminal).
 
     Returns:
         Capture with batch B = number of scenes.
@@ -297,7 +297,7 @@ def render(
     out: list[list[torch.Tensor]] = [[] for _ in Capture._fields]
     # a batch traces its rays once, where they fit in _CACHE_RAYS
     cache = {} if len(scenes) > 1 and h * w * (formation.supersample ** 2 + 1) <= _CACHE_RAYS else None
-    for scene in tqdm(scenes, desc="render", disable=not progress):
+    for scene in tqdm(scenes, desc="render", disable=None if progress else True):
         radiance = _radiance(rig, scene, formation.supersample, formation.channels, formation.fresnel, cache)
         points, valid, left, covisible, match, apparent = _ground_truth(rig, scene, formation.f_number is not None,
                                                                         cache)
