@@ -5,7 +5,7 @@ non-finite value by 0 (so no NaN reaches a window sum, an index or a gradient) a
 bad ones can reach: those whose own window touches one, and those whose exact sweep (eq. 3.1-3.10 traced over the
 model's depth range, the curve of thesis ch. 4) passes within a window of one in the other half. The model's
 result is then invalid with confidence 0 there (:func:`discard`); every other pixel is computed as usual. The mask
-is plain arithmetic (pooling and one ``grid_sample``), so the exported graph marks the same pixels.
+is plain arithmetic (pooling and one gather of constant indices), so the exported graph marks the same pixels.
 
 Both tests run on blocks (:class:`BadPixels`), so the mask costs one pass over the capture and a sweep sampled at
 1/512 of a full-resolution cost volume's points. It is conservative: the blocks' spread, the sampling step along the
@@ -91,22 +91,25 @@ class BadPixels(nn.Module):
         self.margin = math.ceil((radius + 1.5 * 2 * BLOCK) / (2 * BLOCK))
         self.own_margin = math.ceil(radius / BLOCK)
         self.register_buffer("anchor", torch.zeros(0), persistent=False)  # where the model is (its device)
-        self._grid: torch.Tensor | None = None  # the sweeps' sampling grid, made when first needed
+        self._index: torch.Tensor | None = None  # the sweeps' blocks, made when first needed
         self.steps = 0
 
-    def _sweep_grid(self, like: torch.Tensor) -> torch.Tensor:
-        """(1, hc, S wc, 2) ``grid_sample`` positions of the 8 x 8 blocks' sweeps at S steps <= 8 px apart in the
-        8 x 8 block map of the full sensor; fitted on first use (a model without bad pixels never needs it)."""
-        if self._grid is None:
+    def _sweep_index(self, like: torch.Tensor) -> torch.Tensor:
+        """(hc S wc,) the 8 x 8 block of the full sensor (row-major; ``hb wb``: off the sensor) holding each 8 x 8
+        reference block's sweep at S steps <= 8 px apart; computed on first use (a model without bad pixels never
+        needs it). A gather of these constants is the sweep test's sampling (faster than ``grid_sample``)."""
+        if self._index is None:
             (h, w, w_ref), f = self.size, 2 * BLOCK
-            hc, wc = math.ceil(h / f), math.ceil(w_ref / f)
+            hc, wc, hb, wb = math.ceil(h / f), math.ceil(w_ref / f), math.ceil(h / f), math.ceil(w / f)
             centres = block_centres(hc, wc, f, torch.zeros((), dtype=torch.float64))
             coefficients = sweep_coefficients(fit_sweep(self.rig, self.z_range), centres).permute(2, 0, 1, 3)
             self.steps = steps = sweep_hypotheses(coefficients, max_step_px=f, stride=1)
             uv = positions_at(coefficients, torch.linspace(-1.0, 1.0, steps, dtype=torch.float64))  # (S, hc, wc, 2)
-            scale = torch.tensor([math.ceil(w / f) * f, math.ceil(h / f) * f], dtype=torch.float64)
-            self._grid = ((uv + 0.5) / scale * 2 - 1).permute(1, 0, 2, 3).reshape(1, hc, steps * wc, 2)
-        return self._grid.to(like)
+            col, row = (torch.floor((uv[..., k] + 0.5) / f).long() for k in (0, 1))
+            inside = (col >= 0) & (col < wb) & (row >= 0) & (row < hb)
+            index = torch.where(inside, row * wb + col, torch.full_like(col, hb * wb))
+            self._index = index.permute(1, 0, 2).reshape(-1)  # (hc, S, wc) flattened
+        return self._index.to(like.device)
 
     def _touched(self, blocks: torch.Tensor) -> torch.Tensor:
         """(B, 1, H, W_ref) touched reference pixels of the 4 x 4 bad blocks (B, 1, ceil(H / 4), ceil(W / 4))."""
@@ -119,17 +122,16 @@ class BadPixels(nn.Module):
         # a sweep samples the other half only (beyond it the polynomials continue where no real ray goes)
         split = w_ref // q
         other = torch.cat([torch.zeros_like(blocks[..., :split]), blocks[..., split:]], -1)
-        other = F.max_pool2d(other, 2, 2, ceil_mode=True)
+        other = F.max_pool2d(other, 2, 2, ceil_mode=bool(other.shape[-2] % 2 or other.shape[-1] % 2))
         m = self.margin
         other = F.max_pool2d(F.max_pool2d(other, (1, 2 * m + 1), 1, (0, m)), (2 * m + 1, 1), 1, (m, 0))
-        grid = self._sweep_grid(blocks).expand(blocks.shape[0], -1, -1, -1)
-        hits = F.grid_sample(other, grid, mode="nearest", padding_mode="zeros", align_corners=False)
-        hits = hits.view(blocks.shape[0], 1, grid.shape[1], self.steps, -1).amax(dim=3)  # (B, 1, hc, wc)
+        index = self._sweep_index(blocks)
+        flat = torch.cat([other.flatten(1), torch.zeros_like(other.flatten(1)[:, :1])], 1)  # a last 0: off the sensor
+        hc = math.ceil(h / (2 * q))
+        hits = flat[:, index].view(blocks.shape[0], 1, hc, self.steps, -1).amax(dim=3)  # (B, 1, hc, wc)
         hits = hits.repeat_interleave(2, dim=2).repeat_interleave(2, dim=3)[..., :own.shape[-2], :ref]
-        touched = (own + hits) > 0
-        b, _, hb, wb = touched.shape
-        full = touched[:, :, :, None, :, None].expand(b, 1, hb, q, wb, q).reshape(b, 1, hb * q, wb * q)
-        return full[..., :h, :w_ref]
+        full = F.interpolate(own + hits, scale_factor=q, mode="nearest")  # each block's pixels
+        return full[..., :h, :w_ref] > 0
 
     def forward(self, image: torch.Tensor) -> Screened:
         """Screen captures ``image`` (B, C, H, W).
@@ -153,8 +155,9 @@ class BadPixels(nn.Module):
         probe = image * 0.0  # 0 where finite, NaN where not (cheaper than isfinite)
         clean = torch.where(probe != probe, 0.0, image)
         # a block's sum is NaN when one of its values is: the bad blocks from one reduced pass
+        # ceil_mode only where 4 does not divide the sensor (onnxruntime's pooling is slower with it)
         blocks = F.avg_pool2d(probe.sum(1, keepdim=True) if image.shape[1] > 1 else probe, BLOCK, BLOCK,
-                              ceil_mode=True)
+                              ceil_mode=bool(h % BLOCK or w % BLOCK))
         blocks = (blocks != blocks).to(clean.dtype)
         if not tracing():
             _check_values(clean)
