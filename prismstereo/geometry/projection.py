@@ -23,6 +23,7 @@ from prismstereo.geometry.distortion import distort
 from prismstereo.geometry.optics import RayBundle, apex_direction, trace_pixel_rays, trace_rays
 from prismstereo.geometry.parameters import RigParameters
 from prismstereo.geometry.rig import BiPrismRig, as_parameters
+from prismstereo.runtime import tracing
 
 __all__ = ["Projection", "project_points", "solve_projection"]
 
@@ -170,6 +171,7 @@ def solve_projection(
     f64 = points.dtype == torch.float64
     h = 1e-4 if f64 else 2e-2
     tol = 1e-6 if f64 else 2e-3
+    settle = 1e-9 if f64 else 1e-4  # px: Newton's steps once converged are rounding (~1e-13 px in float64)
     max_step = 0.25 * p.width
     if initial_uv is not None:
         check_shape(initial_uv, ["*", 2], "initial_uv")
@@ -181,9 +183,11 @@ def solve_projection(
             start = initial_uv.detach().to(points).expand_as(uv)
             uv = torch.where(torch.isnan(start), uv, start)
         for _ in range(iterations):
-            uv, _, _ = _newton_step(p0, points0, uv, half, extended, h, max_step)
+            uv, step, _ = _newton_step(p0, points0, uv, half, extended, h, max_step)
             uv = torch.stack([uv[..., 0].clamp(-p.width, 2.0 * p.width),
                               uv[..., 1].clamp(-p.height, 2.0 * p.height)], dim=-1)
+            if not tracing() and step.numel() and float(step.max()) < settle:  # every point at its fixed point
+                break
     uv = uv.detach()
     uv, last, rays = _newton_step(p, points, uv, half, extended, h, max_step, _residual(p, points, uv, half, extended))
     beyond = ((points - rays.origins) * rays.directions).sum(-1) > 0
