@@ -20,14 +20,13 @@ cameras) -> :mod:`prismstereo.epipolar` -> :mod:`prismstereo.matching` -> :mod:`
 (:mod:`prismstereo.classical`, :mod:`prismstereo.learned`; :mod:`prismstereo.models`) -> :mod:`prismstereo.predictor`
 -> :mod:`prismstereo.export`, :mod:`prismstereo.stream`, :mod:`prismstereo.jobs`, :mod:`prismstereo.cli`; beside
 them :mod:`prismstereo.calibration`, :mod:`prismstereo.analysis`, :mod:`prismstereo.synthetic`,
-:mod:`prismstereo.nn`. The depth names are imported on first use, so ``import prismstereo`` stays light.
+:mod:`prismstereo.nn`. The names are imported on first use, so ``import prismstereo`` stays light (it does not
+import torch).
 """
 
 import importlib
 
 from prismstereo.errors import CalibrationError, OptionError, PrismStereoError, RigError, ShapeError
-from prismstereo.geometry.presets import load_rig, thesis_setup1, thesis_setup2
-from prismstereo.geometry.rig import BiPrismRig
 
 __version__ = "0.1.0"
 
@@ -64,6 +63,10 @@ __all__ = [
 ]
 
 _LAZY = {
+    "BiPrismRig": "prismstereo.geometry.rig",
+    "load_rig": "prismstereo.geometry.presets",
+    "thesis_setup1": "prismstereo.geometry.presets",
+    "thesis_setup2": "prismstereo.geometry.presets",
     "build_model": "prismstereo.models",
     "DepthModel": "prismstereo.models",
     "ModelSpec": "prismstereo.models",
@@ -87,7 +90,7 @@ _LAZY = {
 
 
 def __getattr__(name: str):
-    """The depth, deployment and file names, imported on first use (PEP 562)."""
+    """Every name but the errors, imported on first use (PEP 562): ``import prismstereo`` does not import torch."""
     if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'prismstereo' has no attribute {name!r}")

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import torch
+if TYPE_CHECKING:
+    import torch
+
 
 __all__ = [
     "PrismStereoError",
@@ -70,6 +72,8 @@ def check_shape(x: Any, shape: Sequence[str | int], name: str = "tensor") -> Non
     Example:
         >>> check_shape(torch.zeros(4, 5, 2), ["*", 2], "uv")
     """
+    import torch  # here, not at the top: the package imports without torch (a deployed graph needs none)
+
     if not isinstance(x, torch.Tensor):
         raise ShapeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
     dims = list(shape)
@@ -162,6 +166,8 @@ def check_floating(x: torch.Tensor, name: str = "tensor") -> None:
     Example:
         >>> check_floating(torch.zeros(3), "points")
     """
+    import torch
+
     if not torch.is_floating_point(x):
         raise _DTypeError(f"{name} must be a floating-point tensor, got dtype {x.dtype}")
 

@@ -185,3 +185,14 @@ def test_top_level_modules_have_their_tests():
                 re.search(rf"\b{re.escape(name)}\b", tests) for name in public):
             untested.append(module.stem)
     assert untested == []
+
+
+def test_importing_the_package_and_its_errors_needs_no_torch():
+    """``import prismstereo`` (and the error family) stays light: every other name is imported on first use."""
+    import subprocess
+    import sys
+
+    code = ("import sys; import prismstereo; from prismstereo import PrismStereoError, RigError; "
+            "print('torch' in sys.modules, prismstereo.thesis_setup1().image_width, 'torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "1024", "True"]
