@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from prismstereo.errors import PrismStereoError, check_shape
+from prismstereo.names import DEPTH_FILE_FORMATS, DEPTH_SUFFIXES
 
 __all__ = [
     "ImageIOError",
@@ -44,8 +45,6 @@ __all__ = [
     "partial_stem",
 ]
 
-DEPTH_FILE_FORMATS: tuple[str, ...] = ("npy", "png", "tiff")
-DEPTH_SUFFIXES: dict[str, str] = {".npy": "npy", ".png": "png", ".tif": "tiff", ".tiff": "tiff"}
 SCALE_KEY = "prismstereo.depth_scale"
 
 

@@ -26,6 +26,7 @@ import torch
 
 from prismstereo.errors import OptionError, check_option
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.names import MODEL_KINDS, ModelKind
 
 if TYPE_CHECKING:
     from prismstereo.classical import StereoConfig, TemporalDepth, TemporalOptions
@@ -34,8 +35,6 @@ if TYPE_CHECKING:
 __all__ = ["HYBRID_MIN_SIDE", "HYBRID_OPTIONS", "MODEL_KINDS", "DepthModel", "ModelKind", "ModelSpec", "build_model",
            "default_kind", "describe_model"]
 
-ModelKind = Literal["hybrid", "classical", "learned"]
-MODEL_KINDS: tuple[str, ...] = ("hybrid", "classical", "learned")
 HYBRID_MIN_SIDE = 192
 """The shorter side (px) of the reference half from which the hybrid is the default (:func:`default_kind`)."""
 HYBRID_OPTIONS: tuple[str, ...] = ("last_stage",)

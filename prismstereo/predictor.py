@@ -20,7 +20,7 @@ from __future__ import annotations
 import contextlib
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import torch
 
@@ -28,6 +28,7 @@ from prismstereo.conventions import to_grey
 from prismstereo.errors import OptionError, check_int, check_option
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.models import DepthModel, ModelSpec
+from prismstereo.names import BACKENDS, Backend
 from prismstereo.threads import thread_plan, torch_threads
 
 if TYPE_CHECKING:
@@ -36,8 +37,6 @@ if TYPE_CHECKING:
 
 __all__ = ["BACKENDS", "Backend", "Predictor"]
 
-Backend = Literal["torch", "onnx"]
-BACKENDS: tuple[str, ...] = ("torch", "onnx")
 
 
 class Predictor:

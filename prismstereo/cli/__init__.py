@@ -9,32 +9,42 @@ the command with one line and status 2; Ctrl-C and SIGTERM with one line (what w
 from __future__ import annotations
 
 import argparse
+import importlib
 import signal
 import sys
 from collections.abc import Sequence
 
 from prismstereo import __version__
-from prismstereo.cli import calibrate, demo, depth, design, export, fov, match, render, rig, train
 from prismstereo.errors import PrismStereoError
 
-__all__ = ["Terminated", "build_parser", "main"]
+__all__ = ["COMMANDS", "Terminated", "build_parser", "main"]
 
-COMMANDS = (rig, render, fov, design, match, depth, export, calibrate, train, demo)
+COMMANDS = ("rig", "render", "fov", "design", "match", "depth", "export", "calibrate", "train", "demo")
+"""The commands, each the module :mod:`prismstereo.cli.<command>` (imported when its parser is built)."""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the ``prismstereo`` command."""
+def build_parser(commands: Sequence[str] = COMMANDS) -> argparse.ArgumentParser:
+    """The argument parser of the ``prismstereo`` command with the parsers of ``commands`` (default all): running
+    one command imports only its module (``prismstereo depth --help`` does not import torch).
+
+    Example:
+        >>> build_parser(["fov"]).parse_args(["fov"]).command
+        'fov'
+    """
     parser = argparse.ArgumentParser(prog="prismstereo", description="Single-lens bi-prism stereo.")
     parser.add_argument("--version", action="version", version=f"prismstereo {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for command in COMMANDS:
-        command.add_parser(sub)
+    for name in commands:
+        importlib.import_module(f"prismstereo.cli.{name}").add_parser(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``prismstereo`` console script. Returns the exit code."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    first = argv[0] if argv else None
+    # one command's parser for that command, none for --version, all of them for the overall help
+    parser = build_parser([first] if first in COMMANDS else [] if first == "--version" else COMMANDS)
     args = parser.parse_args(argv)
     if not hasattr(args, "func"):
         parser.print_help(sys.stderr)

@@ -13,15 +13,16 @@ import argparse
 import math
 import sys
 from pathlib import Path
-
-import torch
+from typing import TYPE_CHECKING
 
 from prismstereo.cli.model_flags import add_model_arguments, flag_errors, model_spec, range_note
 from prismstereo.errors import PrismStereoError
-from prismstereo.geometry.presets import load_rig
-from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.io import DEPTH_FILE_FORMATS
-from prismstereo.predictor import BACKENDS
+from prismstereo.names import BACKENDS, DEPTH_FILE_FORMATS
+
+if TYPE_CHECKING:  # imported by the command as it runs: its parser and --help need no torch
+    import torch
+
+    from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["add_parser"]
 
@@ -33,6 +34,8 @@ PLAN_FLAGS = {"out": "--out", "format": "--format", "every": "--every", "start":
 def _camera_to_world(path: str) -> torch.Tensor:
     """A (4, 4) rigid camera-to-world transform from a JSON file: a 4 x 4 list, or {"camera_to_world": ...}."""
     import json
+
+    import torch
 
     try:
         data = json.loads(Path(path).read_text())
@@ -109,6 +112,7 @@ def _executor(args: argparse.Namespace):
 
 def _cmd_depth(args: argparse.Namespace) -> int:
     from prismstereo.classical import TemporalOptions
+    from prismstereo.geometry.presets import load_rig
     from prismstereo.jobs import Pipeline, run
     from prismstereo.predictor import Predictor
 

@@ -10,10 +10,14 @@ import argparse
 import contextlib
 import re
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 from prismstereo.errors import PrismStereoError
-from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.models import MODEL_KINDS, ModelSpec
+from prismstereo.names import MODEL_KINDS
+
+if TYPE_CHECKING:  # imported where a model is asked for: parsing the flags needs no torch
+    from prismstereo.geometry.rig import BiPrismRig
+    from prismstereo.models import ModelSpec
 
 __all__ = ["add_model_arguments", "flag_error", "flag_errors", "model_spec", "range_note"]
 
@@ -68,6 +72,8 @@ def model_spec(args: argparse.Namespace, rig: BiPrismRig) -> ModelSpec:
     Raises:
         PrismStereoError: options of another model, ``--preset`` with ``--config``, a bad config or flag.
     """
+    from prismstereo.models import ModelSpec
+
     if args.preset is not None and args.config is not None:
         raise PrismStereoError("--preset and --config exclude each other")
     classical = [name for name, value in (("--preset", args.preset), ("--config", args.config)) if value is not None]

@@ -21,6 +21,20 @@ def test_console_script_installed():
     assert out.returncode == 0 and __version__ in out.stdout
 
 
+def test_version_and_one_commands_parser_need_no_torch():
+    """``prismstereo --version``, ``prismstereo depth --help`` and parsing depth's flags import only the command's
+    module, which imports torch when it runs."""
+    code = ("import sys, contextlib, io; from prismstereo.cli import build_parser, main\n"
+            "args = build_parser(['depth']).parse_args(['depth', 'a.png', '--rig', 'r', '--out', 'o.npy', '--backend',"
+            " 'onnx', '--model', 'classical'])\n"
+            "for argv in (['--version'], ['depth', '--help']):\n"
+            "    with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+            "        main(argv)\n"
+            "print(args.backend, args.model, 'torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["onnx", "classical", "False"]
+
+
 def test_the_install_left_bytecode_for_start_up():
     """``make``'s install compiles what ``prismstereo depth`` imports: a host that sets PYTHONDONTWRITEBYTECODE does
     not compile torch, onnxruntime or the package at every start."""
