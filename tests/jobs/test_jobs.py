@@ -11,7 +11,16 @@ import torch
 from prismstereo import PrismStereo, PrismStereoError, thesis_setup1
 from prismstereo.cli import main
 from prismstereo.io import read_depth, replacing, write_image
-from prismstereo.jobs import Pipeline, PlanError, Selection, WorkerProcesses, WriteOptions, plan, run
+from prismstereo.jobs import (
+    Pipeline,
+    PlanError,
+    Selection,
+    WorkerProcesses,
+    WriteOptions,
+    check_inputs,
+    plan,
+    run,
+)
 from prismstereo.predictor import Predictor
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -51,6 +60,26 @@ def _depth(inputs, *args):
 
 def _files(folder):
     return sorted(p.name for p in folder.iterdir())
+
+
+def test_check_inputs_reads_each_first_image_before_any_model(inputs, tmp_path):
+    """Each capture decoded and sized, each sequence's first frame to process read; the others keep no error."""
+    (tmp_path / "empty.png").write_bytes(b"")
+    write_image(tmp_path / "small.png", torch.zeros(1, 48, 64))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    (frames / "f0.png").write_bytes(b"broken")
+    sources = [inputs / "cap0.png", inputs / "clip.avi", inputs / "junk.png", tmp_path / "empty.png",
+               tmp_path / "small.png", frames, inputs / "missing.png"]
+    tasks = check_inputs(plan(sources, tmp_path / "o", WriteOptions()), (96, 128))
+    errors = [t.error for t in tasks]
+    assert errors[:2] == [None, None] and "cannot decode image" in errors[2] and "cannot decode image" in errors[3]
+    assert errors[4] == f"image {tmp_path / 'small.png'} is 64x48 px but the rig's sensor is 128x96 px"
+    assert "cannot read frame 0" in errors[5] and errors[6] == f"image not found: {inputs / 'missing.png'}"
+    # a sequence resumed at a later frame reads that one; a task with nothing left reads nothing
+    resumed = plan([inputs / "clip.avi"], tmp_path / "o", WriteOptions())[0]
+    assert check_inputs([resumed._replace(first=3)], (96, 128))[0].error is None
+    assert check_inputs([resumed._replace(first=4)], (1, 1))[0].error is None
 
 
 def test_plan_names_every_output_and_refuses_collisions(inputs, tmp_path):
