@@ -18,13 +18,15 @@ import os
 import re
 from collections.abc import Iterator
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import cv2
 import numpy as np
-import torch
 
-from prismstereo.errors import PrismStereoError, check_shape
+from prismstereo.errors import PrismStereoError, ShapeError, check_shape
+
+if TYPE_CHECKING:  # the tensor functions import it as they run: writing depth maps from arrays needs no torch
+    import torch
 from prismstereo.names import DEPTH_FILE_FORMATS, DEPTH_SUFFIXES
 
 __all__ = [
@@ -61,6 +63,8 @@ def read_image(path: str | Path) -> torch.Tensor:
     Example:
         >>> img = read_image("capture.png")  # doctest: +SKIP
     """
+    import torch
+
     path = Path(path)
     if not path.is_file():
         raise ImageIOError(f"image not found: {path}")
@@ -92,6 +96,8 @@ def write_image(path: str | Path, image: torch.Tensor, bits: int = 8) -> None:
     Example:
         >>> write_image("out.png", torch.rand(1, 48, 64))  # doctest: +SKIP
     """
+    import torch
+
     check_shape(image, ["C", "H", "W"], "image")
     if bits not in (8, 16) or image.shape[0] not in (1, 3):
         raise ImageIOError(f"need bits 8 or 16 and 1 or 3 channels, got {bits} bits, {image.shape[0]} channels")
@@ -133,14 +139,22 @@ def save_capture(capture, index: int, image_path: str | Path, bits: int = 8, met
     return npz_path
 
 
-def _depth_array(depth: torch.Tensor, valid: torch.Tensor | None, dtype: torch.dtype = torch.float64) -> np.ndarray:
-    """(H, W) numpy depth of ``dtype`` with NaN where invalid or non-finite."""
-    check_shape(depth, ["H", "W"], "depth")
-    d = depth.detach().to(dtype)
+def _as_array(x: Any) -> np.ndarray:
+    """A tensor's or array's values as a numpy array (a tensor detached and on the CPU)."""
+    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+
+
+def _depth_array(depth: Any, valid: Any | None, dtype: type = np.float64) -> np.ndarray:
+    """(H, W) numpy depth of ``dtype`` with NaN where invalid or non-finite, from (H, W) tensors or arrays."""
+    d = _as_array(depth)
+    if d.ndim != 2:
+        raise ShapeError(f"depth must have shape (H, W), got {tuple(d.shape)}")
+    d = d.astype(dtype)  # a copy
     if valid is not None:
-        check_shape(valid, list(depth.shape), "valid")
-        d = torch.where(valid.to(torch.bool), d, torch.full_like(d, float("nan")))
-    d = d.cpu().numpy()
+        v = _as_array(valid)
+        if v.shape != d.shape:
+            raise ShapeError(f"valid must have shape {tuple(d.shape)}, got {tuple(v.shape)}")
+        d[~v.astype(bool)] = np.nan
     d[~np.isfinite(d)] = np.nan
     return d
 
@@ -198,7 +212,7 @@ def write_depth_npy(path: str | Path, depth: torch.Tensor, valid: torch.Tensor |
     Example:
         >>> write_depth_npy("depth.npy", torch.full((96, 64), 500.0))  # doctest: +SKIP
     """
-    data = _depth_array(depth, valid, torch.float32)
+    data = _depth_array(depth, valid, np.float32)
     path = Path(path)
     try:
         with replacing(path) as partial:
@@ -256,6 +270,8 @@ def read_depth_png(path: str | Path, scale: float = 256.0) -> torch.Tensor:
         >>> read_depth_png("depth.png").shape  # doctest: +SKIP
         torch.Size([96, 64])
     """
+    import torch
+
     path = Path(path)
     if not path.is_file():
         raise ImageIOError(f"depth image not found: {path}")
@@ -358,7 +374,7 @@ def write_depth(
         write_depth_npy(path, depth, valid)
         return DepthFile(path, fmt, None, None, 0)
     if fmt == "tiff":
-        _imwrite(path, _depth_array(depth, valid, torch.float32))
+        _imwrite(path, _depth_array(depth, valid, np.float32))
         return DepthFile(path, fmt, None, None, 0)
     scale = depth_png_scale(depth, valid) if png_scale is None else float(png_scale)
     levels, clipped = _png_levels(depth, valid, scale)
@@ -413,6 +429,8 @@ def read_depth(path: str | Path, *, scale: float | None = None) -> torch.Tensor:
         >>> read_depth("depth.tiff").shape  # doctest: +SKIP
         torch.Size([768, 512])
     """
+    import torch
+
     path = Path(path)
     fmt = _format(path, None)
     if not path.is_file():

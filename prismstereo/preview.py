@@ -5,12 +5,15 @@ hatched in grey, for the CLI's preview images and ``--preview-video`` frames (th
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-import torch
 
 from prismstereo.io import ImageIOError, _depth_array, _imwrite
+
+if TYPE_CHECKING:  # maps of tensors or numpy arrays alike: the preview needs no torch
+    import torch
 
 __all__ = ["INVALID_GREY", "depth_preview", "write_depth_preview"]
 

@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 import torch
 
+from prismstereo.errors import ShapeError
 from prismstereo.io import (
     ImageIOError,
     depth_png_scale,
@@ -98,6 +99,31 @@ def test_write_depth_round_trips_every_format(tmp_path, name):
         assert err <= 0.5 / 32 + 1e-4
     else:
         assert written.scale is None and written.sidecar is None and err < 1e-4  # float32 exactly
+
+
+@pytest.mark.parametrize("name", ["d.npy", "d.tiff", "d.png"])
+def test_numpy_arrays_write_the_same_files_as_tensors(tmp_path, name):
+    depth, valid = _depth_and_mask()
+    written = write_depth(tmp_path / f"t_{name}", depth, valid)
+    again = write_depth(tmp_path / f"a_{name}", depth.numpy(), valid.numpy())
+    assert written.scale == again.scale and written.path.read_bytes() == again.path.read_bytes()
+    with pytest.raises(ShapeError, match=r"depth must have shape \(H, W\), got \(1, 24, 18\)"):
+        write_depth(tmp_path / "x.npy", depth.numpy()[None])
+    with pytest.raises(ShapeError, match=r"valid must have shape \(24, 18\), got \(18, 24\)"):
+        write_depth(tmp_path / "x.npy", depth.numpy(), valid.numpy().T)
+
+
+def test_writing_depth_files_and_previews_needs_no_torch(tmp_path):
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from prismstereo.io import write_depth; "
+            "from prismstereo.preview import write_depth_preview\n"
+            f"write_depth(r'{tmp_path / 'd.png'}', np.full((8, 6), 500.0), np.ones((8, 6), bool))\n"
+            f"write_depth_preview(r'{tmp_path / 'p.png'}', np.full((8, 6), 500.0))\n"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False" and (tmp_path / "d.png").is_file() and (tmp_path / "p.png").is_file()
 
 
 def test_depth_png_scale_reference_values_and_storage(tmp_path):
