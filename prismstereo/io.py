@@ -139,23 +139,14 @@ def save_capture(capture, index: int, image_path: str | Path, bits: int = 8, met
     return npz_path
 
 
-def _as_array(x: Any) -> np.ndarray:
-    """A tensor's or array's values as a numpy array (a tensor detached and on the CPU)."""
-    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
-
-
 def _depth_array(depth: Any, valid: Any | None, dtype: type = np.float64) -> np.ndarray:
     """(H, W) numpy depth of ``dtype`` with NaN where invalid or non-finite, from (H, W) tensors or arrays."""
-    d = _as_array(depth)
-    if d.ndim != 2:
-        raise ShapeError(f"depth must have shape (H, W), got {tuple(d.shape)}")
-    d = d.astype(dtype)  # a copy
-    if valid is not None:
-        v = _as_array(valid)
-        if v.shape != d.shape:
-            raise ShapeError(f"valid must have shape {tuple(d.shape)}, got {tuple(v.shape)}")
-        d[~v.astype(bool)] = np.nan
-    d[~np.isfinite(d)] = np.nan
+    d, v = (x.detach().cpu().numpy() if hasattr(x, "detach") else x for x in (depth, valid))
+    d = np.array(d, dtype=dtype)  # a copy
+    if d.ndim != 2 or (v is not None and np.shape(v) != d.shape):
+        name, want, got = ("depth", "(H, W)", d.shape) if d.ndim != 2 else ("valid", tuple(d.shape), np.shape(v))
+        raise ShapeError(f"{name} must have shape {want}, got {tuple(got)}")
+    d[~np.isfinite(d) | (False if v is None else ~np.asarray(v, dtype=bool))] = np.nan
     return d
 
 

@@ -14,12 +14,19 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING
 
-from prismstereo.export.graph import DEFAULT_OPSET, export_onnx, source_digest
-from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.export.graph import DEFAULT_OPSET, export_onnx
+from prismstereo.export.index import (
+    GraphFiles,
+    _directory,
+    cache_directory,
+    recall,
+    remember,
+    request_key,
+    source_digest,
+)
 from prismstereo.io import replacing
 
 if TYPE_CHECKING:
@@ -28,38 +35,6 @@ if TYPE_CHECKING:
 
 __all__ = ["GraphFiles", "cache_directory", "cache_path", "cached_graphs", "export_cached", "recall", "remember",
            "request_key"]
-
-
-class GraphFiles(NamedTuple):
-    """A model's graphs in the cache.
-
-    Attributes:
-        path: the per-frame graph.
-        summary: the model's summary line (:func:`~prismstereo.models.describe_model`, with its temporal band).
-        temporal: the temporal graph of the band that tracks between key frames, when temporal options were asked
-            for and the model offers a band; else None.
-        cached: served by a request remembered before (:func:`recall`), no model built.
-    """
-
-    path: Path
-    summary: str
-    temporal: Path | None = None
-    cached: bool = False
-
-
-def cache_directory() -> Path:
-    """Where exported graphs are kept: ``$PRISMSTEREO_CACHE/onnx`` or ``~/.cache/prismstereo/onnx``.
-
-    Example:
-        >>> cache_directory().name
-        'onnx'
-    """
-    root = os.environ.get("PRISMSTEREO_CACHE")
-    return Path(root) / "onnx" if root else Path.home() / ".cache" / "prismstereo" / "onnx"
-
-
-def _directory(cache_dir: str | Path | None) -> Path:
-    return Path(cache_dir) if cache_dir is not None else cache_directory()
 
 
 def cache_path(model: DepthModel, *, channels: int = 1, opset: int = DEFAULT_OPSET,
@@ -149,60 +124,3 @@ def _export(model: DepthModel, temporal: TemporalOptions | None, channels: int, 
         band = export_cached(model, cache_path(model, channels=channels, opset=opset, temporal=temporal,
                                                cache_dir=cache_dir), channels=channels, opset=opset, temporal=tracker)
     return GraphFiles(path, describe_model(model, temporal, tracker), band)
-
-
-def request_key(rig: BiPrismRig, request: dict[str, Any], *, channels: int = 1, opset: int = DEFAULT_OPSET) -> str:
-    """The cache's name for a request: a hash of the rig, ``request`` (what the caller asked for, before the model
-    resolves its defaults, JSON-serialisable: :meth:`~prismstereo.models.ModelSpec.request`), the channels, the
-    opset, the package version and the source digest.
-
-    Example:
-        >>> len(request_key(thesis_setup1(), {"z_range_mm": [400.0, 700.0], "config": "accurate"}))
-        16
-    """
-    from prismstereo import __version__
-
-    blob = json.dumps({"rig": rig.to_dict(), "request": request, "channels": channels, "opset": opset,
-                       "version": __version__, "source": source_digest()}, sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
-
-
-def _index(key: str, cache_dir: str | Path | None) -> Path:
-    return _directory(cache_dir) / "requests" / f"{key}.json"
-
-
-def remember(key: str, graph: str | Path, summary: str, *, temporal: str | Path | None = None,
-             cache_dir: str | Path | None = None) -> Path:
-    """Record that the request ``key`` (:func:`request_key`) is served by the cached ``graph`` (and for videos the
-    cached ``temporal`` graph beside it), with the model's ``summary`` line; returns the index file.
-
-    Example:
-        >>> remember("0123456789abcdef", "graph.onnx", "a model", cache_dir="cache")  # doctest: +SKIP
-    """
-    path = _index(key, cache_dir)
-    with replacing(path) as partial:
-        entry = {"graph": Path(graph).name, "summary": summary}
-        if temporal is not None:
-            entry["temporal"] = Path(temporal).name
-        partial.write_text(json.dumps(entry) + "\n")
-    return path
-
-
-def recall(key: str, *, cache_dir: str | Path | None = None) -> GraphFiles | None:
-    """The cached graphs of the request ``key``, or None if it was never remembered or a graph of it is gone.
-
-    Example:
-        >>> recall("no such request", cache_dir="/nonexistent") is None
-        True
-    """
-    path = _index(key, cache_dir)
-    try:
-        entry = json.loads(path.read_text())
-        graph = path.parent.parent / entry["graph"]
-        summary = str(entry["summary"])
-        temporal = None if entry.get("temporal") is None else path.parent.parent / entry["temporal"]
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return None
-    if not graph.is_file() or (temporal is not None and not temporal.is_file()):
-        return None
-    return GraphFiles(graph, summary, temporal, cached=True)

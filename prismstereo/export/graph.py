@@ -27,7 +27,6 @@ unrolled (one step per coarse row / column and direction). :mod:`prismstereo.exp
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 import warnings
 from pathlib import Path
@@ -37,6 +36,7 @@ import torch
 from torch import nn
 
 from prismstereo.errors import PrismStereoError
+from prismstereo.export.index import DEFAULT_OPSET, source_digest
 
 if TYPE_CHECKING:
     from prismstereo.classical import TemporalDepth, TemporalOptions
@@ -44,7 +44,6 @@ if TYPE_CHECKING:
 __all__ = ["DEFAULT_OPSET", "NEXT_PRIOR_NAMES", "PRIOR_NAMES", "DepthGraph", "ExportError", "TemporalGraph",
            "describe_graph", "export_onnx", "graph_metadata", "source_digest"]
 
-DEFAULT_OPSET = 18
 INPUT_NAME = "image"
 OUTPUT_NAMES = ("depth_mm", "valid", "confidence")
 PRIOR_NAMES = ("prior_inverse_depth", "prior_placed")
@@ -102,23 +101,6 @@ class TemporalGraph(nn.Module):
 
 
 @functools.cache
-def source_digest() -> str:
-    """sha256 (16 hex digits) of the package's Python sources: which code built a graph (stored in its metadata and
-    part of the cache's keys, :mod:`prismstereo.export.cache`, so that a changed algorithm or fitted constant is
-    exported again instead of served from the cache under an unchanged version number).
-
-    Example:
-        >>> len(source_digest())
-        16
-    """
-    digest = hashlib.sha256()
-    root = Path(__file__).resolve().parents[1]
-    for path in sorted(root.rglob("*.py")):
-        digest.update(str(path.relative_to(root)).encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()[:16]
-
-
 def graph_metadata(model: nn.Module, channels: int, opset: int, tracker: TemporalDepth | None = None
                    ) -> dict[str, str]:
     """The ``prismstereo.*`` metadata of ``model``'s graph (the module docstring), or with ``tracker`` of its

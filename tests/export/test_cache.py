@@ -63,3 +63,19 @@ def test_cached_graphs_export_once_and_serve_a_request_without_a_model(tmp_path,
     assert again.cached and again.path == files.path and again.summary == first.summary
     predictor = Predictor(spec, backend="onnx", cache_dir=tmp_path)
     assert predictor.cached and predictor.rig == rig and predictor.z_range == (400.0, 700.0)
+
+
+def test_the_cache_index_reads_without_torch(tmp_path):
+    """A host that only runs cached graphs finds them by request without importing torch."""
+    import subprocess
+    import sys
+
+    (tmp_path / "onnx").mkdir()
+    (tmp_path / "onnx" / "g.onnx").write_bytes(b"graph")
+    code = ("import sys; from prismstereo.export.index import recall, remember, source_digest\n"
+            f"remember('k', r'{tmp_path / 'onnx' / 'g.onnx'}', 'a model', cache_dir=r'{tmp_path / 'onnx'}')\n"
+            f"found = recall('k', cache_dir=r'{tmp_path / 'onnx'}')\n"
+            "print(found.path.name, found.summary.replace(' ', '_'), found.cached, len(source_digest()), "
+            "'torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["g.onnx", "a_model", "True", "16", "False"]
