@@ -20,16 +20,35 @@ What a long job needs, for ``prismstereo depth`` and for Python callers, by resp
   also maps the predictor over a Ray Dataset); :func:`run` goes through the tasks on one of them with one progress
   bar, reports each failing input and goes on with the others.
 
+The plan, its checks and the run import without torch (a host that only runs cached graphs plans its outputs too);
+the executors and the pipeline, which run models, are imported on first use.
+
 Example:
     >>> tasks = plan(["capture.png"], Path("out"), WriteOptions())
     >>> tasks[0].outputs[0].depth
     PosixPath('out/capture.npy')
 """
 
-from prismstereo.jobs.executors import Executor, InProcess, WorkerProcesses
-from prismstereo.jobs.pipeline import Pipeline, TaskReport
-from prismstereo.jobs.plan import Outputs, PlanError, Selection, Task, WriteOptions, check_inputs, plan
+import importlib
+
+# the plan and run import without torch, and eagerly: ``plan`` and ``run`` name both a function and its module, and a
+# lazily imported module would take the function's place
+from prismstereo.jobs.plan import Outputs, PlanError, Selection, Task, TaskReport, WriteOptions, check_inputs, plan
 from prismstereo.jobs.run import JobSummary, run
 
 __all__ = ["Executor", "InProcess", "JobSummary", "Outputs", "Pipeline", "PlanError", "Selection", "Task",
            "TaskReport", "WorkerProcesses", "WriteOptions", "check_inputs", "plan", "run"]
+
+_LAZY = {"Executor": "prismstereo.jobs.executors", "InProcess": "prismstereo.jobs.executors",
+         "WorkerProcesses": "prismstereo.jobs.executors", "Pipeline": "prismstereo.jobs.pipeline"}
+
+
+def __getattr__(name: str):
+    """The executors and the pipeline (which import torch), imported on first use (PEP 562)."""
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'prismstereo.jobs' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

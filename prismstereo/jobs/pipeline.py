@@ -12,30 +12,18 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 import torch
 
 from prismstereo.errors import OptionError, PrismStereoError
 from prismstereo.io import replacing
-from prismstereo.jobs.plan import Outputs, Task, WriteOptions, size_error
+from prismstereo.jobs.plan import Outputs, Task, TaskReport, WriteOptions, size_error
 from prismstereo.predictor import Predictor
 from prismstereo.threads import ThreadPlan, thread_plan, torch_threads
 
 __all__ = ["Pipeline", "TaskReport"]
-
-
-class TaskReport(NamedTuple):
-    """What became of a task: outputs ``written`` and ``skipped``, the ``lines`` to print, the model's seconds,
-    and the ``error`` that stopped it (None if it completed)."""
-
-    source: str
-    written: int
-    skipped: int
-    lines: tuple[str, ...]
-    model_seconds: float
-    error: str | None = None
 
 
 def _prefetch(items: Iterable[Any], depth: int = 2) -> Iterator[Any]:

@@ -4,16 +4,17 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import NamedTuple
-
-import torch
+from typing import TYPE_CHECKING, NamedTuple
 
 from prismstereo.errors import PrismStereoError
 from prismstereo.io import DEPTH_SUFFIXES
 from prismstereo.quiet import c_stderr_silenced
 
-__all__ = ["ARGUMENTS", "Outputs", "PlanError", "Selection", "Task", "WriteOptions", "check_inputs", "plan",
-           "size_error"]
+if TYPE_CHECKING:  # the plan imports without torch (a cached graph's host plans its outputs too)
+    import torch
+
+__all__ = ["ARGUMENTS", "Outputs", "PlanError", "Selection", "Task", "TaskReport", "WriteOptions", "check_inputs",
+           "plan", "size_error"]
 
 
 class Outputs(NamedTuple):
@@ -47,6 +48,18 @@ class WriteOptions(NamedTuple):
     preview_video: Path | None = None
     preview_fps: float = 10.0
     preview: bool = True
+
+
+class TaskReport(NamedTuple):
+    """What became of a task: outputs ``written`` and ``skipped``, the ``lines`` to print, the model's seconds,
+    and the ``error`` that stopped it (None if it completed)."""
+
+    source: str
+    written: int
+    skipped: int
+    lines: tuple[str, ...]
+    model_seconds: float
+    error: str | None = None
 
 
 class Selection(NamedTuple):
@@ -141,7 +154,7 @@ def plan(inputs: Sequence[str | Path], out: Path, options: WriteOptions, selecti
         >>> [t.outputs[0].depth.name for t in plan(["a.png", "b.png"], Path("out"), WriteOptions(format="png"))]
         ['a.png', 'b.png']
     """
-    from prismstereo.stream.video import check_selection, is_sequence_source
+    from prismstereo.sources import check_selection, is_sequence_source
 
     if not inputs:
         raise PlanError("no inputs")
@@ -222,7 +235,7 @@ def _capture_task(source: str, out: Path, fmt: str, options: WriteOptions, prote
 def _sequence_task(source: str, out: Path, fmt: str, options: WriteOptions, selection: Selection,
                    protected: dict[Path, str], names: dict[str, str]) -> Task:
     """A sequence's task: one output per selected frame (its image files protected from being overwritten)."""
-    from prismstereo.stream.video import is_video_file, sequence_files, sequence_length, sequence_name
+    from prismstereo.sources import is_video_file, sequence_files, sequence_length, sequence_name
 
     try:
         total = sequence_length(source)
@@ -244,7 +257,7 @@ def _sequence_task(source: str, out: Path, fmt: str, options: WriteOptions, sele
 
 def _check_collisions(tasks: list[Task], protected: dict[Path, str], names: dict[str, str]) -> None:
     """Outputs that would overwrite an input or that two inputs would both write: a PlanError."""
-    from prismstereo.stream.video import is_sequence_source
+    from prismstereo.sources import is_sequence_source
 
     written: dict[Path, str] = {}
     for task in tasks:

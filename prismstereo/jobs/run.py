@@ -6,13 +6,15 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from prismstereo.errors import check_int
 from prismstereo.io import partial_stem
-from prismstereo.jobs.executors import Executor, InProcess, units
-from prismstereo.jobs.pipeline import Pipeline, TaskReport
-from prismstereo.jobs.plan import Task
+from prismstereo.jobs.plan import Task, TaskReport
+
+if TYPE_CHECKING:  # the executors and the pipeline import torch: imported by run() as it starts
+    from prismstereo.jobs.executors import Executor
+    from prismstereo.jobs.pipeline import Pipeline
 
 __all__ = ["JobSummary", "run"]
 
@@ -74,6 +76,8 @@ def run(tasks: Sequence[Task], pipeline: Pipeline, *, executor: Executor | None 
         [1, 1]
     """
     from tqdm import tqdm
+
+    from prismstereo.jobs.executors import InProcess, units
 
     check_int(batch_size, "batch_size", 1)
     executor = executor or InProcess()

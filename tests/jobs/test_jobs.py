@@ -291,3 +291,17 @@ def test_depth_mapper_maps_the_model_over_batches_as_ray_data_hands_them(inputs)
             np.testing.assert_allclose(out["confidence"][k], res.confidence[0, 0].numpy(), atol=1e-5)
     with pytest.raises(PrismStereoError, match="rig's sensor is 128x96 px"):
         mapper({"image": np.zeros((1, 10, 10), np.uint8)})
+
+
+def test_planning_a_job_needs_no_torch(tmp_path):
+    """The plan, its checks and the run's summary import without torch; the executors and the pipeline with it."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from pathlib import Path; from prismstereo.jobs import plan, run, WriteOptions, JobSummary\n"
+            f"tasks = plan([r'{tmp_path / 'a.png'}'], Path(r'{tmp_path / 'o'}'), WriteOptions(format='png'))\n"
+            "print(tasks[0].outputs[0].depth.name, tasks[0].error, 'torch' in sys.modules)\n"
+            "from prismstereo.jobs import Pipeline\n"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["a.png", "image", "not", "found:", str(tmp_path / "a.png"), "False", "True"]
