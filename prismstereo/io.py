@@ -12,11 +12,7 @@ offered: this OpenCV build has no EXR writer. Colour-mapped previews: :mod:`pris
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
-import re
-from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -24,6 +20,7 @@ import cv2
 import numpy as np
 
 from prismstereo.errors import PrismStereoError, ShapeError, check_shape
+from prismstereo.files import partial_stem, replacing
 
 if TYPE_CHECKING:  # the tensor functions import it as they run: writing depth maps from arrays needs no torch
     import torch
@@ -31,6 +28,7 @@ from prismstereo.names import DEPTH_FILE_FORMATS, DEPTH_SUFFIXES
 
 __all__ = [
     "ImageIOError",
+    "decode_image",
     "read_image",
     "write_image",
     "save_capture",
@@ -55,7 +53,8 @@ class ImageIOError(PrismStereoError, OSError):
 
 
 def read_image(path: str | Path) -> torch.Tensor:
-    """Read an 8- or 16-bit grey or colour image as a (C, H, W) float32 tensor in [0, 1] (RGB order).
+    """Read an 8- or 16-bit grey or colour image as a (C, H, W) float32 tensor in [0, 1] (RGB order): the tensor of
+    :func:`decode_image`.
 
     Raises:
         ImageIOError: if the file is missing or not an image OpenCV can decode.
@@ -65,6 +64,19 @@ def read_image(path: str | Path) -> torch.Tensor:
     """
     import torch
 
+    return torch.from_numpy(decode_image(path))
+
+
+def decode_image(path: str | Path) -> np.ndarray:
+    """An 8- or 16-bit grey or colour image as a (C, H, W) float32 numpy array in [0, 1] (RGB order), without torch.
+
+    Raises:
+        ImageIOError: if the file is missing or not an image OpenCV can decode.
+
+    Example:
+        >>> decode_image("capture.png").dtype  # doctest: +SKIP
+        dtype('float32')
+    """
     path = Path(path)
     if not path.is_file():
         raise ImageIOError(f"image not found: {path}")
@@ -80,11 +92,10 @@ def read_image(path: str | Path) -> torch.Tensor:
     if data.ndim == 3:
         if data.shape[2] == 4:
             data = data[..., :3]
-        data = data[..., ::-1]  # BGR -> RGB
-        tensor = torch.from_numpy(np.ascontiguousarray(data)).permute(2, 0, 1)
+        data = data[..., ::-1].transpose(2, 0, 1)  # BGR -> RGB, channels first
     else:
-        tensor = torch.from_numpy(data)[None]
-    return tensor.to(torch.float32) / scale
+        data = data[None]
+    return np.ascontiguousarray(data, dtype=np.float32) / np.float32(scale)
 
 
 def write_image(path: str | Path, image: torch.Tensor, bits: int = 8) -> None:
@@ -148,39 +159,6 @@ def _depth_array(depth: Any, valid: Any | None, dtype: type = np.float64) -> np.
         raise ShapeError(f"{name} must have shape {want}, got {tuple(got)}")
     d[~np.isfinite(d) | (False if v is None else ~np.asarray(v, dtype=bool))] = np.nan
     return d
-
-
-@contextlib.contextmanager
-def replacing(path: str | Path) -> Iterator[Path]:
-    """A temporary name beside ``path`` (same suffix, so that writers choosing a format by suffix still do) that is
-    renamed to ``path`` when the block ends without an exception, and removed when it raises: a reader, or a job
-    stopped half-way, sees the old file or the whole new one, never part of one (``os.replace`` is atomic within a
-    file system). Creates the parent directory.
-
-    Example:
-        >>> with replacing("out/depth.npy") as partial:  # doctest: +SKIP
-        ...     np.save(partial, np.zeros((2, 2)))
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")  # partial_stem reads it back
-    try:
-        yield partial
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
-
-
-def partial_stem(path: str | Path) -> str | None:
-    """The stem of the file a temporary file of :func:`replacing` was to become, None for any other name (a
-    process killed inside ``replacing`` leaves its temporary file; a job's clean-up finds them by this).
-
-    Example:
-        >>> partial_stem(".depth_000003.4711.partial.npy"), partial_stem("depth_000003.npy")
-        ('depth_000003', None)
-    """
-    found = re.fullmatch(r"\.(.+)\.\d+\.partial(\.[^.]*)?", Path(path).name)
-    return None if found is None else found.group(1)
 
 
 def _imwrite(path: Path, data: np.ndarray) -> None:

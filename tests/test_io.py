@@ -5,6 +5,7 @@ import torch
 from prismstereo.errors import ShapeError
 from prismstereo.io import (
     ImageIOError,
+    decode_image,
     depth_png_scale,
     read_depth,
     read_image,
@@ -111,6 +112,16 @@ def test_numpy_arrays_write_the_same_files_as_tensors(tmp_path, name):
         write_depth(tmp_path / "x.npy", depth.numpy()[None])
     with pytest.raises(ShapeError, match=r"valid must have shape \(24, 18\), got \(18, 24\)"):
         write_depth(tmp_path / "x.npy", depth.numpy(), valid.numpy().T)
+
+
+def test_decode_image_is_read_image_without_torch(tmp_path):
+    rgb = torch.rand(3, 20, 30, generator=torch.Generator().manual_seed(3))
+    write_image(tmp_path / "c.png", rgb, bits=16)
+    decoded = decode_image(tmp_path / "c.png")
+    assert decoded.dtype == np.float32 and decoded.shape == (3, 20, 30) and decoded.flags.c_contiguous
+    assert torch.equal(torch.from_numpy(decoded), read_image(tmp_path / "c.png"))
+    with pytest.raises(ImageIOError, match="image not found"):
+        decode_image(tmp_path / "missing.png")
 
 
 def test_writing_depth_files_and_previews_needs_no_torch(tmp_path):

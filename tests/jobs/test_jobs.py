@@ -10,7 +10,7 @@ import torch
 
 from prismstereo import PrismStereo, PrismStereoError, thesis_setup1
 from prismstereo.cli import main
-from prismstereo.io import read_depth, replacing, write_image
+from prismstereo.io import read_depth, write_image
 from prismstereo.jobs import (
     Pipeline,
     PlanError,
@@ -182,17 +182,6 @@ def test_a_failed_write_leaves_whole_files_only(inputs, tmp_path, monkeypatch):
     assert "1 inputs failed" in summary.describe()
 
 
-def test_replacing_keeps_the_old_file_when_writing_fails(tmp_path):
-    path = tmp_path / "sub" / "depth.npy"
-    with replacing(path) as partial:
-        np.save(partial, np.ones(3))
-    assert partial.suffix == ".npy" and partial.parent == path.parent and not partial.exists()
-    with pytest.raises(OSError, match="disk"), replacing(path) as partial:
-        partial.write_bytes(b"half")
-        raise OSError("disk full")
-    assert np.load(path).tolist() == [1.0, 1.0, 1.0] and os.listdir(path.parent) == ["depth.npy"]
-
-
 def test_a_cached_graph_runs_alone_in_workers(inputs, tmp_path, monkeypatch, capsys):
     """The ONNX backend's second run of a request loads the cached graph without a torch model, in the worker
     processes too, and writes what the first run wrote."""
@@ -294,12 +283,18 @@ def test_depth_mapper_maps_the_model_over_batches_as_ray_data_hands_them(inputs)
 
 
 def test_planning_a_job_needs_no_torch(tmp_path):
-    """The plan, its checks and the run's summary import without torch; the executors and the pipeline with it."""
+    """The plan, its checks of captures and the run's summary run without torch; the executors and the pipeline
+    import it."""
     import subprocess
     import sys
 
-    code = ("import sys; from pathlib import Path; from prismstereo.jobs import plan, run, WriteOptions, JobSummary\n"
+    cv2.imwrite(str(tmp_path / "b.png"), np.zeros((6, 8), np.uint8))
+    code = ("import sys; from pathlib import Path\n"
+            "from prismstereo.jobs import plan, run, WriteOptions, JobSummary, check_inputs\n"
             f"tasks = plan([r'{tmp_path / 'a.png'}'], Path(r'{tmp_path / 'o'}'), WriteOptions(format='png'))\n"
+            f"checked = check_inputs(plan([r'{tmp_path / 'b.png'}'], Path(r'{tmp_path / 'o'}'), WriteOptions()),"
+            " (6, 8))\n"
+            "assert checked[0].error is None\n"
             "print(tasks[0].outputs[0].depth.name, tasks[0].error, 'torch' in sys.modules)\n"
             "from prismstereo.jobs import Pipeline\n"
             "print('torch' in sys.modules)")
