@@ -27,7 +27,7 @@ from prismstereo.epipolar.sweep import fit_sweep, positions_at, sweep_coefficien
 from prismstereo.errors import ImageValueError, ShapeError, check_int, check_shape
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.sweep_sampler import block_centres
-from prismstereo.runtime import tracing
+from prismstereo.runtime import box_max, tracing
 
 __all__ = ["BAD_PIXEL_REACH", "BLOCK", "VALUE_TOLERANCE", "BadPixels", "Screened", "discard"]
 
@@ -117,14 +117,13 @@ class BadPixels(nn.Module):
         q, m = BLOCK, self.own_margin
         ref = math.ceil(w_ref / q)
         own = blocks[..., :ref]
-        if m:  # separable: two 1-D passes
-            own = F.max_pool2d(F.max_pool2d(own, (1, 2 * m + 1), 1, (0, m)), (2 * m + 1, 1), 1, (m, 0))
+        if m:
+            own = box_max(own, 2 * m + 1)
         # a sweep samples the other half only (beyond it the polynomials continue where no real ray goes)
         split = w_ref // q
         other = torch.cat([torch.zeros_like(blocks[..., :split]), blocks[..., split:]], -1)
         other = F.max_pool2d(other, 2, 2, ceil_mode=bool(other.shape[-2] % 2 or other.shape[-1] % 2))
-        m = self.margin
-        other = F.max_pool2d(F.max_pool2d(other, (1, 2 * m + 1), 1, (0, m)), (2 * m + 1, 1), 1, (m, 0))
+        other = box_max(other, 2 * self.margin + 1)
         index = self._sweep_index(blocks)
         flat = torch.cat([other.flatten(1), torch.zeros_like(other.flatten(1)[:, :1])], 1)  # a last 0: off the sensor
         hc = math.ceil(h / (2 * q))

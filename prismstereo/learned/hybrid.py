@@ -61,7 +61,7 @@ from prismstereo.learned.weights import WeightsError, read_weights, write_weight
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.band import extend_estimate
 from prismstereo.matching.sweep_sampler import block_centres
-from prismstereo.runtime import sample_bilinear
+from prismstereo.runtime import box_max, sample_bilinear
 
 __all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "LAST_STAGES", "HybridStereo", "RefinementInputs", "classical_config",
            "load_hybrid_weights", "truth_sweep"]
@@ -379,7 +379,7 @@ class HybridStereo(nn.Module):
         grey, touched = self.bad_pixels(_binned(to_grey(image.to(dtype)), b))
         s, logit = self.refine(self.initial_binned(grey))[-1]
         if b > 1:  # a bin next to a touched one too: the bilinear upsample below then gives 0 on every touched pixel
-            touched = F.max_pool2d(touched.to(dtype), 3, 1, 1) > 0
+            touched = box_max(touched.to(dtype), 3) > 0
         confidence = torch.sigmoid(logit) * (~touched).to(dtype)  # no depth where bad pixels reach (so invalid)
         if self.exact is not None:
             s = self.exact(grey, s)
