@@ -24,9 +24,8 @@ them :mod:`prismstereo.calibration`, :mod:`prismstereo.analysis`, :mod:`prismste
 import torch).
 """
 
-import importlib
-
 from prismstereo.errors import CalibrationError, OptionError, PrismStereoError, RigError, ShapeError
+from prismstereo.lazy import lazy_names
 
 __version__ = "0.1.0"
 
@@ -89,12 +88,4 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str):
-    """Every name but the errors, imported on first use (PEP 562): ``import prismstereo`` does not import torch."""
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'prismstereo' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

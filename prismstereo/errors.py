@@ -21,6 +21,7 @@ __all__ = [
     "ShapeError",
     "ImageValueError",
     "OptionError",
+    "ExportError",
     "CalibrationError",
     "check_shape",
     "check_option",
@@ -49,6 +50,10 @@ class ImageValueError(PrismStereoError, ValueError):
 
 class OptionError(PrismStereoError, ValueError):
     """An option string (a ``Literal[...]`` argument) is not one of the valid choices."""
+
+
+class ExportError(PrismStereoError, ValueError):
+    """An ONNX model cannot be exported, loaded or run (re-exported by :mod:`prismstereo.export`)."""
 
 
 class CalibrationError(PrismStereoError, ValueError):

@@ -29,6 +29,7 @@ from prismstereo.names import DEPTH_FILE_FORMATS, DEPTH_SUFFIXES
 __all__ = [
     "ImageIOError",
     "decode_image",
+    "grey_array",
     "read_image",
     "write_image",
     "save_capture",
@@ -96,6 +97,34 @@ def decode_image(path: str | Path) -> np.ndarray:
     else:
         data = data[None]
     return np.ascontiguousarray(data, dtype=np.float32) / np.float32(scale)
+
+
+_LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
+
+
+def grey_array(image: np.ndarray) -> np.ndarray:
+    """:func:`~prismstereo.conventions.to_grey` of a float32 numpy array, (..., C, H, W) -> (..., 1, H, W), bit for bit
+    without torch: the BT.601 luma (0.299, 0.587, 0.114) in torch's order of operations, its two fused multiply-adds
+    rounded once each (a float32 product is exact in float64, so the float64 sum rounded to float32 is the fused
+    result; tested against torch on 8-bit, 16-bit and random images). A one-channel image is returned as it is.
+
+    Raises:
+        ShapeError: C is neither 1 nor 3, or not float32.
+
+    Example:
+        >>> grey_array(np.ones((3, 2, 2), np.float32)).shape
+        (1, 2, 2)
+    """
+    if not isinstance(image, np.ndarray) or image.ndim < 3 or image.dtype != np.float32 or image.shape[-3] not in (
+            1, 3):
+        got = f"{image.dtype} {image.shape}" if isinstance(image, np.ndarray) else type(image).__name__
+        raise ShapeError(f"image must be a float32 (..., C, H, W) array with C = 1 or 3, got {got}")
+    if image.shape[-3] == 1:
+        return image
+    r, g, b = (image[..., c, :, :] for c in range(3))
+    w_r, w_g, w_b = (np.float64(w) for w in _LUMA)
+    partial = (g * w_g + (r * _LUMA[0]).astype(np.float64)).astype(np.float32)  # addcmul(r * w_r, g, w_g)
+    return (b * w_b + partial.astype(np.float64)).astype(np.float32)[..., None, :, :]
 
 
 def write_image(path: str | Path, image: torch.Tensor, bits: int = 8) -> None:

@@ -22,14 +22,14 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import torch
 
-from prismstereo.conventions import to_grey
 from prismstereo.errors import OptionError, check_int, check_option
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.models import DepthModel, ModelSpec
 from prismstereo.names import BACKENDS, Backend
-from prismstereo.threads import thread_plan, torch_threads
+from prismstereo.threads import torch_threads
 
 if TYPE_CHECKING:
     from prismstereo.classical import BandPrior, TemporalOptions, TrackedDepth
@@ -89,9 +89,7 @@ class Predictor:
             raise OptionError(f"model must be a depth model (prismstereo.models.DepthModel) or a ModelSpec, got "
                               f"{type(model).__name__}")
         self.backend, self.threads, self.spinning = backend, threads, bool(spinning)
-        self._model = self._tracker = None
-        self._files: GraphFiles | None = None
-        self._sessions: dict[str, OnnxDepth] = {}
+        self._model = self._tracker = self._graphs = None
         if backend == "onnx":
             from prismstereo.export import cached_graphs
 
@@ -113,7 +111,8 @@ class Predictor:
     def from_graphs(cls, graph: str | Path | OnnxDepth, temporal_graph: str | Path | OnnxDepth | None = None, *,
                     threads: int | None = None, spinning: bool = True) -> Predictor:
         """A predictor of deployed graph files (written by :func:`~prismstereo.export.export_onnx`): the per-frame
-        graph and, for videos, the temporal graph of the same sensor.
+        graph and, for videos, the temporal graph of the same sensor (an :class:`~prismstereo.export.OnnxDepth`
+        given: its file, opened again with the predictor's threads).
 
         Raises:
             OptionError: a temporal graph as ``graph``, a per-frame one as ``temporal_graph``, or graphs of two
@@ -127,51 +126,36 @@ class Predictor:
             >>> Predictor.from_graphs(export_onnx(model, path)).depth(torch.rand(1, 1, 48, 64)).depth.shape
             torch.Size([1, 1, 48, 32])
         """
-        from prismstereo.export import GraphFiles, OnnxDepth, describe_graph
+        from prismstereo.export import GraphFiles, OnnxDepth
 
         check_int(threads, "threads", 1, none=True)
         self = cls.__new__(cls)
         self.backend, self.threads, self.spinning = "onnx", threads, bool(spinning)
         self._model = self._tracker = None
-        self._sessions = {}
-        paths = []
-        for name, item in (("graph", graph), ("temporal", temporal_graph)):
-            if isinstance(item, OnnxDepth):
-                self._sessions[name] = item
-            paths.append(None if item is None else Path(item.path if isinstance(item, OnnxDepth) else item))
-        self._files = GraphFiles(paths[0], "", paths[1])
-        self._attach_graphs(self._files._replace(summary=describe_graph(self._session("graph").metadata)))
+        paths = [None if item is None else Path(item.path if isinstance(item, OnnxDepth) else item)
+                 for item in (graph, temporal_graph)]
+        self._attach_graphs(GraphFiles(paths[0], "", paths[1]))
         return self
 
     def _attach_graphs(self, files: GraphFiles) -> None:
-        """Open the graphs (their sessions kept) and read what the predictor is from their metadata."""
-        self._files = files
-        graph = self._session("graph")
-        if graph.temporal is not None:
-            raise OptionError(f"{files.path.name} is a temporal graph: pass it as temporal_graph")
-        self.summary, self.cached = files.summary, files.cached
-        self.rig = BiPrismRig.from_dict(json.loads(graph.metadata["prismstereo.rig"]))
-        self.z_range = graph.z_range
-        self.channels = graph.input_shape[0]
-        self.temporal = None
-        if files.temporal is not None:
-            band = self._session("temporal")
-            if band.temporal is None:
-                raise OptionError(f"{files.temporal.name} is a per-frame graph, not a temporal one")
-            if band.input_shape[1:] != graph.input_shape[1:]:
-                raise OptionError(f"the temporal graph takes {band.input_shape}, the graph {graph.input_shape}")
-            self.temporal = band.temporal
+        """Open the graphs (:class:`~prismstereo.export.graphs.GraphPredictor` on tensors) and read what the
+        predictor is from their metadata."""
+        from prismstereo.export.graphs import GraphPredictor
 
-    def _session(self, name: str) -> OnnxDepth:
-        """The graph ``name`` ('graph' or 'temporal') in onnxruntime, opened on first use in this process."""
-        if name not in self._sessions:
-            from prismstereo.export import OnnxDepth
+        self._graphs = graphs = GraphPredictor(files, threads=self.threads, spinning=self.spinning, arrays="torch")
+        self.summary, self.cached, self.z_range = graphs.summary, graphs.cached, graphs.z_range
+        self.rig = BiPrismRig.from_dict(json.loads(graphs.metadata["prismstereo.rig"]))
+        self.channels, self.temporal = graphs.channels, graphs.temporal
 
-            plan = thread_plan(cores=self.threads)
-            path = self._files.path if name == "graph" else self._files.temporal
-            count = plan.graph if name == "graph" else plan.temporal_graph
-            self._sessions[name] = OnnxDepth(path, threads=count, spinning=self.spinning)
-        return self._sessions[name]
+    @property
+    def files(self) -> GraphFiles | None:
+        """The graphs' files (ONNX backend: the cache entry, or the deployed files), else None."""
+        return None if self._graphs is None else self._graphs.files
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(H, W) of the sensor's captures."""
+        return self.rig.image_height, self.rig.image_width
 
     @property
     def model(self) -> DepthModel:
@@ -183,21 +167,21 @@ class Predictor:
     @property
     def graph(self) -> OnnxDepth:
         """The per-frame graph's session (ONNX backend only)."""
-        if self._files is None:
+        if self._graphs is None:
             raise OptionError("a torch predictor has a model, not graphs")
-        return self._session("graph")
+        return self._graphs.graph
 
     @property
     def temporal_graph(self) -> OnnxDepth | None:
         """The temporal graph's session (ONNX backend with a band), else None."""
-        return None if self._files is None or self._files.temporal is None else self._session("temporal")
+        return None if self._graphs is None else self._graphs.temporal_graph
 
     @property
     def prior_size(self) -> tuple[int, int] | None:
         """(h, w) of the band's :class:`~prismstereo.classical.BandPrior` when the predictor can track, else None."""
         if self.temporal is None:
             return None
-        return self._tracker.prior_size if self._tracker is not None else self.temporal_graph.prior_size
+        return self._tracker.prior_size if self._tracker is not None else self._graphs.prior_size
 
     def _torch(self):
         """Around a torch run: inference mode, and the predictor's threads if it has its own."""
@@ -206,12 +190,6 @@ class Predictor:
         if self.threads is not None:
             stack.enter_context(torch_threads(self.threads))
         return stack
-
-    def _input(self, image: torch.Tensor) -> torch.Tensor:
-        """A graph's input: a colour image converted to grey for a one-channel graph (the models' rule)."""
-        if self.channels == 1 and isinstance(image, torch.Tensor) and image.dim() == 4 and image.shape[1] == 3:
-            return to_grey(image)
-        return image
 
     def depth(self, image: torch.Tensor) -> Any:
         """Depth of a batch of captures ``image`` (B, C, H, W) in [0, 1] (colour: its
@@ -225,16 +203,16 @@ class Predictor:
         Raises:
             ShapeError: an image of another sensor or channel count, or not floating point.
         """
-        if self._model is None:
-            return self.graph(self._input(image))
+        if self._graphs is not None:
+            return self._graphs.depth(image)
         with self._torch():
-            return self._model(image)
+            return self._model(torch.from_numpy(image) if isinstance(image, np.ndarray) else image)
 
     def _band(self) -> Any:
         if self.temporal is None:
             raise OptionError("this predictor has no temporal band: Predictor(model, temporal=TemporalOptions()) "
                               "of a model that offers one (model.tracker)")
-        return self._tracker if self._tracker is not None else self.temporal_graph
+        return self._tracker if self._tracker is not None else self._graphs
 
     def track(self, image: torch.Tensor, prior: BandPrior) -> TrackedDepth:
         """Depth of ``image`` (B, C, H, W) searched around ``prior`` by the temporal band, and the prior it leaves
@@ -244,10 +222,10 @@ class Predictor:
             OptionError: a predictor without a band. ShapeError: an image or prior of another size.
         """
         band = self._band()
-        if self._model is None:
-            return band.track(self._input(image), prior)
-        with self._torch():
+        if self._graphs is not None:
             return band.track(image, prior)
+        with self._torch():
+            return band.track(torch.from_numpy(image) if isinstance(image, np.ndarray) else image, prior)
 
     def band_prior(self, result: Any) -> BandPrior:
         """A full-resolution result (a key frame's ``depth``, ``valid``, ``confidence``) as the band's prior.
@@ -255,6 +233,8 @@ class Predictor:
         Raises:
             OptionError: a predictor without a band.
         """
+        if self._graphs is not None:
+            return self._graphs.band_prior(result)
         band = self._band()
         with torch.inference_mode():
             return band.band_prior(result.depth, result.valid, result.confidence)
@@ -270,14 +250,17 @@ class Predictor:
             1
         """
         twin = Predictor.__new__(Predictor)
-        twin.__dict__.update(self.__getstate__())
+        twin.__dict__.update(self.__dict__)
         twin.threads = threads
+        if self._graphs is not None:
+            twin._graphs = self._graphs.for_process(threads)
         return twin
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickled as what it runs: the torch model, or the graphs' paths (a process opens its own sessions)."""
         state = dict(self.__dict__)
-        state["_sessions"] = {}
+        if self._graphs is not None:
+            state["_graphs"] = self._graphs.for_process(self.threads)
         return state
 
     def __repr__(self) -> str:

@@ -22,14 +22,16 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from typing import NamedTuple, TypeVar
-
-import torch
+from typing import TYPE_CHECKING, NamedTuple, TypeVar
 
 from prismstereo.errors import check_int, check_shape
+
+if TYPE_CHECKING:  # imported where tensors are: a process that only runs exported graphs never imports torch
+    import torch
 
 __all__ = ["ThreadPlan", "per_image", "set_torch_threads", "thread_plan", "torch_threads"]
 
@@ -46,7 +48,8 @@ def torch_threads(count: int) -> Iterator[None]:
 
     Scopes may nest, and overlap across threads: each sets its thread's count when it opens; when it closes, the
     thread returns to the enclosing scope's count, or to the count from before the first scope that any thread
-    opened (threads started later start from it too).
+    opened (threads started later start from it too). In a process that has not imported torch there are no
+    torch threads to set: the scope is empty.
 
     Args:
         count: threads (>= 1).
@@ -62,6 +65,10 @@ def torch_threads(count: int) -> Iterator[None]:
         (1, True)
     """
     check_int(count, "count", 1)
+    torch = sys.modules.get("torch")
+    if torch is None:  # no torch work can run in the block
+        yield
+        return
     stack = _scopes.__dict__.setdefault("counts", [])
     with _LOCK:
         if _state["open"] == 0:
@@ -96,6 +103,8 @@ def per_image(fn: Callable[[torch.Tensor], T], images: torch.Tensor) -> list[T]:
         >>> [float(t) for t in per_image(lambda x: x.sum(), torch.arange(3.0).view(3, 1, 1, 1))]
         [0.0, 1.0, 2.0]
     """
+    import torch
+
     check_shape(images, ["B", "C", "H", "W"], "images")
     b = images.shape[0]
     grad, inference = torch.is_grad_enabled(), torch.is_inference_mode_enabled()
@@ -133,6 +142,8 @@ def set_torch_threads(count: int) -> None:
         >>> torch.get_num_threads(); set_torch_threads(before)
         1
     """
+    import torch
+
     check_int(count, "count", 1)
     with _LOCK:
         stack = _scopes.__dict__.setdefault("counts", [])

@@ -73,7 +73,7 @@ def test_a_spec_is_served_from_the_cache_without_building_the_model(tmp_path, mo
 def test_a_predictor_pickles_as_what_it_runs_and_opens_its_own_sessions(model, image):
     graphs = Predictor(model, backend="onnx")
     copy = pickle.loads(pickle.dumps(graphs))
-    assert copy._sessions == {} and copy.graph is not graphs.graph  # a process of its own opens its session
+    assert copy._graphs._sessions == {} and copy.graph is not graphs.graph  # a process of its own opens its session
     assert torch.equal(copy.depth(image).depth, graphs.depth(image).depth)
     worker = graphs.for_process(1)
     assert worker.threads == 1 and worker.graph.session.get_session_options().intra_op_num_threads == 1

@@ -11,7 +11,7 @@ The names are imported on first use (PEP 562): a process that only runs exported
 prior's options and data, not the chain.
 """
 
-import importlib
+from prismstereo.lazy import lazy_names
 
 __all__ = ["PRESETS", "BandPrior", "PrismStereo", "ResolvedConfig", "StereoConfig", "TemporalDepth",
            "TemporalOptions", "TrackedDepth", "as_config", "band_prior", "preset", "resolve_config"]
@@ -25,12 +25,4 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str):
-    """The package's names, imported from their modules on first use (PEP 562)."""
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"prismstereo.classical.{_LAZY[name]}"), name)
-    raise AttributeError(f"module 'prismstereo.classical' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_names(__name__, {k: f"prismstereo.classical.{v}" for k, v in _LAZY.items()}, __all__)

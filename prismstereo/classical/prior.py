@@ -6,19 +6,20 @@ depth, in which the sweep coordinate is affine, and where it places the band); :
 full-resolution result (a key frame's); :class:`TrackedDepth` is what a tracker returns. The band itself is
 :class:`~prismstereo.classical.temporal.TemporalDepth` (torch) or its exported graph
 (:class:`~prismstereo.export.OnnxDepth`); this module is what both share, light enough for a process that runs
-only the graphs.
+only the graphs: it imports without torch, and :func:`band_prior` of numpy arrays runs in numpy.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
-import torch
-import torch.nn.functional as F
+import numpy as np
 
 from prismstereo.errors import OptionError, ShapeError, check_int, check_number, check_option, check_shape
-from prismstereo.runtime import crop
+
+if TYPE_CHECKING:  # imported for tensors: a process that runs exported graphs on arrays never imports torch
+    import torch
 
 __all__ = ["TEMPORAL_BAND_EDGES", "BandPrior", "TemporalOptions", "TrackedDepth", "band_prior"]
 
@@ -92,10 +93,12 @@ class BandPrior(NamedTuple):
         inverse: (B, 1, h, w) inverse depth 1/Z (1/mm), within the depth range's bounds (any such value where not
             placed).
         placed: (B, 1, h, w) bool: the pixels whose prior places the band (valid and confident enough).
+
+    Tensors, or numpy arrays where the temporal graph runs without torch.
     """
 
-    inverse: torch.Tensor
-    placed: torch.Tensor
+    inverse: Any
+    placed: Any
 
 
 class TrackedDepth(NamedTuple):
@@ -111,13 +114,16 @@ class TrackedDepth(NamedTuple):
     prior: BandPrior
 
 
-def band_prior(depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor, *,
+def band_prior(depth: Any, valid: Any, confidence: Any, *,
                z_range: tuple[float, float], min_confidence: float, downsample: int = 1,
                size: tuple[int, int] | None = None) -> BandPrior:
     """A full-resolution result (B, 1, H, W_ref) as the temporal band's prior (B, 1, h, w): the pixels valid and at
     least ``min_confidence`` confident are placed; their inverse depth clipped to the range's bounds; with
     ``downsample`` k > 1 binned by k x k to ``size`` (h, w): each block's mean over its placed pixels (1/Z, so the
     mean of the sweep coordinate, affine in it), placed where at least half of them are.
+
+    Torch tensors are binned by average pooling (the temporal graph's own computation); numpy arrays by block sums
+    in numpy (:func:`_band_prior_numpy`: the same prior to float rounding, without torch).
 
     Args:
         depth: (B, 1, H, W_ref) depth (mm), anything (NaN too) where not valid.
@@ -141,22 +147,56 @@ def band_prior(depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tenso
         >>> prior.inverse.shape, round(1 / prior.inverse[0, 0, 0, 0].item(), 3), prior.placed.all().item()
         (torch.Size([1, 1, 2, 2]), 500.0, True)
     """
-    check_shape(depth, ["B", 1, "H", "W"], "depth")
+    numpy = isinstance(depth, np.ndarray)
+    if numpy and (depth.ndim != 4 or depth.shape[1] != 1):
+        raise ShapeError(f"depth must have shape (B, 1, H, W), got {tuple(depth.shape)}")
+    if not numpy:
+        check_shape(depth, ["B", 1, "H", "W"], "depth")
     for name, t in (("valid", valid), ("confidence", confidence)):
-        if t.shape != depth.shape:
+        if tuple(t.shape) != tuple(depth.shape):
             raise ShapeError(f"{name} must have depth's shape {tuple(depth.shape)}, got {tuple(t.shape)}")
-    if valid.dtype != torch.bool:
+    if str(valid.dtype) not in ("bool", "torch.bool"):
         raise ShapeError(f"valid must be bool, got {valid.dtype}")
     check_int(downsample, "downsample", 1)
+    full = (int(depth.shape[-2]), int(depth.shape[-1]))
+    h, w = size if size is not None else (full[0] // downsample, full[1] // downsample)
+    if numpy:
+        return _band_prior_numpy(depth, valid, confidence, z_range, min_confidence, downsample, (h, w))
+    import torch
+
     placed = valid & (confidence >= min_confidence)
     z = torch.tensor(z_range, dtype=depth.dtype, device=depth.device)
     bounds = 1.0 / z
     inverse = (1.0 / torch.where(placed, depth, z[0])).clamp(bounds[1], bounds[0])  # finite everywhere
     if downsample == 1:
         return BandPrior(inverse, placed)
-    full = (int(depth.shape[-2]), int(depth.shape[-1]))
-    h, w = size if size is not None else (full[0] // downsample, full[1] // downsample)
     return BandPrior(*_binned_prior(inverse, placed, downsample, h, w, full))
+
+
+def _band_prior_numpy(depth: np.ndarray, valid: np.ndarray, confidence: np.ndarray, z_range: tuple[float, float],
+                      min_confidence: float, k: int, size: tuple[int, int]) -> BandPrior:
+    """:func:`band_prior` of numpy arrays, in numpy: the same rule, each k x k block's sums (a last block cut by the
+    edge: its pixels alone, as average pooling with ``ceil_mode`` divides)."""
+    placed = valid & (confidence >= min_confidence)
+    z = np.asarray(z_range, dtype=depth.dtype)
+    bounds = np.asarray(1.0, dtype=depth.dtype) / z
+    inverse = np.clip(np.asarray(1.0, dtype=depth.dtype) / np.where(placed, depth, z[0]), bounds[1], bounds[0])
+    if k == 1:
+        return BandPrior(inverse, placed)
+    h, w = size
+    b, _, height, width = depth.shape
+    rows, cols = -(-height // k), -(-width // k)
+
+    def block_sums(x: np.ndarray) -> np.ndarray:
+        padded = np.zeros((b, 1, rows * k, cols * k), dtype=x.dtype)
+        padded[..., :height, :width] = x
+        return padded.reshape(b, 1, rows, k, cols, k).sum(axis=(3, 5))[..., :h, :w]
+
+    weight = placed.astype(depth.dtype)
+    counts = block_sums(np.ones((1, 1, height, width), dtype=depth.dtype))[:1]
+    share = block_sums(weight) / counts
+    mean = (block_sums(inverse * weight) / counts) / np.maximum(share, np.asarray(1e-6, dtype=depth.dtype))
+    return BandPrior(mean, share >= 0.5)
 
 
 def _binned_prior(x: torch.Tensor, placed: torch.Tensor, k: int, h: int, w: int,
@@ -164,6 +204,10 @@ def _binned_prior(x: torch.Tensor, placed: torch.Tensor, k: int, h: int, w: int,
     """(B, 1, H, W_ref) values (inverse depths) and usable-prior mask binned by k x k to the binned level's
     (B, 1, h, w): the mean over each block's usable pixels (0 in a block without any), usable where at least half of
     them are. ``full``: (H, W_ref) as ints (static in an exported graph)."""
+    import torch.nn.functional as F
+
+    from prismstereo.runtime import crop
+
     weight = placed.to(x.dtype)
     # ceil_mode: a reference half whose width k does not divide (512 / 3) has a last binned column of fewer pixels
     # (only then: onnxruntime's pooling with ceil_mode is slower, where it changes nothing)

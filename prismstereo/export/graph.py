@@ -30,13 +30,14 @@ import functools
 import json
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import torch
 from torch import nn
 
-from prismstereo.errors import PrismStereoError
-from prismstereo.export.index import DEFAULT_OPSET, source_digest
+from prismstereo.errors import ExportError
+from prismstereo.export.index import DEFAULT_OPSET, describe_graph, source_digest
+from prismstereo.names import INPUT_NAME, NEXT_PRIOR_NAMES, OUTPUT_NAMES, PRIOR_NAMES
 
 if TYPE_CHECKING:
     from prismstereo.classical import TemporalDepth, TemporalOptions
@@ -44,14 +45,6 @@ if TYPE_CHECKING:
 __all__ = ["DEFAULT_OPSET", "NEXT_PRIOR_NAMES", "PRIOR_NAMES", "DepthGraph", "ExportError", "TemporalGraph",
            "describe_graph", "export_onnx", "graph_metadata", "source_digest"]
 
-INPUT_NAME = "image"
-OUTPUT_NAMES = ("depth_mm", "valid", "confidence")
-PRIOR_NAMES = ("prior_inverse_depth", "prior_placed")
-NEXT_PRIOR_NAMES = ("next_inverse_depth", "next_placed")
-
-
-class ExportError(PrismStereoError, ValueError):
-    """An ONNX model cannot be exported, loaded or run."""
 
 
 class DepthGraph(nn.Module):
@@ -238,17 +231,3 @@ def _finish(path: Path, metadata: dict[str, str], size: tuple[int, int], prior_s
     except onnx.checker.ValidationError as exc:
         raise ExportError(f"exported graph fails onnx.checker: {exc}") from exc
     onnx.save(proto, str(path))
-
-
-def describe_graph(metadata: dict[str, Any]) -> str:
-    """One line summarising an exported graph's metadata (for the CLI).
-
-    Example:
-        >>> describe_graph({"prismstereo.input_shape": '["B", 1, 48, 64]', "prismstereo.num_hypotheses": "9",
-        ...           "prismstereo.z_range_mm": "[400.0, 700.0]", "prismstereo.version": "0.1.0"})
-        'input (B, 1, 48, 64), 9 hypotheses over 400.0-700.0 mm, prismstereo 0.1.0'
-    """
-    shape = ", ".join(str(d) for d in json.loads(metadata["prismstereo.input_shape"]))
-    z = json.loads(metadata["prismstereo.z_range_mm"])
-    return (f"input ({shape}), {metadata['prismstereo.num_hypotheses']} hypotheses over {z[0]:.1f}-{z[1]:.1f} mm, "
-            f"prismstereo {metadata['prismstereo.version']}")

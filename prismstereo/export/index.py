@@ -17,7 +17,7 @@ from prismstereo.io import replacing
 if TYPE_CHECKING:
     from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["GraphFiles", "cache_directory", "recall", "remember", "request_key", "source_digest"]
+__all__ = ["GraphFiles", "cache_directory", "describe_graph", "recall", "remember", "request_key", "source_digest"]
 
 DEFAULT_OPSET = 18
 """The ONNX opset of a new export (re-exported by :mod:`prismstereo.export.graph`)."""
@@ -130,3 +130,17 @@ def recall(key: str, *, cache_dir: str | Path | None = None) -> GraphFiles | Non
     if not graph.is_file() or (temporal is not None and not temporal.is_file()):
         return None
     return GraphFiles(graph, summary, temporal, cached=True)
+
+
+def describe_graph(metadata: dict[str, Any]) -> str:
+    """One line summarising an exported graph's metadata (for the CLI).
+
+    Example:
+        >>> describe_graph({"prismstereo.input_shape": '["B", 1, 48, 64]', "prismstereo.num_hypotheses": "9",
+        ...           "prismstereo.z_range_mm": "[400.0, 700.0]", "prismstereo.version": "0.1.0"})
+        'input (B, 1, 48, 64), 9 hypotheses over 400.0-700.0 mm, prismstereo 0.1.0'
+    """
+    shape = ", ".join(str(d) for d in json.loads(metadata["prismstereo.input_shape"]))
+    z = json.loads(metadata["prismstereo.z_range_mm"])
+    return (f"input ({shape}), {metadata['prismstereo.num_hypotheses']} hypotheses over {z[0]:.1f}-{z[1]:.1f} mm, "
+            f"prismstereo {metadata['prismstereo.version']}")

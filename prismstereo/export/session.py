@@ -2,6 +2,10 @@
 :func:`~prismstereo.export.graph.export_onnx` and checks its inputs (2 intra-op threads, 1 inter-op thread, all
 graph optimisations by default). :class:`~prismstereo.predictor.Predictor` runs a model's graphs through it; an
 application that deploys the file alone may use it directly.
+
+It imports without torch: with ``arrays='numpy'`` it takes and returns numpy arrays, and a process that only runs
+graphs (:class:`~prismstereo.export.graphs.GraphPredictor`) never imports torch; with ``arrays='torch'`` (default)
+its results are torch tensors.
 """
 
 from __future__ import annotations
@@ -9,26 +13,34 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, NamedTuple
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
-import torch
 
-from prismstereo.errors import OptionError, ShapeError, check_int, check_option
-from prismstereo.export.graph import INPUT_NAME, NEXT_PRIOR_NAMES, OUTPUT_NAMES, PRIOR_NAMES, ExportError
+from prismstereo.errors import ExportError, OptionError, ShapeError, check_int, check_option
+from prismstereo.names import INPUT_NAME, NEXT_PRIOR_NAMES, OUTPUT_NAMES, PRIOR_NAMES
 from prismstereo.threads import thread_plan
 
 if TYPE_CHECKING:
     from prismstereo.classical import BandPrior, TrackedDepth
 
-__all__ = ["OPTIMIZATIONS", "OnnxDepth", "OnnxDepthResult"]
+__all__ = ["ARRAYS", "OPTIMIZATIONS", "OnnxDepth", "OnnxDepthResult"]
 
 Optimization = Literal["all", "extended", "basic", "disable"]
 OPTIMIZATIONS: tuple[str, ...] = ("all", "extended", "basic", "disable")
+Arrays = Literal["torch", "numpy"]
+ARRAYS: tuple[str, ...] = ("torch", "numpy")
+
+
+def as_array(x: Any) -> np.ndarray:
+    """A torch tensor (any device) or array-like as a numpy array (a CPU tensor's memory, not a copy)."""
+    if hasattr(x, "detach"):  # a torch tensor, without importing torch
+        return x.detach().cpu().numpy()
+    return np.asarray(x)
 
 
 class OnnxDepthResult(NamedTuple):
-    """Outputs of the exported graph, as torch tensors.
+    """Outputs of the exported graph: torch tensors, or numpy arrays from a session with ``arrays='numpy'``.
 
     Attributes:
         depth: (B, 1, H, W_ref) depth Z (mm) of the reference half; meaningless where not valid.
@@ -36,9 +48,9 @@ class OnnxDepthResult(NamedTuple):
         confidence: (B, 1, H, W_ref) in [0, 1].
     """
 
-    depth: torch.Tensor
-    valid: torch.Tensor
-    confidence: torch.Tensor
+    depth: Any
+    valid: Any
+    confidence: Any
 
 
 class OnnxDepth:
@@ -53,6 +65,7 @@ class OnnxDepth:
             wins when the cores are the graph's alone and loses when other processes want them (``docs/design.md``,
             *How the model picks its defaults*, implementation choices): pass False where the depth graph shares
             the CPU (an endoscope application's other threads).
+        arrays: what the results are: 'torch' tensors (default) or 'numpy' arrays (torch never imported).
 
     Attributes:
         metadata: the ``prismstereo.*`` metadata_props (str -> str).
@@ -76,17 +89,19 @@ class OnnxDepth:
     """
 
     def __init__(self, path: str | Path, *, threads: int | None = None, optimization: Optimization = "all",
-                 spinning: bool = True) -> None:
+                 spinning: bool = True, arrays: Arrays = "torch") -> None:
         import onnxruntime as ort
 
         check_option(optimization, OPTIMIZATIONS, "optimization")
+        check_option(arrays, ARRAYS, "arrays")
         check_int(threads, "threads", 1, none=True)
-        self.path = Path(path)
+        self.path, self.arrays = Path(path), arrays
         if not self.path.is_file():
             raise ExportError(f"ONNX model not found: {self.path}")
-        temporal = _is_temporal(self.path)
-        plan = thread_plan()
-        self.threads = threads or (plan.temporal_graph if temporal else plan.graph)
+        if threads is None:  # the plan's count for the graph's kind (reading its inputs costs an onnx import)
+            plan = thread_plan()
+            threads = plan.temporal_graph if _is_temporal(self.path) else plan.graph
+        self.threads = threads
         options = ort.SessionOptions()
         options.intra_op_num_threads = self.threads
         options.inter_op_num_threads = 1
@@ -133,9 +148,9 @@ class OnnxDepth:
         low, high = json.loads(self.metadata["prismstereo.z_range_mm"])
         return float(low), float(high)
 
-    def _image(self, image: torch.Tensor | np.ndarray) -> np.ndarray:
+    def _image(self, image: Any) -> np.ndarray:
         """The graph's float32 input from (B, C, H, W) ``image``, checked."""
-        array = image.detach().cpu().numpy() if isinstance(image, torch.Tensor) else np.asarray(image)
+        array = as_array(image)
         if array.ndim != 4 or tuple(array.shape[1:]) != self.input_shape:
             c, h, w = self.input_shape
             raise ShapeError(f"image must have shape (B, {c}, {h}, {w}) for {self.path.name}, "
@@ -149,7 +164,15 @@ class OnnxDepth:
             raise OptionError(f"{self.path.name} is a {'temporal' if self.temporal else 'per-frame'} graph: "
                               f"{'track(image, prior)' if self.temporal else 'call it on the image alone'}")
 
-    def __call__(self, image: torch.Tensor | np.ndarray) -> OnnxDepthResult:
+    def _out(self, *arrays: np.ndarray) -> tuple[Any, ...]:
+        """The session's outputs as this session's kind of array (bool masks as bool)."""
+        if self.arrays == "numpy":
+            return arrays
+        import torch
+
+        return tuple(torch.from_numpy(a) for a in arrays)
+
+    def __call__(self, image: Any) -> OnnxDepthResult:
         """Depth of a batch ``image`` (B, C, H, W) in [0, 1] (any float dtype; run in float32) by a per-frame graph.
 
         Raises:
@@ -158,9 +181,9 @@ class OnnxDepth:
         """
         self._kind(False)
         depth, valid, confidence = self.session.run(list(OUTPUT_NAMES), {INPUT_NAME: self._image(image)})
-        return OnnxDepthResult(torch.from_numpy(depth), torch.from_numpy(valid).bool(), torch.from_numpy(confidence))
+        return OnnxDepthResult(*self._out(depth, valid.astype(bool, copy=False), confidence))
 
-    def track(self, image: torch.Tensor | np.ndarray, prior: BandPrior) -> TrackedDepth:
+    def track(self, image: Any, prior: BandPrior) -> TrackedDepth:
         """Depth of ``image`` (B, C, H, W) searched around ``prior`` by a temporal graph, as
         :meth:`~prismstereo.classical.temporal.TemporalDepth.track`.
 
@@ -169,7 +192,7 @@ class OnnxDepth:
             prior: a :class:`~prismstereo.classical.prior.BandPrior`, (B, 1, h, w) each (:attr:`prior_size`).
 
         Returns:
-            TrackedDepth(OnnxDepthResult of (B, 1, H, W_ref) tensors, the next frame's BandPrior).
+            TrackedDepth(OnnxDepthResult of (B, 1, H, W_ref) tensors or arrays, the next frame's BandPrior).
 
         Raises:
             ShapeError: an image or prior of another shape.
@@ -181,29 +204,30 @@ class OnnxDepth:
         feed = {INPUT_NAME: self._image(image)}
         shape = (feed[INPUT_NAME].shape[0], 1, *self.prior_size)
         for name, t, dtype in zip(PRIOR_NAMES, prior, (np.float32, np.bool_), strict=True):
-            value = t.detach().cpu().numpy() if isinstance(t, torch.Tensor) else np.asarray(t)
+            value = as_array(t)
             if tuple(value.shape) != shape:
                 raise ShapeError(f"{name} must have shape {shape}, got {tuple(value.shape)}")
             feed[name] = np.ascontiguousarray(value, dtype=dtype)
         depth, valid, confidence, inverse, placed = self.session.run([*OUTPUT_NAMES, *NEXT_PRIOR_NAMES], feed)
-        return TrackedDepth(OnnxDepthResult(torch.from_numpy(depth), torch.from_numpy(valid).bool(),
-                                            torch.from_numpy(confidence)),
-                            BandPrior(torch.from_numpy(inverse), torch.from_numpy(placed).bool()))
+        depth, valid, confidence, inverse, placed = self._out(depth, valid.astype(bool, copy=False), confidence,
+                                                              inverse, placed.astype(bool, copy=False))
+        return TrackedDepth(OnnxDepthResult(depth, valid, confidence), BandPrior(inverse, placed))
 
-    def band_prior(self, depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor) -> BandPrior:
+    def band_prior(self, depth: Any, valid: Any, confidence: Any) -> BandPrior:
         """A full-resolution result (B, 1, H, W_ref) each (a key frame's) as a temporal graph's prior
         (:func:`~prismstereo.classical.prior.band_prior` with the graph's range, options and :attr:`prior_size`),
-        computed in torch.
+        computed in numpy (the same prior in either kind of session), returned as this session's arrays.
 
         Raises:
             OptionError: a per-frame graph.
         """
-        from prismstereo.classical.prior import band_prior
+        from prismstereo.classical.prior import BandPrior, band_prior
 
         self._kind(True)
-        return band_prior(depth, valid, confidence, z_range=self.z_range,
-                          min_confidence=self.temporal.min_prior_confidence, downsample=self.temporal.downsample,
-                          size=self.prior_size)
+        prior = band_prior(as_array(depth), as_array(valid), as_array(confidence), z_range=self.z_range,
+                           min_confidence=self.temporal.min_prior_confidence, downsample=self.temporal.downsample,
+                           size=self.prior_size)
+        return BandPrior(*self._out(*prior))
 
 
 def _is_temporal(path: Path) -> bool:

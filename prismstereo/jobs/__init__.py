@@ -29,12 +29,11 @@ Example:
     PosixPath('out/capture.npy')
 """
 
-import importlib
-
 # the plan and run import without torch, and eagerly: ``plan`` and ``run`` name both a function and its module, and a
 # lazily imported module would take the function's place
 from prismstereo.jobs.plan import Outputs, PlanError, Selection, Task, TaskReport, WriteOptions, check_inputs, plan
 from prismstereo.jobs.run import JobSummary, run
+from prismstereo.lazy import lazy_names
 
 __all__ = ["Executor", "InProcess", "JobSummary", "Outputs", "Pipeline", "PlanError", "Selection", "Task",
            "TaskReport", "WorkerProcesses", "WriteOptions", "check_inputs", "plan", "run"]
@@ -43,12 +42,4 @@ _LAZY = {"Executor": "prismstereo.jobs.executors", "InProcess": "prismstereo.job
          "WorkerProcesses": "prismstereo.jobs.executors", "Pipeline": "prismstereo.jobs.pipeline"}
 
 
-def __getattr__(name: str):
-    """The executors and the pipeline (which import torch), imported on first use (PEP 562)."""
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'prismstereo.jobs' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

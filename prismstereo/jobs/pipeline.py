@@ -1,6 +1,10 @@
 """One process's depth pipeline (:class:`Pipeline`): a :class:`~prismstereo.predictor.Predictor` and its writers, over
 captures in batches and sequences frame after frame, reading, the model and writing overlapping on three threads,
-every file renamed into place whole."""
+every file renamed into place whole.
+
+The pipeline itself imports no torch: captures and frames are decoded into numpy arrays, results written from
+either kind of array. With a :class:`~prismstereo.export.graphs.GraphPredictor` (a model's graphs on arrays) a job
+runs without torch; with a :class:`~prismstereo.predictor.Predictor` the arrays become its tensors."""
 
 from __future__ import annotations
 
@@ -12,16 +16,19 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from prismstereo.errors import OptionError, PrismStereoError
+from prismstereo.export.graphs import GraphPredictor
+from prismstereo.export.session import as_array
 from prismstereo.io import replacing
 from prismstereo.jobs.plan import Outputs, Task, TaskReport, WriteOptions, size_error
-from prismstereo.predictor import Predictor
 from prismstereo.threads import ThreadPlan, thread_plan, torch_threads
+
+if TYPE_CHECKING:
+    from prismstereo.predictor import Predictor
 
 __all__ = ["Pipeline", "TaskReport"]
 
@@ -75,20 +82,23 @@ def _one_thread(job: Callable[[], Any]) -> Any:
         return job()
 
 
-def _tally(state: dict[str, Any], depth: torch.Tensor, valid: torch.Tensor) -> None:
-    """Add a written frame's valid pixels and depth range to a sequence's ``state``."""
-    ok = valid & torch.isfinite(depth)
-    state["valid"] += int(ok.sum())
-    state["pixels"] += ok.numel()
-    if bool(ok.any()):
+def _tally(state: dict[str, Any], depth: Any, valid: Any) -> None:
+    """Add a written frame's valid pixels and depth range (a tensor's or an array's) to a sequence's ``state``."""
+    depth, valid = as_array(depth), as_array(valid)
+    ok = valid & np.isfinite(depth)
+    state["valid"] += int(np.count_nonzero(ok))
+    state["pixels"] += ok.size
+    if ok.any():
         state["lo"], state["hi"] = min(state["lo"], float(depth[ok].min())), max(state["hi"], float(depth[ok].max()))
 
 
-def _depth_range(depths: torch.Tensor) -> str:
-    """``depths`` (N,) mm in words: their range and median, or that there is none."""
-    if not depths.numel():
+def _depth_range(depths: np.ndarray) -> str:
+    """``depths`` (N,) mm in words: their range and median (the lower middle value, as torch's), or that there is
+    none."""
+    if not depths.size:
         return "no valid depth"
-    return f"depth {float(depths.min()):.1f}-{float(depths.max()):.1f} mm (median {float(depths.median()):.1f})"
+    median = float(np.partition(depths, (depths.size - 1) // 2)[(depths.size - 1) // 2])
+    return f"depth {float(depths.min()):.1f}-{float(depths.max()):.1f} mm (median {median:.1f})"
 
 
 class _Writer:
@@ -127,8 +137,9 @@ class Pipeline:
     runs on one torch thread: otherwise each waits on the other's busy threads.
 
     Args:
-        predictor: the model in torch or its graphs in onnxruntime; sequences are tracked by its temporal band
-            when it has one (:attr:`~prismstereo.predictor.Predictor.temporal`), else every frame on its own.
+        predictor: the model in torch or its graphs in onnxruntime (a :class:`~prismstereo.predictor.Predictor`), or
+            the graphs on arrays without torch (a :class:`~prismstereo.export.graphs.GraphPredictor`); sequences are
+            tracked by its temporal band when it has one (``temporal``), else every frame on its own.
         options: how results are written (default :class:`WriteOptions`).
 
     Attributes:
@@ -141,16 +152,20 @@ class Pipeline:
         'torch'
     """
 
-    def __init__(self, predictor: Predictor, *, options: WriteOptions | None = None) -> None:
-        if not isinstance(predictor, Predictor):
-            raise OptionError(f"a pipeline runs a Predictor, got {type(predictor).__name__}")
+    def __init__(self, predictor: Predictor | GraphPredictor, *, options: WriteOptions | None = None) -> None:
+        if not isinstance(predictor, GraphPredictor):
+            from prismstereo.predictor import Predictor
+
+            if not isinstance(predictor, Predictor):
+                raise OptionError(f"a pipeline runs a Predictor or a GraphPredictor, got {type(predictor).__name__}")
         self.predictor = predictor
         self.options = options or WriteOptions()
         self.progress: Callable[[int], None] | None = None
 
     @property
     def rig(self):
-        """The predictor's rig."""
+        """The predictor's rig (a :class:`~prismstereo.export.graphs.GraphPredictor` builds it from its metadata,
+        importing torch: the point clouds need it)."""
         return self.predictor.rig
 
     @property
@@ -176,7 +191,7 @@ class Pipeline:
         """Pickled for a spawned worker or a Ray actor: the predictor (its model or graphs' paths), not a callback."""
         return {**self.__dict__, "progress": None}
 
-    def depth(self, batch: torch.Tensor):
+    def depth(self, batch: Any):
         """The predictor's result for a batch (B, C, H, W): ``depth``, ``valid``, ``confidence``, (B, 1, H, W_ref)
         each.
 
@@ -189,8 +204,7 @@ class Pipeline:
         return self.predictor.depth(batch)
 
     # ----------------------------------------------------------------------------- writing
-    def _write(self, files: Outputs, depth: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor,
-               points: torch.Tensor | None, colors: torch.Tensor) -> str:
+    def _write(self, files: Outputs, depth: Any, valid: Any, confidence: Any, points: Any, colors: Any) -> str:
         """Write one result (depth (H, W_ref), its companions); returns the note for its line."""
         from prismstereo.depth import write_ply
         from prismstereo.io import write_depth
@@ -209,15 +223,17 @@ class Pipeline:
                          "65535 (see --png-scale)")
         if files.confidence is not None:
             with replacing(files.confidence) as partial:
-                np.save(partial, confidence.numpy().astype(np.float32))
+                np.save(partial, as_array(confidence).astype(np.float32))
             note += f", confidence {files.confidence.name}"
         if files.ply is not None and points is not None:
-            count = write_ply(files.ply, points, colors=colors, confidence=confidence,
-                              camera_to_world=opts.camera_to_world)
+            import torch
+
+            count = write_ply(files.ply, points, colors=torch.as_tensor(colors),
+                              confidence=torch.as_tensor(confidence), camera_to_world=opts.camera_to_world)
             note += f", {files.ply.name} ({count} points)"
         return note
 
-    def written_pixels(self, result: Any) -> torch.Tensor:
+    def written_pixels(self, result: Any) -> Any:
         """The (B, 1, H, W_ref) pixels whose depth is written: the valid ones, or with ``dense`` every pixel with a
         depth (confidence > 0).
 
@@ -229,30 +245,31 @@ class Pipeline:
         """
         return (result.confidence > 0) if self.options.dense else result.valid
 
-    def _points(self, depth: torch.Tensor, written: torch.Tensor) -> torch.Tensor | None:
+    def _points(self, depth: Any, written: Any) -> Any:
         if not self.options.ply:
             return None
+        import torch
+
         from prismstereo.depth import depth_to_points
 
         with torch.inference_mode():
-            return depth_to_points(self.rig, depth.to(torch.float64), written)
+            return depth_to_points(self.rig, torch.as_tensor(depth).to(torch.float64), torch.as_tensor(written))
 
     def _tick(self) -> None:
         if self.progress is not None:
             self.progress(1)
 
     # ----------------------------------------------------------------------------- captures
-    def _read(self, path: str) -> tuple[torch.Tensor, torch.Tensor] | str:
-        """A capture of the rig's size, grey (1, H, W) and as read (C, H, W), or why not."""
-        from prismstereo.conventions import to_grey
-        from prismstereo.io import read_image
+    def _read(self, path: str) -> tuple[np.ndarray, np.ndarray] | str:
+        """A capture of the sensor's size, grey (1, H, W) and as read (C, H, W) float32 arrays, or why not."""
+        from prismstereo.io import decode_image, grey_array
 
         try:
-            image = read_image(path)
+            image = decode_image(path)
         except _FAILURES as exc:
             return str(exc)
-        error = size_error(path, image, (self.rig.image_height, self.rig.image_width))
-        return error if error else (to_grey(image), image)
+        error = size_error(path, image, self.predictor.image_size)
+        return error if error else (grey_array(image), image)
 
     def run_captures(self, tasks: Sequence[Task], batch_size: int = 1) -> Iterator[TaskReport]:
         """Depth of single captures, ``batch_size`` at a time: the next batch is read while this one runs and the
@@ -264,14 +281,14 @@ class Pipeline:
         chunks = [list(tasks[i:i + batch_size]) for i in range(0, len(tasks), batch_size)]
         ready: deque = deque()
         writer = _Writer()
-        w_ref = self.rig.reference_width
+        w_ref = self._reference_width()
         for chunk, images in zip(chunks, _prefetch([self._read(t.source) for t in c] for c in chunks), strict=True):
             good = [(t, im) for t, im in zip(chunk, images, strict=True) if not isinstance(im, str)]
             ready.extend(TaskReport(t.source, 0, 0, (), 0.0, im) for t, im in zip(chunk, images, strict=True)
                          if isinstance(im, str))
             if good:
                 start = time.perf_counter()
-                res = self.depth(torch.stack([grey for _, (grey, _) in good]))
+                res = self.depth(np.stack([grey for _, (grey, _) in good]))
                 seconds = (time.perf_counter() - start) / len(good)
                 mask = self.written_pixels(res)
                 points = self._points(res.depth, mask)
@@ -285,8 +302,12 @@ class Pipeline:
         writer.close()
         yield from ready
 
-    def _captured(self, ready: deque, task: Task, depth: torch.Tensor, valid: torch.Tensor, seconds: float,
-                  future: Future) -> None:
+    def _reference_width(self) -> int:
+        """W_ref, the reference half's columns."""
+        predictor = self.predictor
+        return predictor.reference_width if isinstance(predictor, GraphPredictor) else predictor.rig.reference_width
+
+    def _captured(self, ready: deque, task: Task, depth: Any, valid: Any, seconds: float, future: Future) -> None:
         """Queue the report of a capture whose files were written by ``future``."""
         error = future.exception()
         if error is not None:
@@ -295,9 +316,10 @@ class Pipeline:
             ready.append(TaskReport(task.source, 0, 0, (), seconds, str(error)))
             return
         self._tick()
-        ok = valid & torch.isfinite(depth)
+        depth, valid = as_array(depth), as_array(valid)
+        ok = valid & np.isfinite(depth)
         kind = "with a depth (dense)" if self.options.dense else "valid"
-        line = (f"wrote {task.outputs[0].depth}: {ok.float().mean():.1%} of reference pixels {kind}, "
+        line = (f"wrote {task.outputs[0].depth}: {np.count_nonzero(ok) / ok.size:.1%} of reference pixels {kind}, "
                 f"{_depth_range(depth[ok])}{future.result()}")
         ready.append(TaskReport(task.source, 1, 0, (line,), seconds))
 
@@ -311,11 +333,18 @@ class Pipeline:
         Example:
             >>> report = pipeline.run_sequence(plan(["clip.mp4"], Path("out"), WriteOptions())[0])  # doctest: +SKIP
         """
-        from prismstereo.stream import DepthStream
-        from prismstereo.stream.video import read_frames
+        from prismstereo.sources import decode_frames
 
-        sel, rig, opts = task.selection, self.rig, self.options
-        stream = DepthStream(self.predictor, temporal=self.predictor.temporal is not None)
+        sel, opts = task.selection, self.options
+        tracked = self.predictor.temporal is not None
+        if isinstance(self.predictor, GraphPredictor):
+            from prismstereo.stream.frame_stream import FrameStream
+
+            stream = FrameStream(self.predictor, temporal=tracked)
+        else:
+            from prismstereo.stream import DepthStream
+
+            stream = DepthStream(self.predictor, temporal=tracked)
         writer, preview = _Writer(depth=4), [None]
         state = {"written": 0, "error": None, "valid": 0, "pixels": 0, "lo": math.inf, "hi": -math.inf}
 
@@ -360,7 +389,7 @@ class Pipeline:
 
         # grey frames from the reader thread, unless the point cloud takes the frames' colours; a video decoded on
         # every core but one (the graph's, or under the temporal prior the band's: thread_plan)
-        frames = read_frames(task.source, every=sel.every, start=sel.start + task.first * sel.every, stop=sel.stop,
+        frames = decode_frames(task.source, every=sel.every, start=sel.start + task.first * sel.every, stop=sel.stop,
                              grey=not opts.ply, decode_threads=self.threads.decode)
         try:
             for files, frame in zip(task.outputs[task.first:], _prefetch(frames, depth=4), strict=False):
@@ -369,7 +398,7 @@ class Pipeline:
                 points = self._points(res.depth, mask)
                 writer.submit(functools.partial(job, files, res.depth[0, 0], mask[0, 0], res.confidence[0, 0],
                                                 None if points is None else points[0],
-                                                frame.image[:, :, : rig.reference_width]), done)
+                                                frame.image[:, :, : self._reference_width()]), done)
                 if state["error"] is not None:
                     break
         except _FAILURES as exc:

@@ -292,15 +292,14 @@ def size_error(source: str, image: torch.Tensor, size: tuple[int, int]) -> str |
 def _input_error(task: Task, size: tuple[int, int]) -> str | None:
     """Why ``task``'s first image to process cannot be read as a capture of ``size``, else None."""
     from prismstereo.io import decode_image
+    from prismstereo.sources import decode_frames
 
-    try:
-        if not task.sequence:  # decoded without torch
+    try:  # decoded without torch
+        if not task.sequence:
             return size_error(task.source, decode_image(task.source), size)
-        from prismstereo.stream.video import read_frames
-
         every, start, _ = task.selection
         index = start + task.first * every
-        frame = next(read_frames(task.source, start=index, stop=index + 1), None)
+        frame = next(decode_frames(task.source, start=index, stop=index + 1), None)
         if frame is None:
             return f"no frame {index} in {task.source}"
         return size_error(f"{task.source} (frame {index})", frame.image, size)

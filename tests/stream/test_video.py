@@ -245,12 +245,12 @@ def test_hybrid_key_frames_tracked_by_the_classical_band(clip, tmp_path, backend
 def test_stream_cut_thumbnail_is_torch_s(dtype, size):
     """The stream's 8 x 8 block means (OpenCV's area resize) are torch's average pooling to float rounding, whole
     blocks only (an image smaller than a block is its own thumbnail)."""
-    from prismstereo.stream.depth_stream import _block_means
+    from prismstereo.stream.frame_stream import block_means
 
     g = torch.Generator().manual_seed(3)
     grey = torch.rand(1, 1, *size, generator=g, dtype=dtype)
-    thumb = _block_means(grey)
-    expected = grey if min(size) < 8 else torch.nn.functional.avg_pool2d(grey, 8)
+    thumb = torch.from_numpy(block_means(grey[0, 0].numpy()))
+    expected = (grey if min(size) < 8 else torch.nn.functional.avg_pool2d(grey, 8))[0, 0]
     assert thumb.shape == expected.shape and thumb.dtype == dtype
     torch.testing.assert_close(thumb, expected, atol=1e-6, rtol=0)
 
@@ -276,7 +276,7 @@ def test_stream_is_thread_safe_and_checks_its_input():
         stream.push(torch.rand(1, 48, 32))
     with pytest.raises(ShapeError, match=r"a frame must be \(C, H, W\) or \(1, C, H, W\)"):
         stream.push(torch.rand(2, 1, 48, 64))
-    with pytest.raises(ShapeError, match="OpenCV's uint8"):
+    with pytest.raises(ShapeError, match="frame is 3x64 px"):  # a float array is (C, H, W)
         stream.push(np.zeros((48, 64, 3), np.float32))
     with pytest.raises(OptionError, match="an .onnx file"):
         DepthStream("model.pt")
@@ -322,16 +322,16 @@ def test_onnx_stream_does_its_tensor_work_on_one_torch_thread(export_once, monke
 @pytest.mark.parametrize("backend", ["torch", "onnx"])
 def test_depth_cli_on_a_video_writes_numbered_frames(clip, tmp_path, capsys, monkeypatch, backend):
 
-    import prismstereo.stream.video
+    import prismstereo.sources
 
     asked = []
-    original = prismstereo.stream.video.read_frames
+    original = prismstereo.sources.decode_frames
 
     def spy(*args, **kwargs):
         asked.append(kwargs.get("decode_threads"))
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(prismstereo.stream.video, "read_frames", spy)
+    monkeypatch.setattr(prismstereo.sources, "decode_frames", spy)
     out = tmp_path / "out"
     assert _depth(clip / "clip.avi", "--rig", clip / "small.json", "--out", out, "--z-range", 400, 700,
                   "--every", 2, "--backend", backend, "--preview-video", tmp_path / "preview.mp4",
