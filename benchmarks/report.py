@@ -66,6 +66,12 @@ BENCHMARKS: dict[str, Benchmark] = {
         "(`--temporal-binning 3`); `hybrid keys` the hybrid's key frames tracked by those bands (what `prismstereo "
         "depth` runs). What the numbers mean: usage.md, *Video and streams*. First, `prismstereo depth` end to end "
         "on a video and on 16 captures (1 and 2 worker processes)."),
+    "startup": Benchmark(
+        "startup.py", (), "Start-up",
+        "One 1024 x 768 capture through `prismstereo depth`, a new process per run as a user runs it: the first ONNX "
+        "run (the model built, its graphs exported), the same command again (the remembered graphs through the "
+        "torch-free pipeline) and the torch backend; with bytecode written and with `PYTHONDONTWRITEBYTECODE=1`. "
+        "Wall time and the process's peak resident memory."),
     "keyframe_interval": Benchmark(
         "keyframe_interval.py", (), "Video: the key-frame interval of the temporal prior",
         "A 240-frame smooth sequence (back and forth over the moving plane) through the temporal ONNX stream as "

@@ -176,3 +176,22 @@ def test_depth_file_errors(tmp_path):
     (tmp_path / "plain.json").write_text('{"scale": 3}')
     with pytest.raises(ImageIOError, match="unreadable depth scale in .*plain.json"):
         read_depth(tmp_path / "plain.png")
+
+
+@pytest.mark.parametrize("levels", [None, 255, 65535])
+def test_grey_array_is_to_grey_bit_for_bit(levels):
+    """The numpy grey of a colour image (random, 8-bit and 16-bit levels) equals torch's to_grey in every bit."""
+    from prismstereo.conventions import to_grey
+    from prismstereo.io import grey_array
+
+    g = torch.Generator().manual_seed(5)
+    image = torch.rand(2, 3, 61, 83, generator=g)
+    if levels is not None:
+        image = (image * levels).round() / levels
+    assert np.array_equal(grey_array(image.numpy()), to_grey(image).numpy())
+    one = np.zeros((1, 4, 4), np.float32)
+    assert grey_array(one) is one
+    with pytest.raises(ShapeError, match="float32"):
+        grey_array(np.zeros((3, 4, 4)))
+    with pytest.raises(ShapeError, match="C = 1 or 3"):
+        grey_array(np.zeros((2, 4, 4), np.float32))

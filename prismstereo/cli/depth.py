@@ -5,6 +5,11 @@ It parses its own arguments and only calls the library: the model the flags ask 
 graphs from the ONNX cache without building the model when the same request was exported before), the job's
 outputs checked before any work (:func:`~prismstereo.jobs.plan`, its errors named by the flags) and the pipelined
 run over captures, sequences and videos (:func:`~prismstereo.jobs.run`) on the executor the flags choose.
+
+With ``--backend onnx`` the same flags again (the cache's index remembers them:
+:func:`~prismstereo.cli.model_flags.request_flags`) run the remembered graphs through a
+:class:`~prismstereo.export.graphs.GraphPredictor` without importing torch, unless the job needs it (``--ply``,
+``--ray``).
 """
 
 from __future__ import annotations
@@ -15,14 +20,13 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from prismstereo.cli.model_flags import add_model_arguments, flag_errors, model_spec, range_note
+from prismstereo.cli.model_flags import add_model_arguments, flag_errors, model_spec, range_note, request_flags
 from prismstereo.errors import PrismStereoError
 from prismstereo.names import BACKENDS, DEPTH_FILE_FORMATS
 
 if TYPE_CHECKING:  # imported by the command as it runs: its parser and --help need no torch
     import torch
 
-    from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["add_parser"]
 
@@ -58,8 +62,8 @@ def _camera_to_world(path: str) -> torch.Tensor:
     return pose
 
 
-def _check_flags(args: argparse.Namespace) -> torch.Tensor | None:
-    """The flags' own checks, before anything is read or built; returns the ``--camera-to-world`` pose."""
+def _check_numbers(args: argparse.Namespace) -> None:
+    """The flags' own checks of numbers and combinations, before anything is read or built."""
     if args.png_scale is not None and not (math.isfinite(args.png_scale) and args.png_scale > 0):
         raise PrismStereoError(f"--png-scale must be a positive number, got {args.png_scale:g}")
     for flag, value in (("--batch-size", args.batch_size), ("--workers", args.workers),
@@ -70,29 +74,54 @@ def _check_flags(args: argparse.Namespace) -> torch.Tensor | None:
         raise PrismStereoError("--temporal-binning places the temporal prior's band: not with --no-temporal")
     if args.ray is not None and args.workers > 1:
         raise PrismStereoError("--ray and --workers exclude each other (Ray places the workers)")
-    pose = _camera_to_world(args.camera_to_world) if args.camera_to_world else None
-    if pose is not None and not args.ply:
+    if args.camera_to_world and not args.ply:
         raise PrismStereoError("--camera-to-world transforms the --ply point clouds: add --ply")
-    return pose
 
 
-def _tasks(args: argparse.Namespace, pose: torch.Tensor | None, rig: BiPrismRig):
-    """The job's tasks and write options (:func:`~prismstereo.jobs.plan`, its errors naming the flags), every input's
-    first image read (:func:`~prismstereo.jobs.check_inputs`): a bad input fails before the model is built."""
-    from prismstereo.jobs import Selection, WriteOptions, check_inputs, plan
+def _check_flags(args: argparse.Namespace) -> torch.Tensor | None:
+    """The flags' own checks, before anything is read or built; returns the ``--camera-to-world`` pose."""
+    _check_numbers(args)
+    return _camera_to_world(args.camera_to_world) if args.camera_to_world else None
 
-    options = WriteOptions(args.format, args.ply, args.dense, args.png_scale, pose,
+
+def _failed(source: str, error: str) -> None:
+    print(f"prismstereo: failed: {source}: {error}", file=sys.stderr)
+
+
+def _plan(args: argparse.Namespace, pose: torch.Tensor | None, dense: bool):
+    """The job's tasks and write options (:func:`~prismstereo.jobs.plan`, its errors naming the flags)."""
+    from prismstereo.jobs import Selection, WriteOptions, plan
+
+    options = WriteOptions(args.format, args.ply, dense, args.png_scale, pose,
                            Path(args.preview_video) if args.preview_video else None, args.preview_fps, args.preview)
     tasks = plan(args.images, Path(args.out), options, Selection(args.every, args.start, args.stop),
                  skip_existing=args.skip_existing, names=PLAN_FLAGS)
-    tasks = check_inputs(tasks, (rig.image_height, rig.image_width))  # read before the model is built
+    return tasks, options
+
+
+def _checked(tasks: list, size: tuple[int, int]) -> list:
+    """The tasks with every input's first image read (:func:`~prismstereo.jobs.check_inputs`) for a sensor of
+    ``size`` (H, W): a bad input fails before the model is built; one bad input, or all, end the command."""
+    from prismstereo.jobs import check_inputs
+
+    tasks = check_inputs(tasks, size)
     if len(tasks) == 1 and tasks[0].error is not None:
         raise PrismStereoError(tasks[0].error)  # one input: its error is the command's
     if all(t.error is not None for t in tasks):
         for task in tasks:
-            print(f"prismstereo: failed: {task.source}: {task.error}", file=sys.stderr)
+            _failed(task.source, task.error)
         raise PrismStereoError(f"none of the {len(tasks)} inputs can be processed")
-    return tasks, options
+    return tasks
+
+
+def _runnable(tasks: list) -> list:
+    """The tasks with outputs left to write and no input error."""
+    return [t for t in tasks if t.error is None and t.first < len(t.outputs)]
+
+
+def _tracked(args: argparse.Namespace, tasks: list) -> bool:
+    """Whether the job tracks sequences with the temporal prior."""
+    return args.temporal and any(t.sequence for t in _runnable(tasks))
 
 
 def _executor(args: argparse.Namespace):
@@ -110,28 +139,65 @@ def _executor(args: argparse.Namespace):
     return InProcess(), ""
 
 
+def _remembered(args: argparse.Namespace):
+    """The job on the graphs the cache's index remembers for these flags, without torch
+    (:class:`~prismstereo.export.graphs.GraphPredictor`): (tasks, options, predictor), or None when the flags were
+    not served before (or their sequences would now be tracked otherwise)."""
+    from prismstereo.export.graphs import GraphPredictor
+    from prismstereo.export.index import flags_key, recall
+
+    tasks, options = _plan(args, None, args.dense)
+    tracked = args.temporal and any(t.sequence for t in tasks if t.first < len(t.outputs))
+    files = recall(flags_key(request_flags(args, tracked=tracked)))
+    if files is None:
+        return None
+    predictor = GraphPredictor(files, spinning=False)
+    if predictor.dense != options.dense:
+        tasks, options = _plan(args, None, predictor.dense)
+    tasks = _checked(tasks, predictor.image_size)
+    return None if _tracked(args, tasks) != tracked else (tasks, options, predictor)
+
+
 def _cmd_depth(args: argparse.Namespace) -> int:
+    _check_numbers(args)
+    if args.backend == "onnx" and not args.ply and args.ray is None:
+        job = _remembered(args)
+        if job is not None:
+            return _run(args, *job, *_executor(args), tracked=_tracked(args, job[0]))
     from prismstereo.classical import TemporalOptions
+    from prismstereo.export.index import flags_key, remember
     from prismstereo.geometry.presets import load_rig
-    from prismstereo.jobs import Pipeline, run
     from prismstereo.predictor import Predictor
 
     rig = load_rig(args.rig)
+    given = argparse.Namespace(**vars(args))  # the flags as given (model_spec sets dense)
     spec = model_spec(args, rig)  # the model's flags fail early, and set args.dense for the outputs
     pose = _check_flags(args)
-    tasks, options = _tasks(args, pose, rig)
-    runnable = [t for t in tasks if t.error is None and t.first < len(t.outputs)]
-    tracked = any(t.sequence for t in runnable) and args.temporal
+    tasks, options = _plan(args, pose, args.dense)
+    tasks = _checked(tasks, (rig.image_height, rig.image_width))
+    tracked = _tracked(args, tasks)
     temporal = TemporalOptions(downsample=args.temporal_binning) if tracked else None
     executor, where = _executor(args)
     with flag_errors(args):
         predictor = Predictor(spec, backend=args.backend, temporal=temporal, spinning=False)
     if tracked and predictor.temporal is None and args.temporal_binning is not None:
         raise PrismStereoError("--temporal-binning: this model has no full-resolution band for the temporal prior")
+    if predictor.files is not None:  # the same flags again run these graphs without torch
+        files = predictor.files
+        remember(flags_key(request_flags(given, tracked=tracked)), files.path, files.summary, temporal=files.temporal)
+    return _run(args, tasks, options, predictor, executor, where, tracked=tracked)
+
+
+def _run(args: argparse.Namespace, tasks: list, options, predictor, executor, where: str, *, tracked: bool) -> int:
+    """Run the job: its first line, the pipelined run, its summary and failures; the exit status."""
+    from prismstereo.jobs import Pipeline, run
+
+    runnable = _runnable(tasks)
     cached = (" (cached graphs)" if tracked else " (cached graph)") if predictor.cached else ""
+    torch_free = "" if sys.modules.get("torch") is not None else " (without torch)"
     outputs = sum(len(t.outputs) - t.first for t in runnable)
-    print(f"{range_note(args, predictor.z_range)}, {predictor.summary}{cached}, backend {args.backend}{where}; "
-          f"{outputs} depth maps to write from {len(runnable)} of {len(tasks)} inputs")
+    print(f"{range_note(args, predictor.z_range)}, {predictor.summary}{cached}, backend {args.backend}{torch_free}"
+          f"{where}; {outputs} depth maps to write from {len(runnable)} of {len(tasks)} inputs")
     try:
         result = run(tasks, Pipeline(predictor, options=options), executor=executor, batch_size=args.batch_size)
     except KeyboardInterrupt as exc:  # the same kind (Ctrl-C or SIGTERM), saying what is on disk
@@ -141,7 +207,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     if len(tasks) == 1 and result.failed:
         raise PrismStereoError(result.failed[0].error)
     for failure in result.failed:
-        print(f"prismstereo: failed: {failure.source}: {failure.error}", file=sys.stderr)
+        _failed(failure.source, failure.error)
     return 1 if result.failed else 0
 
 

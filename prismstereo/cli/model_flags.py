@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import re
 from collections.abc import Iterator
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from prismstereo.errors import PrismStereoError
 from prismstereo.names import MODEL_KINDS
@@ -19,7 +21,7 @@ if TYPE_CHECKING:  # imported where a model is asked for: parsing the flags need
     from prismstereo.geometry.rig import BiPrismRig
     from prismstereo.models import ModelSpec
 
-__all__ = ["add_model_arguments", "flag_error", "flag_errors", "model_spec", "range_note"]
+__all__ = ["add_model_arguments", "flag_error", "flag_errors", "model_spec", "range_note", "request_flags"]
 
 # the config options that have a flag of their own: errors about them name the flag
 FLAGS = {"num_hypotheses": "--hypotheses", "downsample": "--downsample", "full_band": "--full-band",
@@ -101,6 +103,34 @@ def model_spec(args: argparse.Namespace, rig: BiPrismRig) -> ModelSpec:
         return ModelSpec(rig=rig, kind="learned", z_range=args.z_range, config={"num_hypotheses": args.hypotheses},
                          weights=args.weights)
     return spec
+
+
+def _content(path: str | None) -> str | None:
+    """A file flag's value by its content (sha256), so that a changed file is a new request; the text itself when
+    it names no file (a preset, a rig's JSON text)."""
+    if path is None:
+        return None
+    file = Path(path)
+    return f"sha256:{hashlib.sha256(file.read_bytes()).hexdigest()}" if file.is_file() else str(path)
+
+
+def request_flags(args: argparse.Namespace, *, tracked: bool) -> dict[str, Any]:
+    """What the flags of ``prismstereo depth`` ask of the model, as JSON: the rig, the model flags and, when
+    sequences are ``tracked`` by the temporal prior, its binning; the files named (rig, weights, config) by their
+    content. The cache's index remembers the graphs a request was served by under this
+    (:func:`~prismstereo.export.index.flags_key`), so the same command again runs them without torch.
+
+    Example:
+        >>> args = argparse.Namespace(rig="thesis_setup1", z_range=None, hypotheses=None, downsample=None,
+        ...     full_band=None, band_edges=None, model=None, last_stage=None, weights=None, preset=None, config=None,
+        ...     dense=False, temporal_binning=None)
+        >>> request_flags(args, tracked=False)["rig"]
+        'thesis_setup1'
+    """
+    flags = {name: getattr(args, name) for name in ("z_range", "hypotheses", "downsample", "full_band",
+                                                     "band_edges", "model", "last_stage", "preset", "dense")}
+    return {**flags, "rig": _content(args.rig), "weights": _content(args.weights), "config": _content(args.config),
+            "temporal": {"binning": args.temporal_binning} if tracked else None}
 
 
 def range_note(args: argparse.Namespace, z_range: tuple[float, float]) -> str:

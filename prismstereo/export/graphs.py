@@ -8,6 +8,7 @@ OpenCV and onnxruntime (``docs/usage.md``, *Deploying without torch*).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +108,13 @@ class GraphPredictor:
     def prior_size(self) -> tuple[int, int] | None:
         """(h, w) of the band's :class:`~prismstereo.classical.BandPrior` when it can track, else None."""
         return None if self.temporal is None else self.temporal_graph.prior_size
+
+    @property
+    def dense(self) -> bool:
+        """Whether the model writes a depth wherever it has one (a classical model's ``validity.dense``, from the
+        graph's metadata), not only where it is valid; False for the other models."""
+        config = json.loads(self.metadata.get("prismstereo.config", "{}")).get("config")
+        return bool(isinstance(config, dict) and config.get("validity", {}).get("dense", False))
 
     @property
     def rig(self):

@@ -17,7 +17,8 @@ from prismstereo.io import replacing
 if TYPE_CHECKING:
     from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["GraphFiles", "cache_directory", "describe_graph", "recall", "remember", "request_key", "source_digest"]
+__all__ = ["GraphFiles", "cache_directory", "describe_graph", "flags_key", "recall", "remember", "request_key",
+           "source_digest"]
 
 DEFAULT_OPSET = 18
 """The ONNX opset of a new export (re-exported by :mod:`prismstereo.export.graph`)."""
@@ -72,8 +73,6 @@ def source_digest() -> str:
     return digest.hexdigest()[:16]
 
 
-
-
 def request_key(rig: BiPrismRig, request: dict[str, Any], *, channels: int = 1, opset: int = DEFAULT_OPSET) -> str:
     """The cache's name for a request: a hash of the rig, ``request`` (what the caller asked for, before the model
     resolves its defaults, JSON-serialisable: :meth:`~prismstereo.models.ModelSpec.request`), the channels, the
@@ -89,6 +88,24 @@ def request_key(rig: BiPrismRig, request: dict[str, Any], *, channels: int = 1, 
                        "version": __version__, "source": source_digest()}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
+
+
+def flags_key(flags: dict[str, Any], *, channels: int = 1, opset: int = DEFAULT_OPSET) -> str:
+    """The cache's name for a request made by a command's flags (:func:`~prismstereo.cli.model_flags.request_flags`,
+    JSON), before any rig or model is built: a hash of the flags, the channels, the opset, the package version and
+    the source digest. A command that served such a request remembers its graphs under it (:func:`remember`); the
+    same command again recalls them without importing torch.
+
+    Example:
+        >>> key = flags_key({"rig": "thesis_setup1", "z_range": None})
+        >>> key[:6], len(key)
+        ('flags-', 22)
+    """
+    from prismstereo import __version__
+
+    blob = json.dumps({"flags": flags, "channels": channels, "opset": opset, "version": __version__,
+                       "source": source_digest()}, sort_keys=True)
+    return "flags-" + hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
 def _index(key: str, cache_dir: str | Path | None) -> Path:

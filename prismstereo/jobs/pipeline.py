@@ -147,6 +147,7 @@ class Pipeline:
 
     Example:
         >>> from prismstereo.models import build_model
+        >>> from prismstereo.predictor import Predictor
         >>> model = build_model(thesis_setup1().downscaled(16), z_range=(400.0, 700.0))
         >>> Pipeline(Predictor(model)).predictor.backend
         'torch'
@@ -197,6 +198,7 @@ class Pipeline:
 
         Example:
             >>> from prismstereo.models import build_model
+            >>> from prismstereo.predictor import Predictor
             >>> pipeline = Pipeline(Predictor(build_model(thesis_setup1().downscaled(16), z_range=(400.0, 700.0))))
             >>> pipeline.depth(torch.rand(2, 1, 48, 64)).depth.shape
             torch.Size([2, 1, 48, 32])
@@ -206,7 +208,6 @@ class Pipeline:
     # ----------------------------------------------------------------------------- writing
     def _write(self, files: Outputs, depth: Any, valid: Any, confidence: Any, points: Any, colors: Any) -> str:
         """Write one result (depth (H, W_ref), its companions); returns the note for its line."""
-        from prismstereo.depth import write_ply
         from prismstereo.io import write_depth
         from prismstereo.preview import write_depth_preview
 
@@ -228,6 +229,8 @@ class Pipeline:
         if files.ply is not None and points is not None:
             import torch
 
+            from prismstereo.depth import write_ply
+
             count = write_ply(files.ply, points, colors=torch.as_tensor(colors),
                               confidence=torch.as_tensor(confidence), camera_to_world=opts.camera_to_world)
             note += f", {files.ply.name} ({count} points)"
@@ -239,6 +242,7 @@ class Pipeline:
 
         Example:
             >>> from prismstereo.models import build_model
+            >>> from prismstereo.predictor import Predictor
             >>> pipeline = Pipeline(Predictor(build_model(thesis_setup1().downscaled(16), z_range=(400.0, 700.0))))
             >>> pipeline.written_pixels(pipeline.depth(torch.rand(1, 1, 48, 64))).shape
             torch.Size([1, 1, 48, 32])
@@ -336,15 +340,7 @@ class Pipeline:
         from prismstereo.sources import decode_frames
 
         sel, opts = task.selection, self.options
-        tracked = self.predictor.temporal is not None
-        if isinstance(self.predictor, GraphPredictor):
-            from prismstereo.stream.frame_stream import FrameStream
-
-            stream = FrameStream(self.predictor, temporal=tracked)
-        else:
-            from prismstereo.stream import DepthStream
-
-            stream = DepthStream(self.predictor, temporal=tracked)
+        stream = self._stream()
         writer, preview = _Writer(depth=4), [None]
         state = {"written": 0, "error": None, "valid": 0, "pixels": 0, "lo": math.inf, "hi": -math.inf}
 
@@ -408,6 +404,18 @@ class Pipeline:
             if preview[0] is not None:
                 preview[0].release()
         return self._sequence_report(task, stream, state)
+
+    def _stream(self) -> Any:
+        """A sequence's stream: a :class:`~prismstereo.stream.frame_stream.FrameStream` of graphs on arrays, or a
+        :class:`~prismstereo.stream.DepthStream` of a predictor; tracked by its band if it has one."""
+        tracked = self.predictor.temporal is not None
+        if isinstance(self.predictor, GraphPredictor):
+            from prismstereo.stream.frame_stream import FrameStream
+
+            return FrameStream(self.predictor, temporal=tracked)
+        from prismstereo.stream import DepthStream
+
+        return DepthStream(self.predictor, temporal=tracked)
 
     def _sequence_report(self, task: Task, stream: Any, state: dict[str, Any]) -> TaskReport:
         lines, written, error = [], state["written"], state["error"]

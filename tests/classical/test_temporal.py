@@ -6,6 +6,7 @@ import statistics
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -203,6 +204,25 @@ def test_track_leaves_the_band_s_own_prior_and_forward_tracks_a_result_s(model, 
         tracker.track(moving.image[1:2], BandPrior(prior.inverse, prior.placed.float()))
     with pytest.raises(ShapeError, match="the prior's depth must have shape"):
         tracker.band_prior(first.depth[..., 1:], first.valid[..., 1:], first.confidence[..., 1:])
+
+
+@pytest.mark.parametrize("downsample", [1, 2, 3])
+def test_band_prior_of_arrays_is_numpy_and_torch_s_to_rounding(downsample):
+    """band_prior of numpy arrays runs in numpy (no torch needed) and gives the tensors' prior: the same placed
+    pixels, inverse depths to float32 rounding (a 3 x 3 binning that does not divide the half: its edge blocks)."""
+    g = torch.Generator().manual_seed(4)
+    depth = 400.0 + 300.0 * torch.rand(2, 1, 47, 64, generator=g)
+    valid, confidence = torch.rand(2, 1, 47, 64, generator=g) > 0.3, torch.rand(2, 1, 47, 64, generator=g)
+    kwargs = {"z_range": (400.0, 700.0), "min_confidence": 0.5, "downsample": downsample}
+    want = band_prior(depth, valid, confidence, **kwargs)
+    got = band_prior(depth.numpy(), valid.numpy(), confidence.numpy(), **kwargs)
+    assert isinstance(got.inverse, np.ndarray) and got.inverse.dtype == np.float32
+    assert np.array_equal(got.placed, want.placed.numpy())
+    np.testing.assert_allclose(got.inverse, want.inverse.numpy(), rtol=1e-6, atol=0)
+    with pytest.raises(ShapeError, match=r"depth must have shape \(B, 1, H, W\)"):
+        band_prior(depth.numpy()[0], valid.numpy()[0], confidence.numpy()[0], **kwargs)
+    with pytest.raises(ShapeError, match="valid must be bool"):
+        band_prior(depth.numpy(), valid.numpy().astype(np.float32), confidence.numpy(), **kwargs)
 
 
 def test_stream_extrapolates_the_band_prior_where_both_frames_placed_it(model):

@@ -51,3 +51,29 @@ def test_which_model_the_flags_ask_for(tmp_path):
         spec("--full-band", "-1")
     with pytest.raises(PrismStereoError, match="weights file .*missing.pt does not exist"):
         spec("--weights", str(tmp_path / "missing.pt"))
+
+
+def test_request_flags_name_files_by_content_and_keys_follow_them(tmp_path):
+    """The flags as the cache's index remembers them: a file flag by its content (an edited rig is another
+    request), a preset by its name; the temporal binning only when sequences are tracked; the key changes with any
+    of them and is the same for the same flags."""
+    from prismstereo.cli.model_flags import request_flags
+    from prismstereo.export.index import flags_key
+
+    rig = tmp_path / "rig.json"
+    rig.write_text('{"a": 1}')
+    args = _parse("--rig", str(rig), "--z-range", "400", "700")
+    flags = request_flags(args, tracked=False)
+    assert flags["rig"].startswith("sha256:") and flags["temporal"] is None and flags["z_range"] == [400.0, 700.0]
+    assert request_flags(args, tracked=True)["temporal"] == {"binning": None}
+    key = flags_key(flags)
+    assert key.startswith("flags-") and flags_key(request_flags(args, tracked=False)) == key
+    rig.write_text('{"a": 2}')
+    assert flags_key(request_flags(args, tracked=False)) != key
+    assert request_flags(_parse("--rig", "thesis_setup1"), tracked=False)["rig"] == "thesis_setup1"
+    assert flags_key(request_flags(_parse("--rig", "thesis_setup1", "--dense"), tracked=False)) != flags_key(
+        request_flags(_parse("--rig", "thesis_setup1"), tracked=False))
+
+
+def _parse(*flags):
+    return build_parser().parse_args(["depth", "x.png", "--out", "o", *flags])
