@@ -55,7 +55,7 @@ def main() -> None:
         env.pop("PYTHONDONTWRITEBYTECODE", None)
         subprocess.run(CLI + ["render", "--rig", "thesis_setup1", "--depth-mm", "600", "--out", str(work / "cap.png"),
                               "--supersample", "1"], env=env, check=True, capture_output=True)
-        common = [str(work / "cap.png"), "--rig", "thesis_setup1"]
+        common = ["depth", str(work / "cap.png"), "--rig", "thesis_setup1"]
         print(f"{'command (1024 x 768 capture)':58s} {'bytecode':>9s} {'wall s':>14s} {'peak MB':>9s}")
         rows = [("depth --backend onnx, first run (export)", ["--backend", "onnx"], 1),
                 ("depth --backend onnx, again (remembered, no torch)", ["--backend", "onnx"], args.runs),
@@ -80,8 +80,10 @@ def isolated(args: list[str], env: dict[str, str]) -> tuple[float, float, str]:
     """:func:`timed` run from a process of its own, so that the peak memory is this command's alone."""
     code = (f"import json, os, sys; sys.path.insert(0, {str(Path(__file__).parent)!r}); from startup import timed; "
             f"print(json.dumps(timed({args!r}, dict(os.environ))))")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
-    seconds, peak, text = json.loads(out.strip().splitlines()[-1])
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=False)
+    if run.returncode != 0:
+        raise SystemExit(run.stdout + run.stderr)
+    seconds, peak, text = json.loads(run.stdout.strip().splitlines()[-1])
     return seconds, peak, text
 
 
