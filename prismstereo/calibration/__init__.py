@@ -5,10 +5,12 @@ estimate (:mod:`~prismstereo.calibration.parameters`) -> a bundle adjustment thr
 (:mod:`~prismstereo.calibration.board`, solved by :mod:`~prismstereo.calibration.solver` on the structure of
 :mod:`~prismstereo.calibration.problem`) -> the calibrated rig and its report (:mod:`~prismstereo.calibration.fit`,
 :mod:`~prismstereo.calibration.report`). Without a target: correspondences between the halves and the exact
-epipolar curves (:mod:`~prismstereo.calibration.selfcal`).
+epipolar curves (:mod:`~prismstereo.calibration.selfcal`); both together in one bundle adjustment
+(:mod:`~prismstereo.calibration.joint`).
 """
 
 from prismstereo.calibration.fit import DEFAULT_FIXED, CalibrationResult, calibrate_board
+from prismstereo.calibration.joint import JointReport, calibrate_joint
 from prismstereo.calibration.parameters import NAMES
 from prismstereo.calibration.selfcal import Correspondences, calibrate_self, find_correspondences
 from prismstereo.calibration.targets import Board, HalfDetection, ViewDetection, detect_board, parse_target
@@ -21,6 +23,8 @@ __all__ = [
     "ViewDetection",
     "CalibrationResult",
     "calibrate_board",
+    "calibrate_joint",
+    "JointReport",
     "calibrate_self",
     "Correspondences",
     "find_correspondences",

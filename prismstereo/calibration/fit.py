@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import torch
@@ -34,8 +34,11 @@ from prismstereo.errors import CalibrationError, RigError
 from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["CalibrationResult", "DEFAULT_FIXED", "SolvedProblem", "calibrate_board", "solve_rig_problem",
-           "view_depth_uncertainty", "view_outliers"]
+if TYPE_CHECKING:
+    from prismstereo.calibration.joint import JointReport
+
+__all__ = ["CalibrationResult", "DEFAULT_FIXED", "SolvedProblem", "board_observations", "calibrate_board",
+           "solve_rig_problem", "view_depth_uncertainty", "view_outliers"]
 
 # Held at their nominal values unless freed: the prism's thickness trades against its distance (both move the
 # virtual centres along z) and is known from the part's drawing; k3 matters only for wide-angle lenses (OpenCV's
@@ -75,6 +78,8 @@ class CalibrationResult(NamedTuple):
         poses: (V, 6) board poses (axis-angle rad, translation mm) of the kept views.
         iterations: solver iterations.
         message: why the solver stopped.
+        joint: with scenes beside the boards (:func:`~prismstereo.calibration.joint.calibrate_joint`), what each
+            input contributed and the scenes' fit (:class:`~prismstereo.calibration.joint.JointReport`); else None.
     """
 
     rig: BiPrismRig
@@ -98,6 +103,7 @@ class CalibrationResult(NamedTuple):
     poses: torch.Tensor
     iterations: int
     message: str
+    joint: JointReport | None = None
 
 
 def view_outliers(view_rms: torch.Tensor, views: Sequence[int], factor: float = 3.0,
@@ -164,6 +170,28 @@ def _not_found(rig: BiPrismRig, board: Board, captures: Sequence, detections: Se
             f"{hint} ({'; '.join(views)})")
 
 
+def board_observations(rig: BiPrismRig, captures: Sequence[torch.Tensor | np.ndarray | ViewDetection], board: Board,
+                       *, min_views: int = 3, corners: CornerMethod = "symmetric",
+                       progress: bool = False) -> Observations:
+    """The corners of ``board`` found in both halves of the captures (images or their detections).
+
+    Raises:
+        CalibrationError: fewer than ``min_views`` captures with the board in both halves (saying what was found
+            instead), images of the wrong size.
+
+    Example:
+        >>> board_observations(thesis_setup1(), images, parse_target("checkerboard:7x5:5"))  # doctest: +SKIP
+    """
+    if len(captures) < min_views:
+        raise CalibrationError(f"too few views: {len(captures)} captures, need at least {min_views}")
+    detections = [c if isinstance(c, ViewDetection) else detect_board(c, rig, board, corners=corners)
+                  for c in tqdm(captures, desc="detect", disable=None if progress else True, leave=False)]
+    obs = gather_observations(detections, board)
+    if len(obs.views) < min_views:
+        raise CalibrationError(_not_found(rig, board, captures, detections, len(obs.views), min_views))
+    return obs
+
+
 def calibrate_board(
     rig: BiPrismRig,
     captures: Sequence[torch.Tensor | np.ndarray | ViewDetection],
@@ -215,13 +243,7 @@ def calibrate_board(
         raise CalibrationError("captures must be a list of images (one tensor or array per capture), got one "
                                f"{type(captures).__name__}")
     fixed = set(check_names(fix)) | (set(DEFAULT_FIXED) - set(check_names(free)))
-    if len(captures) < min_views:
-        raise CalibrationError(f"too few views: {len(captures)} captures, need at least {min_views}")
-    detections = [c if isinstance(c, ViewDetection) else detect_board(c, rig, board, corners=corners)
-                  for c in tqdm(captures, desc="detect", disable=None if progress else True, leave=False)]
-    obs = gather_observations(detections, board)
-    if len(obs.views) < min_views:
-        raise CalibrationError(_not_found(rig, board, captures, detections, len(obs.views), min_views))
+    obs = board_observations(rig, captures, board, min_views=min_views, corners=corners, progress=progress)
     names = [n for n in NAMES if n not in fixed]
     problem = BoardProblem(rig, obs, names, tolerance_vector(rig, tolerances), sigma_px=0.1)
     solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)
@@ -294,14 +316,10 @@ def solve_rig_problem(problem: RigProblem, *, max_iterations: int = 100, max_rms
         x, iterations, message = fit.x, iterations + fit.iterations, fit.message
         if not fit.converged and not math.isfinite(fit.cost):
             raise CalibrationError(f"the fit diverged: {fit.message}")
-        res = problem.projections(x)[0] - problem.observed
-        res = torch.where(problem.active.unsqueeze(-1), res, torch.full_like(res, float("nan")))
-        dof = max(1, int(problem.active.sum()) * 2 - x.numel())
-        sigma = max(float(res.pow(2).nansum() / dof) ** 0.5, 1e-3)
-        settled = 0.8 < sigma / problem.sigma_px < 1.25
-        problem.sigma_px = sigma
-        if settled:
+        if problem.reweight(x):  # the observations' weight against the priors: the noise they show
             break
+    res = problem.projections(x)[0] - problem.observed
+    res = torch.where(problem.active.unsqueeze(-1), res, torch.full_like(res, float("nan")))
     rms = float(res.pow(2).sum(dim=1).nanmean().sqrt())
     if dropped:
         message += f"; {dropped} observations not projectable through the nominal rig were left out"

@@ -116,6 +116,25 @@ class RigProblem:
         res = torch.where(self.active.unsqueeze(-1), uv - self.observed, torch.zeros_like(uv))
         return torch.cat([res.reshape(-1) / self.sigma_px, prior])
 
+    def reweight(self, x: torch.Tensor, *, rig_unknowns: float | None = None) -> bool:
+        """Set ``sigma_px`` to the noise the residuals at x show (their RMS per coordinate over the degrees of
+        freedom: the observations' coordinates less the unknowns, of which ``rig_unknowns`` rig ones when this
+        problem shares them with others, :class:`~prismstereo.calibration.joint.JointProblem`); whether it had
+        settled (the new value within 20 % of the old one).
+
+        Example:
+            >>> problem.reweight(solution)  # doctest: +SKIP
+            True
+        """
+        res = self.projections(x)[0] - self.observed
+        res = torch.where(self.active.unsqueeze(-1), res, torch.full_like(res, float("nan")))
+        unknowns = x.numel() if rig_unknowns is None else x.numel() - self.num_rig + rig_unknowns
+        dof = max(1.0, int(self.active.sum()) * 2 - unknowns)
+        sigma = max(float(res.pow(2).nansum() / dof) ** 0.5, 1e-3)
+        settled = 0.8 < sigma / self.sigma_px < 1.25
+        self.sigma_px = sigma
+        return settled
+
     def jacobian(self, x: torch.Tensor) -> torch.Tensor:
         """(2M + P, n) Jacobian of :meth:`residuals` by forward-mode autograd."""
         p, b = self.num_rig, self.block_size

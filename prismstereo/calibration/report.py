@@ -6,19 +6,43 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+import torch
+
 from prismstereo.calibration.fit import CalibrationResult
 from prismstereo.calibration.parameters import INFO, NAMES
 
-__all__ = ["format_report", "plot_residuals"]
+__all__ = ["HINTS", "format_report", "plot_residuals"]
+
+HINTS: dict[str, str] = {
+    "focal_length_mm": "boards tilted 30-45 deg",
+    "cx": "corners or scene texture near both halves' outer columns",
+    "cy": "corners or scene texture near the top and bottom rows",
+    "k1": "corners or matches far from the centre (a larger board, or scenes textured to the edges)",
+    "k2": "corners or matches far from the centre (a larger board, or scenes textured to the edges)",
+    "k3": "corners or matches in the image's corners",
+    "p1": "corners or matches spread over the whole image",
+    "p2": "corners or matches spread over the whole image",
+    "prism_offset_x_mm": "scene texture along the split (the apex column) at several depths",
+    "apex_distance_mm": "boards at two distances at least 200 mm apart",
+    "prism_thickness_mm": "boards at two distances at least 200 mm apart",
+    "alpha_deg": "boards at two distances at least 200 mm apart",
+    "refractive_index": "boards at two distances at least 200 mm apart",
+    "tilt_x_deg": "corners or matches over the whole height of the image",
+    "tilt_y_deg": "boards tilted about y, or scenes at several depths",
+    "roll_deg": "corners or matches over the whole height of the image",
+}
+"""For each rig parameter, the captures that determine it (the report's advice on weak parameters)."""
 
 
-def format_report(result: CalibrationResult, view_names: Sequence[str] | None = None) -> str:
+def format_report(result: CalibrationResult, view_names: Sequence[str] | None = None,
+                  scene_names: Sequence[str] | None = None) -> str:
     """The report as text: summary line, parameter table (nominal, calibrated, change, standard error, share of
     the estimate that came from the views), per-view RMS of each half, and warnings.
 
     Args:
         result: :func:`~prismstereo.calibration.fit.calibrate_board`'s result.
         view_names: a name per input capture (e.g. file names), default its index.
+        scene_names: a joint calibration's name per scene capture, default its index.
 
     Returns:
         Multi-line text.
@@ -55,6 +79,7 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
         parts = [f"{parts[0].split(' at ')[0]} from {float(unc.depth_mm[0]):.0f} to {float(unc.depth_mm[-1]):.0f} mm"]
     lines += ["", f"depth uncertainty from the calibration (1 sigma, fixed parameters at their tolerance): "
               f"{', '.join(parts)}"]
+    lines += _depth_drivers(unc)
     lines += ["", f"{'view':<24} {'left RMS px':>11} {'right RMS px':>12}"]
     for k, v in enumerate(result.views):
         left, right = (f"{float(x):.4f}" if x == x else "-" for x in result.view_rms_px[k])
@@ -69,12 +94,53 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
     if result.unobservable:
         lines.append(f"not observable from these captures, held at their nominal values: "
                      f"{', '.join(result.unobservable)}")
+    if result.joint is not None:
+        lines += _joint_lines(result, scene_names)
     if result.weak:
-        hint = (" Boards tilted further (30-45 deg), larger (ChArUco, seen partly by each half) and at more depths "
-                "determine them better." if board else "")
         lines.append(f"note: the views barely determine {', '.join(result.weak)} (under half of their estimate came "
-                     f"from the views; they stay near their nominal values within their tolerances).{hint}")
+                     "from the views; they stay near their nominal values within their tolerances). What would "
+                     "determine them:")
+        lines += [f"  {name}: {HINTS[name]}" for name in result.weak]
     return "\n".join(lines)
+
+
+def _depth_drivers(unc) -> list[str]:
+    """The parameters behind most of the depth uncertainty, and the captures that would determine them."""
+    if unc.share is None or not bool(torch.isfinite(unc.share).all()) or float(unc.share.abs().sum()) == 0:
+        return []
+    order = [int(i) for i in unc.share.argsort(descending=True) if float(unc.share[i]) >= 0.1][:3]
+    if not order:
+        return []
+    lines = ["knowing one parameter exactly would remove this share of the depth variance: "
+             + ", ".join(f"{NAMES[i]} {float(unc.share[i]):.0%}" for i in order) + "; to determine them better:"]
+    return lines + [f"  {NAMES[i]}: {HINTS[NAMES[i]]}" for i in order]
+
+
+def _joint_lines(result: CalibrationResult, scene_names: Sequence[str] | None) -> list[str]:
+    """A joint calibration's part of the report: each input's standard errors, the depth uncertainty each
+    predicts, the scenes' fit."""
+    joint = result.joint
+    found = joint.contributions
+    count = max(joint.scenes + joint.outlier_scenes) + 1
+    names = list(scene_names) if scene_names is not None else [str(i) for i in range(count)]
+    sets = found.names
+    lines = ["", "what each input determines: standard error from each set with the priors (reported units; a "
+                 "parameter a set does not see keeps its prior's)",
+             f"{'parameter':<20} " + " ".join(f"{n:>10}" for n in sets)]
+    for i, name in enumerate(NAMES):
+        if name in result.free:
+            lines.append(f"{name:<20} " + " ".join(f"{float(found.std_error[k, i]):>10.3g}" for k in range(len(sets))))
+    depths = joint.predicted[-1].depth_mm
+    lines.append(f"depth uncertainty each set predicts (1 sigma, {float(depths.min()):.0f}-{float(depths.max()):.0f} "
+                 "mm): " + ", ".join(f"{n} {100 * float(u.relative_std.mean()):.3g} %"
+                                     for n, u in zip(sets, joint.predicted, strict=True)))
+    rms = ", ".join(f"{names[v]} {float(r):.3f}" for v, r in zip(joint.scenes, joint.scene_rms_px, strict=True))
+    lines.append(f"scenes: {joint.matches} matches, RMS from their exact epipolar curves: {rms} px (match noise "
+                 f"{joint.scene_sigma_px:.3f} px per coordinate)")
+    for v in joint.outlier_scenes:
+        lines.append(f"warning: scene {names[v]} was left out: its matches disagree with the boards and the other "
+                     "scenes (over 3x the median scene's RMS: a moving object, or a capture of another rig?)")
+    return lines
 
 
 def plot_residuals(result: CalibrationResult, path: str | Path, view_names: Sequence[str] | None = None) -> None:

@@ -36,11 +36,15 @@ class DepthUncertainty(NamedTuple):
         depth_mm: (K,) the depths evaluated.
         relative_std: (K,) RMS over the grid's co-visible pixels of sigma_Z / Z.
         pixels: (K,) number of co-visible grid pixels behind each value.
+        share: (16,) for each rig parameter, the fraction of the depth variance (over all those pixels and depths)
+            that knowing it exactly would remove: (j C e_i)^2 / C_ii, with its correlations (the shares of
+            correlated parameters overlap and need not sum to 1): what to determine better to lower the uncertainty.
     """
 
     depth_mm: torch.Tensor
     relative_std: torch.Tensor
     pixels: torch.Tensor
+    share: torch.Tensor | None = None
 
 
 def depth_uncertainty(rig: BiPrismRig, covariance: torch.Tensor, depths_mm: Sequence[float],
@@ -75,6 +79,9 @@ def depth_uncertainty(rig: BiPrismRig, covariance: torch.Tensor, depths_mm: Sequ
     base = rig_vector(rig)
     rays = trace_pixels(rig, left, "left")
     out, count = [], []
+    parts, total = torch.zeros(16, dtype=F64), 0.0
+    cov = covariance.to(F64)
+    diagonal = cov.diagonal().clamp_min(1e-300)
     for z in depths_mm:
         proj = project_points(rig, points_at_depth(rays, float(z)), "right")
         ok = proj.valid & rays.valid
@@ -90,8 +97,12 @@ def depth_uncertainty(rig: BiPrismRig, covariance: torch.Tensor, depths_mm: Sequ
             count.append(0)
             continue
         j = jacfwd(depth_of)(base)  # (N, 16)
-        var = ((j @ covariance.to(F64)) * j).sum(dim=1).clamp_min(0)
+        jc = j @ cov  # (N, 16)
+        var = (jc * j).sum(dim=1).clamp_min(0)
+        parts += (jc.pow(2) / diagonal).mean(dim=0) / float(z) ** 2  # each parameter known exactly: var - this
+        total += float(var.mean()) / float(z) ** 2
         out.append(float((var / float(z) ** 2).mean().sqrt()))
         count.append(int(lp.shape[0]))
+    share = (parts / total).clamp(0.0, 1.0) if total > 0 else parts
     return DepthUncertainty(torch.tensor([float(z) for z in depths_mm], dtype=F64), torch.tensor(out, dtype=F64),
-                            torch.tensor(count))
+                            torch.tensor(count), share)

@@ -48,3 +48,19 @@ def test_depth_uncertainty_zero_and_errors():
         depth_uncertainty(rig, torch.zeros(3, 3), [500.0])
     with pytest.raises(CalibrationError, match="no depth"):
         depth_uncertainty(rig, torch.zeros(16, 16), [])
+
+
+def test_share_is_what_knowing_each_parameter_removes():
+    """One uncertain parameter: knowing it removes all of the depth variance, the others nothing; two perfectly
+    correlated ones: knowing either removes all of it."""
+    rig = thesis_setup1().downscaled(4)
+    alpha, t_o = NAMES.index("alpha_deg"), NAMES.index("apex_distance_mm")
+    cov = torch.zeros(16, 16, dtype=torch.float64)
+    cov[alpha, alpha] = 1e-6
+    share = depth_uncertainty(rig, cov, [600.0], grid=5).share
+    assert share.shape == (16,) and float(share[alpha]) == pytest.approx(1.0) and float(share.sum()) == pytest.approx(1)
+    both = torch.zeros(16, 16, dtype=torch.float64)
+    both[alpha, alpha], both[t_o, t_o], both[alpha, t_o] = 1e-6, 1.0, 1e-3
+    both[t_o, alpha] = 1e-3
+    share = depth_uncertainty(rig, both, [600.0], grid=5).share
+    assert float(share[alpha]) == pytest.approx(1.0) and float(share[t_o]) == pytest.approx(1.0)

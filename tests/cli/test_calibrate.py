@@ -13,32 +13,36 @@ from tests.calibration.conftest import NOMINAL, board_captures
 
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):
+    """Six board captures and one textured scene (scene0.png) through a rolled rig with a mild lens."""
+    from prismstereo.synthetic import ImageFormation, render, slanted_plane
+
     folder = tmp_path_factory.mktemp("bench")
     true = NOMINAL.replace(prism_tilt_deg=(0.0, 0.0, 0.25), distortion=(-0.07, 0.0, 0.0, 0.0, 0.0))
     cap = board_captures(true, 6, seed=7)
+    scene = render(true, slanted_plane(true, 600.0, 20.0, seed=1), ImageFormation(noise_sigma=2 / 255, seed=3))
     paths = []
-    for k, image in enumerate(cap.image):
-        path = folder / f"board{k}.png"
+    for name, image in [*((f"board{k}", im) for k, im in enumerate(cap.image)), ("scene0", scene.image[0])]:
+        path = folder / f"{name}.png"
         cv2.imwrite(str(path), (image[0].numpy() * 255).round().astype("uint8"))
         paths.append(str(path))
     rig = folder / "nominal.json"
     NOMINAL.to_json(rig)
-    return folder, str(rig), paths
+    return folder, str(rig), paths[:-1]
 
 
 @pytest.fixture(scope="module")
 def default_run(bench):
-    """One CLI calibration of the bench with the default (symmetric) corners, p1 and p2 fixed and a residual plot:
-    its exit code, printed report, output paths and the nominal rig file's text before the run. Checked by
-    test_calibrate_cli_writes_a_rig_and_reports and the baseline of test_calibrate_cli_corner_methods (one fit
-    instead of two)."""
+    """One CLI calibration of the bench's boards and its scene together (--scenes) with the default (symmetric)
+    corners, p1 and p2 fixed and a residual plot: its exit code, printed report, output paths and the nominal rig
+    file's text before the run. Checked by test_calibrate_cli_writes_a_rig_and_reports and the baseline of
+    test_calibrate_cli_corner_methods (one fit instead of two; the boards' corner RMS either way)."""
     folder, rig, paths = bench
     out, plot = folder / "calibrated.json", folder / "residuals.png"
     before = (folder / "nominal.json").read_text()
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
         code = main(["calibrate", "--rig", rig, *paths, "--out", str(out), "--target", "checkerboard:4x7:6",
-                     "--fix", "p1", "p2", "--plot", str(plot), "--quiet"])
+                     "--scenes", str(folder / "scene0.png"), "--fix", "p1", "p2", "--plot", str(plot), "--quiet"])
     return code, printed.getvalue(), out, plot, before
 
 
@@ -47,6 +51,7 @@ def test_calibrate_cli_writes_a_rig_and_reports(bench, default_run):
     code, text, out, plot, before = default_run
     assert code == 0
     assert text.startswith("Calibrated from 6 views") and "board5.png" in text and f"wrote {out}" in text
+    assert "what each input determines" in text and "scene0.png" in text
     calibrated = BiPrismRig.from_json(out)
     # k1's standard error from 6 whole checkerboards at 256 x 192 is 0.05-0.1 (the report's); roll's ~0.01 deg
     assert abs(calibrated.prism_tilt_deg[2] - 0.25) < 0.05 and abs(calibrated.distortion[0] + 0.07) < 0.1
@@ -65,6 +70,7 @@ def test_calibrate_cli_writes_a_rig_and_reports(bench, default_run):
                                              "views: a checkerboard of 4x7 inner corners (is the target's size "
                                              "right?)"),
         (["--target", "charuco:5x8:6:4:DICT_4X4_250"], "found instead in 6 views: a checkerboard of 4x7"),
+        (["--scenes", "scene.png"], "--scenes go beside the board captures of --target"),
     ],
 )
 def test_calibrate_cli_errors(bench, capsys, extra, message):
