@@ -6,7 +6,8 @@ is rendered through that true rig (8-bit, noise 2/255) and calibrated from the n
 
 * ``charuco``: 12 views of a ChArUco board of 14 x 10 squares of 9 mm (larger than either half's view);
 * ``scenes``: self-calibration from 3 textured scenes (a slanted plane, a step, a sphere): no metric scale;
-* ``checkerboard``: 10 views of a checkerboard of 7 x 5 inner corners, 5 mm squares (seen whole by both halves);
+* ``checkerboard``: 10 views of a checkerboard of 7 x 5 inner corners, 5 mm squares (seen whole by both halves),
+  tilted up to ``--max-tilt`` (35 deg) about x and y;
 * ``checkerboard + scenes``: the same views and scenes in one bundle adjustment (``calibrate_joint``).
 
 Then the depth of two fresh textured planes (560 and 820 mm) by the classical model built from the true, the
@@ -63,14 +64,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scale", type=int, default=1, help="sensor downscaling (1 = 1024 x 768)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--max-tilt", type=float, default=35.0, help="the checkerboard's tilts about x and y (deg)")
     args = parser.parse_args()
     set_torch_threads(2)
     nominal = thesis_setup1().downscaled(args.scale) if args.scale > 1 else thesis_setup1()
     true = true_rig(nominal, args.scale)
     look = ImageFormation(supersample=3, noise_sigma=2 / 255, seed=args.seed)
     checker = parse_target("checkerboard:7x5:5")
-    checker_views = render(true, calibration_views(10, 7 + args.seed, (550.0, 850.0), max_tilt_deg=35.0, rows=6,
-                                                   cols=8, square_mm=5.0), look).image
+    checker_views = render(true, calibration_views(10, 7 + args.seed, (550.0, 850.0), max_tilt_deg=args.max_tilt,
+                                                   rows=6, cols=8, square_mm=5.0), look).image
     charuco = parse_target("charuco:14x10:9:6.75:DICT_4X4_250")
     charuco_views = render(true, calibration_views(12, 11 + args.seed, (550.0, 850.0), kind="charuco", cols=14,
                                                    rows=10, square_mm=9.0, spread_mm=(10.0, 10.0)), look).image

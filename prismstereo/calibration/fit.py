@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -33,9 +33,6 @@ from prismstereo.calibration.uncertainty import DepthUncertainty, depth_uncertai
 from prismstereo.errors import CalibrationError, RigError
 from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
-
-if TYPE_CHECKING:
-    from prismstereo.calibration.joint import JointReport
 
 __all__ = ["CalibrationResult", "DEFAULT_FIXED", "SolvedProblem", "board_observations", "calibrate_board",
            "solve_rig_problem", "view_depth_uncertainty", "view_outliers"]
@@ -103,7 +100,7 @@ class CalibrationResult(NamedTuple):
     poses: torch.Tensor
     iterations: int
     message: str
-    joint: JointReport | None = None
+    joint: Any = None  # a JointReport (prismstereo.calibration.joint, which builds on this module)
 
 
 def view_outliers(view_rms: torch.Tensor, views: Sequence[int], factor: float = 3.0,

@@ -93,6 +93,16 @@ class JointProblem(RigProblem):
         return torch.cat([part.observed for part in self.parts])
 
     @property
+    def weight(self) -> torch.Tensor:
+        """(M,) each observation's weight (the parts' weights, part after part)."""
+        return torch.cat([part.weight for part in self.parts])
+
+    @weight.setter
+    def weight(self, value: torch.Tensor) -> None:
+        for part, w in zip(self.parts, value.split(self.rows), strict=True):
+            part.weight = w.clone()
+
+    @property
     def active(self) -> torch.Tensor:
         """(M,) which observations take part (the parts' masks, part after part)."""
         return torch.cat([part.active for part in self.parts])
@@ -216,6 +226,8 @@ class JointReport(NamedTuple):
         matches: the matches used.
         outlier_scenes: indices of scenes left out: their matches disagree with the boards and the other scenes (a
             moving object, a wrong capture).
+        downweighted_views: indices of board views whose error was an outlier after the first fit, weighted in the
+            second by the median view's RMS over theirs (a corner misdetected, a board bent or moved).
     """
 
     contributions: Contributions
@@ -225,6 +237,7 @@ class JointReport(NamedTuple):
     scene_sigma_px: float
     matches: int
     outlier_scenes: tuple[int, ...]
+    downweighted_views: tuple[int, ...] = ()
 
 
 def _problem(rig: BiPrismRig, nominal: BiPrismRig, obs, corr: Correspondences, names: list[str],
@@ -270,7 +283,8 @@ def calibrate_joint(
     weak (principal point, distortion, prism offset). Each input is weighted by the noise its own residuals show.
     After a first fit, matches off their curves by more than ``outlier_sigma`` and scenes whose matches disagree
     as a whole (RMS over 3x the median scene's: a moving object, another rig's capture) are left out, and the fit
-    is repeated from the first one (the priors stay on the nominal rig).
+    is repeated from the first one (the priors stay on the nominal rig), board views whose error was an outlier
+    weighted down to the median view's.
 
     Args:
         rig: the nominal rig.
@@ -292,6 +306,7 @@ def calibrate_joint(
         CalibrationError: the board in too few views, scenes without texture both halves see, a diverged fit.
 
     Example:
+        >>> from prismstereo.calibration import parse_target
         >>> calibrate_joint(thesis_setup1(), [], parse_target("checkerboard:7x5:5"), [])
         Traceback (most recent call last):
         ...
@@ -299,35 +314,57 @@ def calibrate_joint(
     """
     for what, items in (("boards", boards), ("scenes", scenes)):
         if isinstance(items, (torch.Tensor, np.ndarray)):
-            raise CalibrationError(f"{what} must be a list of captures (one image per capture), got one "
-                                   f"{type(items).__name__}")
+            raise CalibrationError(f"{what} must be a list of captures (one image per capture), got one array")
     if not scenes:
         raise CalibrationError("no scene captures: pass the boards alone to calibrate_board")
     fixed = set(check_names(fix)) | (set(DEFAULT_FIXED) - set(check_names(free)))
     obs = board_observations(rig, boards, board, min_views=min_views, corners=corners, progress=progress)
     corr = _matches(rig, scenes, gate_px, min_correspondences, max_correspondences, progress)
-    names = [n for n in NAMES if n not in fixed]
-    tol = tolerance_vector(rig, tolerances)
+    names, tol = [n for n in NAMES if n not in fixed], tolerance_vector(rig, tolerances)
     problem = _problem(rig, rig, obs, corr, names, tol)
     solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)
     m = obs.uv.shape[0]
-    scene_res = solved.residuals[m:]
-    keep = scene_res.norm(dim=-1) <= outlier_sigma * problem.parts[1].sigma_px
-    used, rms = _scene_rms(scene_res, corr)
-    # a scene's matches off as a whole (its RMS over 3x the median scene's) are not noise: left out
-    outliers = tuple(used[k] for k in range(len(used)) if len(used) > 2 and rms[k] > 3 * rms.median())
-    keep &= ~torch.isin(corr.view, torch.tensor(outliers, dtype=corr.view.dtype))
-    if not bool(keep.all()) and int(keep.sum()) >= min_correspondences:
+    keep, outliers = _scene_outliers(solved.residuals[m:], corr, outlier_sigma * problem.parts[1].sigma_px,
+                                     min_correspondences)
+    weight, views = _view_weights(solved.residuals[:m], obs)
+    if not bool(keep.all()) or views:
         corr = Correspondences(corr.left[keep], corr.right[keep], corr.view[keep])
         problem = _problem(solved.rig, rig, obs, corr, names, tol)
+        problem.parts[0].weight = weight
         solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)
-    elif not bool(keep.all()):
-        outliers = ()
-    return _result(rig, problem, solved, obs, corr, outliers)
+    return _result(rig, problem, solved, obs, corr, outliers, views)
 
 
-def _result(rig: BiPrismRig, problem: JointProblem, solved, obs, corr: Correspondences,
-            outliers: tuple[int, ...]) -> CalibrationResult:
+def _scene_outliers(residuals: torch.Tensor, corr: Correspondences, limit_px: float,
+                    min_correspondences: int) -> tuple[torch.Tensor, tuple[int, ...]]:
+    """The matches to keep for the refit (residual within ``limit_px``, not in an outlier scene) and the outlier
+    scenes (input indices): a scene's matches off as a whole (its RMS over 3x the median scene's) are not noise.
+    All are kept when fewer than ``min_correspondences`` would remain."""
+    keep = residuals.norm(dim=-1) <= limit_px
+    used, rms = _scene_rms(residuals, corr)
+    outliers = tuple(used[k] for k in range(len(used)) if len(used) > 2 and rms[k] > 3 * rms.median())
+    keep &= ~torch.isin(corr.view, torch.tensor(outliers, dtype=corr.view.dtype))
+    if int(keep.sum()) < min_correspondences:
+        return torch.ones_like(keep), ()
+    return keep, outliers
+
+
+def _view_weights(residuals: torch.Tensor, obs) -> tuple[torch.Tensor, tuple[int, ...]]:
+    """Each corner's weight for a robust refit: the median view's RMS over its view's, for the views whose error is
+    an outlier (:func:`~prismstereo.calibration.fit.view_outliers`), else 1; and those views (input indices)."""
+    halves = _per_view_rms(residuals, obs)
+    per_view = halves.pow(2).nan_to_num(0.0).mean(dim=1).sqrt()
+    views = view_outliers(halves, obs.views)
+    weight = torch.ones(residuals.shape[0], dtype=F64)
+    median = per_view.median()
+    for k, v in enumerate(obs.views):
+        if v in views:
+            weight[obs.view == k] = median / per_view[k]
+    return weight, views
+
+
+def _result(rig: BiPrismRig, problem: JointProblem, solved, obs, corr: Correspondences, outliers: tuple[int, ...],
+            views: tuple[int, ...]) -> CalibrationResult:
     """The joint fit as a :class:`CalibrationResult` of its boards, with its :class:`JointReport`."""
     boards, selfs = problem.parts
     m = obs.uv.shape[0]
@@ -337,7 +374,7 @@ def _result(rig: BiPrismRig, problem: JointProblem, solved, obs, corr: Correspon
     found = contributions(problem, solved.x, ["boards", "scenes"])
     predicted = tuple(view_depth_uncertainty(solved.rig, cov, depths) for cov in found.covariance)
     used, rms = _scene_rms(solved.residuals[m:], corr)
-    report = JointReport(found, predicted, used, rms, selfs.sigma_px, corr.left.shape[0], outliers)
+    report = JointReport(found, predicted, used, rms, selfs.sigma_px, corr.left.shape[0], outliers, views)
     view_rms = _per_view_rms(res, obs)
     return CalibrationResult(
         rig=solved.rig, nominal=rig, free=problem.free, data_share=solved.data_share, weak=solved.weak,

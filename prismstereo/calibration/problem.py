@@ -71,6 +71,8 @@ class RigProblem:
         # observations that take part; solve_rig_problem drops the ones the start cannot project (a fixed mask:
         # rows that dropped out during the fit would lower the cost without fitting anything)
         self.active = torch.ones(observed.shape[0], dtype=torch.bool)
+        # each observation's weight on its residual (1; a robust refit lowers an outlier view's)
+        self.weight = torch.ones(observed.shape[0], dtype=F64)
 
     @property
     def num_rig(self) -> int:
@@ -113,12 +115,13 @@ class RigProblem:
         the P prior rows."""
         uv, _ = self.projections(x)
         prior = (x[: self.num_rig] - self.base[self.index]) * self.prior_weight
-        res = torch.where(self.active.unsqueeze(-1), uv - self.observed, torch.zeros_like(uv))
+        res = torch.where(self.active.unsqueeze(-1), (uv - self.observed) * self.weight.unsqueeze(-1),
+                          torch.zeros_like(uv))
         return torch.cat([res.reshape(-1) / self.sigma_px, prior])
 
     def reweight(self, x: torch.Tensor, *, rig_unknowns: float | None = None) -> bool:
-        """Set ``sigma_px`` to the noise the residuals at x show (their RMS per coordinate over the degrees of
-        freedom: the observations' coordinates less the unknowns, of which ``rig_unknowns`` rig ones when this
+        """Set ``sigma_px`` to the noise the weighted residuals at x show (their RMS per coordinate over the degrees
+        of freedom: the observations' coordinates less the unknowns, of which ``rig_unknowns`` rig ones when this
         problem shares them with others, :class:`~prismstereo.calibration.joint.JointProblem`); whether it had
         settled (the new value within 20 % of the old one).
 
@@ -126,7 +129,7 @@ class RigProblem:
             >>> problem.reweight(solution)  # doctest: +SKIP
             True
         """
-        res = self.projections(x)[0] - self.observed
+        res = (self.projections(x)[0] - self.observed) * self.weight.unsqueeze(-1)
         res = torch.where(self.active.unsqueeze(-1), res, torch.full_like(res, float("nan")))
         unknowns = x.numel() if rig_unknowns is None else x.numel() - self.num_rig + rig_unknowns
         dof = max(1.0, int(self.active.sum()) * 2 - unknowns)
@@ -153,6 +156,6 @@ class RigProblem:
         block = self.block.repeat_interleave(2)
         for c in range(b):
             full[rows, p + b * block + c] = j[:, p + c] / self.sigma_px
-        full[:m] *= self.active.repeat_interleave(2).unsqueeze(-1).to(full)
+        full[:m] *= (self.active.to(full) * self.weight.to(full)).repeat_interleave(2).unsqueeze(-1)
         full[m + torch.arange(p), torch.arange(p)] = self.prior_weight
         return full

@@ -23,9 +23,13 @@ TRUE = NOMINAL.replace(principal_point=(NOMINAL.principal_point[0] + 1.0, NOMINA
 
 @pytest.fixture(scope="module")
 def inputs():
-    """Six board views' detections and three scenes' matches through TRUE, and a fourth scene through another rig
-    (its prism rolled by 1 deg: a capture that disagrees with the others)."""
+    """Six board views' detections (view 2's left corners moved by a ramp of up to 1.5 px: an outlier view) and three
+    scenes' matches through TRUE, and a fourth scene through another rig (its prism rolled by 1 deg: a capture that
+    disagrees with the others)."""
     boards = [detect_board(im, NOMINAL, BOARD) for im in board_captures(TRUE, 6, seed=5).image]
+    left = boards[2].left
+    ramp = torch.tensor([1.5, -1.0], dtype=F64) * torch.linspace(-1, 1, left.uv.shape[0], dtype=F64)[:, None]
+    boards[2] = boards[2]._replace(left=left._replace(uv=left.uv + ramp))
     scenes = [slanted_plane(TRUE, 600.0, 20.0, seed=1), step_scene(TRUE, 500.0, 800.0, seed=2),
               sphere_scene(TRUE, 650.0, 60.0, 900.0, seed=3)]
     caps = render(TRUE, scenes, ImageFormation(supersample=2, noise_sigma=2 / 255, seed=6)).image
@@ -75,9 +79,11 @@ def test_the_report_names_each_input_set(joint):
         assert f"  {name}: " in text  # what would determine it
 
 
-def test_a_scene_that_disagrees_is_left_out_and_named(joint):
+def test_a_scene_that_disagrees_is_left_out_and_an_outlier_view_weighted_down(joint):
     assert joint.joint.outlier_scenes == (3,) and 3 not in joint.joint.scenes
-    assert "warning: scene other.png was left out" in format_report(joint, None, ["a", "b", "c", "other.png"])
+    assert joint.joint.downweighted_views == (2,)
+    text = format_report(joint, None, ["a", "b", "c", "other.png"])
+    assert "warning: scene other.png was left out" in text and "view 2's error was an outlier after the first" in text
 
 
 def test_joint_problem_stacks_its_parts(inputs):
@@ -105,7 +111,7 @@ def test_joint_calibration_errors(inputs):
     boards, matches = inputs
     with pytest.raises(CalibrationError, match="no scene captures: pass the boards alone to calibrate_board"):
         calibrate_joint(NOMINAL, boards, BOARD, [])
-    with pytest.raises(CalibrationError, match="scenes must be a list of captures"):
+    with pytest.raises(CalibrationError, match="scenes must be a list of captures .* got one array"):
         calibrate_joint(NOMINAL, boards, BOARD, torch.zeros(1, 192, 256))
     blank = torch.full((1, 192, 256), 0.5, dtype=F64)
     with pytest.raises(CalibrationError, match="the scenes need texture seen by both halves"):
