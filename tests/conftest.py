@@ -85,6 +85,7 @@ XDIST_GROUPS = {
     "tests/learned/test_hybrid.py": "hybrid model",
     "tests/learned/test_exact_stage.py": "exact stage (its plane)",
     "tests/cli/test_calibrate.py": "calibration bench",
+    "tests/calibration/test_joint.py": "joint calibration (its inputs and one solve)",
     "tests/jobs/test_jobs.py::test_ray_writes_the_same_files_and_survives_a_dead_worker": "local ray",
     "tests/classical/test_dense.py": "weak-texture models (weak)",
     "tests/classical/test_config.py": "the presets' models (_preset_model)",

@@ -3,6 +3,7 @@
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -398,13 +399,17 @@ def test_an_interrupted_folder_run_leaves_whole_files_and_resumes(scene, tmp_pat
         cv2.imwrite(str(frames / f"f{k:03d}.png"), frame)
     args = ["depth", str(frames), "--rig", str(tmp_path / "rig.json"), "--out", str(out), "--z-range", "400", "700",
             "--no-temporal", "--model", "classical"]
-    proc = subprocess.Popen([sys.executable, "-u", "-m", "prismstereo.cli", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 60
-    while not list(out.glob("*.npy")) and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.005)
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    for _ in range(3):  # on a loaded host this process may wake only after the whole run: then run it again
+        shutil.rmtree(out, ignore_errors=True)
+        proc = subprocess.Popen([sys.executable, "-u", "-m", "prismstereo.cli", *args], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 60
+        while not list(out.glob("*.npy")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        if proc.returncode != 0 or len(list(out.glob("*.npy"))) < 40:
+            break
     assert proc.returncode == 130 and "Traceback" not in err, err
     written = sorted(out.iterdir())
     assert err.strip().splitlines()[-1] == (f"prismstereo: interrupted: {len(written)} of 40 depth maps written; "
