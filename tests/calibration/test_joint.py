@@ -118,3 +118,6 @@ def test_joint_calibration_errors(inputs):
         calibrate_joint(NOMINAL, boards, BOARD, [blank])
     with pytest.raises(CalibrationError, match="too few views"):
         calibrate_joint(NOMINAL, boards[:2], BOARD, matches[:1])
+    one_half = [d._replace(right=None) for d in boards[:4]] + boards[4:]  # the board in the left half only
+    with pytest.raises(CalibrationError, match=r"found in both halves of 2 of 6 views, need 3 .*0: left yes, right no"):
+        calibrate_joint(NOMINAL, one_half, BOARD, matches[:1])
