@@ -35,7 +35,7 @@ from prismstereo.geometry.optics import check_rig_images
 from prismstereo.geometry.rig import BiPrismRig
 
 __all__ = ["CalibrationResult", "DEFAULT_FIXED", "SolvedProblem", "board_observations", "calibrate_board",
-           "solve_rig_problem", "view_depth_uncertainty", "view_outliers"]
+           "solve_rig_problem", "view_depth_uncertainty", "view_outliers", "view_weights"]
 
 # Held at their nominal values unless freed: the prism's thickness trades against its distance (both move the
 # virtual centres along z) and is known from the part's drawing; k3 matters only for wide-angle lenses (OpenCV's
@@ -77,6 +77,8 @@ class CalibrationResult(NamedTuple):
         message: why the solver stopped.
         joint: with scenes beside the boards (:func:`~prismstereo.calibration.joint.calibrate_joint`), what each
             input contributed and the scenes' fit (:class:`~prismstereo.calibration.joint.JointReport`); else None.
+        downweighted_views: indices of views whose error was an outlier after a first fit, weighted in a second
+            one by the median view's RMS over theirs (:func:`view_weights`).
     """
 
     rig: BiPrismRig
@@ -101,6 +103,7 @@ class CalibrationResult(NamedTuple):
     iterations: int
     message: str
     joint: Any = None  # a JointReport (prismstereo.calibration.joint, which builds on this module)
+    downweighted_views: tuple[int, ...] = ()
 
 
 def view_outliers(view_rms: torch.Tensor, views: Sequence[int], factor: float = 3.0,
@@ -241,9 +244,14 @@ def calibrate_board(
                                f"{type(captures).__name__}")
     fixed = set(check_names(fix)) | (set(DEFAULT_FIXED) - set(check_names(free)))
     obs = board_observations(rig, captures, board, min_views=min_views, corners=corners, progress=progress)
-    names = [n for n in NAMES if n not in fixed]
-    problem = BoardProblem(rig, obs, names, tolerance_vector(rig, tolerances), sigma_px=0.1)
+    names, tol = [n for n in NAMES if n not in fixed], tolerance_vector(rig, tolerances)
+    problem = BoardProblem(rig, obs, names, tol, sigma_px=0.1)
     solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)
+    weight, weighted = view_weights(solved.residuals, obs)
+    if weighted:  # a robust refit from the first fit, the priors still on the nominal rig
+        problem = BoardProblem(solved.rig, obs, names, tol, sigma_px=problem.sigma_px)
+        problem.base, problem.weight = rig_vector(rig), weight
+        solved = solve_rig_problem(problem, max_iterations=max_iterations, max_rms_px=max_rms_px, progress=progress)
     res = solved.residuals
     view_rms = _per_view_rms(res, obs)
     return CalibrationResult(
@@ -255,7 +263,27 @@ def calibrate_board(
         views=obs.views,
         outlier_views=view_outliers(view_rms, obs.views), residuals=res, observations=obs,
         poses=problem.blocks(solved.x), iterations=solved.iterations, message=solved.message,
+        downweighted_views=weighted,
     )
+
+
+def view_weights(residuals: torch.Tensor, obs: Observations) -> tuple[torch.Tensor, tuple[int, ...]]:
+    """Each corner's weight for a robust refit: the median view's RMS over its view's for the views whose error is
+    an outlier (:func:`view_outliers`: a corner misdetected, a board bent or moved during the capture), else 1; and
+    those views (input indices).
+
+    Example:
+        >>> weight, views = view_weights(result.residuals, result.observations)  # doctest: +SKIP
+    """
+    halves = _per_view_rms(residuals, obs)
+    per_view = halves.pow(2).nan_to_num(0.0).mean(dim=1).sqrt()
+    views = view_outliers(halves, obs.views)
+    weight = torch.ones(residuals.shape[0], dtype=torch.float64)
+    median = per_view.median()
+    for k, v in enumerate(obs.views):
+        if v in views:
+            weight[obs.view == k] = median / per_view[k]
+    return weight, views
 
 
 class SolvedProblem(NamedTuple):

@@ -31,6 +31,7 @@ from prismstereo.calibration.fit import (
     solve_rig_problem,
     view_depth_uncertainty,
     view_outliers,
+    view_weights,
 )
 from prismstereo.calibration.parameters import NAMES, check_names, rig_vector, to_display, tolerance_vector
 from prismstereo.calibration.problem import RigProblem
@@ -226,8 +227,6 @@ class JointReport(NamedTuple):
         matches: the matches used.
         outlier_scenes: indices of scenes left out: their matches disagree with the boards and the other scenes (a
             moving object, a wrong capture).
-        downweighted_views: indices of board views whose error was an outlier after the first fit, weighted in the
-            second by the median view's RMS over theirs (a corner misdetected, a board bent or moved).
     """
 
     contributions: Contributions
@@ -237,7 +236,6 @@ class JointReport(NamedTuple):
     scene_sigma_px: float
     matches: int
     outlier_scenes: tuple[int, ...]
-    downweighted_views: tuple[int, ...] = ()
 
 
 def _problem(rig: BiPrismRig, nominal: BiPrismRig, obs, corr: Correspondences, names: list[str],
@@ -326,7 +324,7 @@ def calibrate_joint(
     m = obs.uv.shape[0]
     keep, outliers = _scene_outliers(solved.residuals[m:], corr, outlier_sigma * problem.parts[1].sigma_px,
                                      min_correspondences)
-    weight, views = _view_weights(solved.residuals[:m], obs)
+    weight, views = view_weights(solved.residuals[:m], obs)
     if not bool(keep.all()) or views:
         corr = Correspondences(corr.left[keep], corr.right[keep], corr.view[keep])
         problem = _problem(solved.rig, rig, obs, corr, names, tol)
@@ -349,20 +347,6 @@ def _scene_outliers(residuals: torch.Tensor, corr: Correspondences, limit_px: fl
     return keep, outliers
 
 
-def _view_weights(residuals: torch.Tensor, obs) -> tuple[torch.Tensor, tuple[int, ...]]:
-    """Each corner's weight for a robust refit: the median view's RMS over its view's, for the views whose error is
-    an outlier (:func:`~prismstereo.calibration.fit.view_outliers`), else 1; and those views (input indices)."""
-    halves = _per_view_rms(residuals, obs)
-    per_view = halves.pow(2).nan_to_num(0.0).mean(dim=1).sqrt()
-    views = view_outliers(halves, obs.views)
-    weight = torch.ones(residuals.shape[0], dtype=F64)
-    median = per_view.median()
-    for k, v in enumerate(obs.views):
-        if v in views:
-            weight[obs.view == k] = median / per_view[k]
-    return weight, views
-
-
 def _result(rig: BiPrismRig, problem: JointProblem, solved, obs, corr: Correspondences, outliers: tuple[int, ...],
             views: tuple[int, ...]) -> CalibrationResult:
     """The joint fit as a :class:`CalibrationResult` of its boards, with its :class:`JointReport`."""
@@ -374,7 +358,7 @@ def _result(rig: BiPrismRig, problem: JointProblem, solved, obs, corr: Correspon
     found = contributions(problem, solved.x, ["boards", "scenes"])
     predicted = tuple(view_depth_uncertainty(solved.rig, cov, depths) for cov in found.covariance)
     used, rms = _scene_rms(solved.residuals[m:], corr)
-    report = JointReport(found, predicted, used, rms, selfs.sigma_px, corr.left.shape[0], outliers, views)
+    report = JointReport(found, predicted, used, rms, selfs.sigma_px, corr.left.shape[0], outliers)
     view_rms = _per_view_rms(res, obs)
     return CalibrationResult(
         rig=solved.rig, nominal=rig, free=problem.free, data_share=solved.data_share, weak=solved.weak,
@@ -383,4 +367,5 @@ def _result(rig: BiPrismRig, problem: JointProblem, solved, obs, corr: Correspon
         depth_uncertainty=predicted[-1], view_rms_px=view_rms, views=obs.views,
         outlier_views=view_outliers(view_rms, obs.views), residuals=res, observations=obs,
         poses=boards.blocks(board_x), iterations=solved.iterations, message=solved.message, joint=report,
+        downweighted_views=views,
     )

@@ -88,11 +88,10 @@ def format_report(result: CalibrationResult, view_names: Sequence[str] | None = 
     skipped = [names[i] for i in range(len(names)) if i not in result.views]
     if skipped:
         lines.append(f"{missing} (not used): {', '.join(skipped)}")
-    weighted = () if result.joint is None else result.joint.downweighted_views
     for v in result.outlier_views:
         lines.append(f"warning: view {names[v]} has an outlier reprojection error (over 3x the median view's); "
                      "check its detection or remove it")
-    for v in weighted:
+    for v in result.downweighted_views:
         lines.append(f"view {names[v]}'s error was an outlier after the first fit: the second weighted it down to the "
                      "median view's")
     if result.unobservable:

@@ -146,10 +146,16 @@ def test_result_report_and_plot(calibrated, tmp_path):
     assert (tmp_path / "r.png").stat().st_size > 10_000
 
 
-def test_outlier_view_is_flagged(calibrated):
+def test_outlier_view_is_flagged_and_weighted_down(calibrated):
+    """View 3 is an outlier after the first fit and stays one (its corners are wrong); the second fit weights it by
+    the median view's RMS over its own, and the other views fit as clean views do."""
     true, dets, result = calibrated  # view 3's left corners are moved by up to 1.5 px
-    assert result.outlier_views == (3,)
-    assert "warning: view 3 has an outlier" in format_report(result)
+    assert result.outlier_views == (3,) and result.downweighted_views == (3,)
+    text = format_report(result)
+    assert "warning: view 3 has an outlier" in text and "view 3's error was an outlier after the first fit" in text
+    clean = [result.observations.view == k for k in range(len(result.views)) if result.views[k] != 3]
+    rms = result.residuals[torch.stack(clean).any(0)].pow(2).sum(1).mean().sqrt()
+    assert float(rms) < 0.15  # the other views fit as well as clean views do
 
 
 def test_initial_poses_triangulate_the_boards(calibrated):

@@ -81,7 +81,7 @@ def test_the_report_names_each_input_set(joint):
 
 def test_a_scene_that_disagrees_is_left_out_and_an_outlier_view_weighted_down(joint):
     assert joint.joint.outlier_scenes == (3,) and 3 not in joint.joint.scenes
-    assert joint.joint.downweighted_views == (2,)
+    assert joint.downweighted_views == (2,)
     text = format_report(joint, None, ["a", "b", "c", "other.png"])
     assert "warning: scene other.png was left out" in text and "view 2's error was an outlier after the first" in text
 
