@@ -1,9 +1,11 @@
 """Joint calibration: board views and ordinary scenes in one bundle adjustment.
 
-A small board seen by both halves only in their common field of view leaves the principal point, k2 and the
-prism's offset weakly determined; a textured scene constrains exactly those (every matched pixel pair lies on an
-exact epipolar curve of the true rig, :mod:`~prismstereo.calibration.selfcal`), while the board fixes the metric
-scale that scenes cannot. :class:`JointProblem` stacks the two problems over one set of free rig parameters:
+A small board seen by both halves only in their common field of view leaves the distortion, the principal point
+and the prism's offset weakly determined. A textured scene adds what the epipolar curves show (every matched pixel
+pair lies on an exact epipolar curve of the true rig, :mod:`~prismstereo.calibration.selfcal`): the distortion, the
+prism's roll and tilts. The board fixes the metric scale and the focal length, which scenes cannot: the two virtual
+cameras are nearly parallel, so their epipolar geometry hardly depends on f (``docs/usage.md`` has the measured
+share of each). :class:`JointProblem` stacks the two problems over one set of free rig parameters:
 
 - x = [free rig values, board poses (V, 6), match depths (N, 1)];
 - residuals: each part's observations over its own noise (board corners ~0.1 px, SIFT matches ~0.3 px, each
