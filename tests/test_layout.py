@@ -196,3 +196,17 @@ def test_importing_the_package_and_its_errors_needs_no_torch():
             "print('torch' in sys.modules, 'thesis_setup1' in dir(prismstereo), 'load_rig' in prismstereo._LAZY)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["False", "True", "True"]
+
+
+def test_every_xdist_group_names_an_existing_module_or_test():
+    """A renamed test or module would silently leave its shared fixture's group (built once per worker instead of
+    once): every key of conftest's XDIST_GROUPS names a test module, or a test function in one."""
+    from tests.conftest import XDIST_GROUPS
+
+    root = Path(__file__).resolve().parents[1]
+    for key in XDIST_GROUPS:
+        module, _, test = key.partition("::")
+        path = root / module
+        assert path.is_file(), key
+        if test:
+            assert f"def {test}(" in path.read_text(), key

@@ -44,7 +44,7 @@ def joint(inputs):
     """One joint calibration of the six views and the four scenes: the fourth scene is left out after the first
     fit, and the result is the second fit's."""
     boards, matches = inputs
-    return calibrate_joint(NOMINAL, boards, BOARD, matches, max_correspondences=300)
+    return calibrate_joint(NOMINAL, boards, BOARD, matches, max_correspondences=200)
 
 
 def test_joint_calibration_recovers_the_rig_and_says_what_each_input_gave(joint):
@@ -62,7 +62,7 @@ def test_joint_calibration_recovers_the_rig_and_says_what_each_input_gave(joint)
     torch.testing.assert_close(found.std_error[2], joint.std_error, equal_nan=True)
     gain = {n: float(found.std_error[2, NAMES.index(n)] / found.std_error[0, NAMES.index(n)])
             for n in ("k1", "roll_deg", "tilt_x_deg", "tilt_y_deg")}
-    # measured 0.73 for k1, 0.89 for the roll and tilts (300 matches of 3 scenes beside 6 views)
+    # measured 0.73 for k1, 0.89 for the roll and tilts with 300 matches of 3 scenes beside 6 views
     assert gain["k1"] < 0.8 and all(g < 0.93 for g in gain.values()), gain
     t_o = NAMES.index("apex_distance_mm")
     assert float(found.std_error[0, t_o]) < 0.5 * float(found.std_error[1, t_o])
