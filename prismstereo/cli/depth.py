@@ -9,7 +9,7 @@ run over captures, sequences and videos (:func:`~prismstereo.jobs.run`) on the e
 With ``--backend onnx`` the same flags again (the cache's index remembers them:
 :func:`~prismstereo.cli.model_flags.request_flags`) run the remembered graphs through a
 :class:`~prismstereo.export.graphs.GraphPredictor` without importing torch, unless the job needs it (``--ply``,
-``--ray``).
+``--ray``); so do deployed graph files (``--graph``, ``--temporal-graph``), which carry their rig and range.
 """
 
 from __future__ import annotations
@@ -158,8 +158,48 @@ def _remembered(args: argparse.Namespace):
     return None if _tracked(args, tasks) != tracked else (tasks, options, predictor)
 
 
+# the flags that choose the model to build: a deployed graph is one already built
+MODEL_FLAGS = {"rig": "--rig", "z_range": "--z-range", "hypotheses": "--hypotheses", "downsample": "--downsample",
+               "full_band": "--full-band", "band_edges": "--band-edges", "model": "--model",
+               "last_stage": "--last-stage", "weights": "--weights", "preset": "--preset", "config": "--config"}
+
+
+def _deployed(args: argparse.Namespace):
+    """The job on deployed graph files (``--graph``, ``--temporal-graph``), without torch: (tasks, options,
+    predictor)."""
+    from prismstereo.export.graphs import GraphPredictor
+
+    given = [flag for name, flag in MODEL_FLAGS.items() if getattr(args, name) not in (None, False)]
+    if args.dense:
+        given.append("--dense")
+    if given:
+        raise PrismStereoError(f"{', '.join(given)} choose a model to build: --graph runs one built already (its "
+                               "rig, range and options are in the file)")
+    if args.backend == "torch":
+        raise PrismStereoError("--graph runs in onnxruntime: not with --backend torch")
+    if args.ply or args.ray is not None:
+        raise PrismStereoError("--graph runs without torch: --ply and --ray need it (export the model's request "
+                               "instead, or pass --rig and the model flags)")
+    predictor = GraphPredictor(Path(args.graph), None if args.temporal_graph is None else Path(args.temporal_graph),
+                               spinning=False)
+    tasks, options = _plan(args, None, predictor.dense)
+    tasks = _checked(tasks, predictor.image_size)
+    if _tracked(args, tasks) and predictor.temporal is None and args.temporal_binning is not None:
+        raise PrismStereoError("--temporal-binning: the temporal graph sets its band (--temporal-graph)")
+    return tasks, options, predictor
+
+
 def _cmd_depth(args: argparse.Namespace) -> int:
     _check_numbers(args)
+    if args.temporal_graph is not None and args.graph is None:
+        raise PrismStereoError("--temporal-graph goes with --graph")
+    if args.graph is not None:
+        tasks, options, predictor = _deployed(args)
+        tracked = _tracked(args, tasks) and predictor.temporal is not None
+        return _run(args, tasks, options, predictor, *_executor(args), tracked=tracked)
+    if args.rig is None:
+        raise PrismStereoError("the following arguments are required: --rig (or --graph)")
+    args.backend = args.backend or "torch"
     if args.backend == "onnx" and not args.ply and args.ray is None:
         job = _remembered(args)
         if job is not None:
@@ -196,8 +236,11 @@ def _run(args: argparse.Namespace, tasks: list, options, predictor, executor, wh
     cached = (" (cached graphs)" if tracked else " (cached graph)") if predictor.cached else ""
     torch_free = "" if sys.modules.get("torch") is not None else " (without torch)"
     outputs = sum(len(t.outputs) - t.first for t in runnable)
-    print(f"{range_note(args, predictor.z_range)}, {predictor.summary}{cached}, backend {args.backend}{torch_free}"
-          f"{where}; {outputs} depth maps to write from {len(runnable)} of {len(tasks)} inputs")
+    z0, z1 = predictor.z_range
+    head = (f"depth range {z0:.1f}-{z1:.1f} mm (the graph's), {Path(args.graph).name}: {predictor.summary}"
+            if args.graph is not None else f"{range_note(args, predictor.z_range)}, {predictor.summary}{cached}")
+    print(f"{head}, backend {args.backend or 'onnx'}{torch_free}{where}; {outputs} depth maps to write from "
+          f"{len(runnable)} of {len(tasks)} inputs")
     try:
         result = run(tasks, Pipeline(predictor, options=options), executor=executor, batch_size=args.batch_size)
     except KeyboardInterrupt as exc:  # the same kind (Ctrl-C or SIGTERM), saying what is on disk
@@ -219,16 +262,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                             "video file (.mp4, .avi, .mkv, ...), directory of images or quoted glob ('frames/*.png'),"
                             " written as OUT/<image stem>.<format> (a video's frames as OUT/<stem>_000000.<format>, "
                             "... numbered from 0)")
-    depth.add_argument("--rig", required=True, help="rig JSON file or preset name")
+    depth.add_argument("--rig", default=None, help="rig JSON file or preset name (required unless --graph)")
     depth.add_argument("--out", required=True,
                        help="OUT.npy or OUT.tiff (float32 mm, NaN invalid) or OUT.png (16-bit mm x scale, 0 "
                             "invalid, plus OUT.json with the scale) for one image, with OUT_preview.png; a directory "
                             "(created) of <stem>.npy/.png/.tiff otherwise")
     add_model_arguments(depth)
-    depth.add_argument("--backend", choices=BACKENDS, default="torch",
-                       help="inference backend: the model in torch, or its graphs in onnxruntime (exported once "
-                            "into the cache, prismstereo.export.cached_graphs: the same request again runs without "
-                            "building the model)")
+    depth.add_argument("--graph", default=None, metavar="FILE.onnx",
+                       help="run a deployed graph (prismstereo export, or export_onnx) instead of building a model: "
+                            "its rig, range and options are in the file; runs in onnxruntime without torch")
+    depth.add_argument("--temporal-graph", default=None, metavar="FILE.onnx",
+                       help="with --graph: the temporal band's graph of the same model (export_onnx(..., "
+                            "temporal=TemporalOptions())), tracking videos and sequences between key frames")
+    depth.add_argument("--backend", choices=BACKENDS, default=None,
+                       help="inference backend: the model in torch (default), or its graphs in onnxruntime "
+                            "(exported once into the cache, prismstereo.export.cached_graphs: the same request again "
+                            "runs without building the model or importing torch)")
     depth.add_argument("--batch-size", type=int, default=1, metavar="B", help="images processed together")
     depth.add_argument("--workers", type=int, default=1, metavar="N",
                        help="spread the inputs (batches of images, whole videos or sequences) over N processes, each "

@@ -75,3 +75,44 @@ def test_a_request_not_remembered_builds_the_model(inputs, tmp_path, capsys):
     """Other flags are another request: the command takes the torch path (and remembers it)."""
     assert main(_depth(inputs, "one.png", tmp_path / "a.npy", "--band-edges", "reject")) == 0
     assert "(without torch)" not in capsys.readouterr().out
+
+
+def test_deployed_graph_files_run_without_torch(inputs, tmp_path, capsys):
+    """``depth --graph FILE --temporal-graph FILE``: exported files (no cache, no rig file) in a process where
+    ``import torch`` fails, the same depth as the model's own ONNX run; model flags and torch-only outputs refused."""
+    from prismstereo.classical import TemporalOptions
+    from prismstereo.export import export_onnx
+    from prismstereo.geometry.rig import BiPrismRig
+    from prismstereo.models import build_model
+
+    rig = BiPrismRig.from_json(inputs / "small.json")
+    model = build_model(rig, "classical", (400.0, 700.0), {"downsample": 2, "full_band": 2})
+    graph = export_onnx(model, tmp_path / "depth.onnx")
+    temporal = export_onnx(model, tmp_path / "temporal.onnx", temporal=TemporalOptions())
+    first = tmp_path / "first"
+    assert main(_depth(inputs, "frames", first)) == 0  # the same model's request through the cache
+    capsys.readouterr()
+    common = ["--graph", str(graph), "--temporal-graph", str(temporal)]
+    args = [["depth", str(inputs / "frames"), "--out", str(tmp_path / "again"), *common],
+            ["depth", str(inputs / "one.png"), "--out", str(tmp_path / "one.npy"), "--graph", str(graph)]]
+    code = ("import sys\nsys.modules['torch'] = None\nfrom prismstereo.cli import main\n"
+            f"print('codes', [main(a) for a in {args!r}])")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and "codes [0, 0]" in run.stdout, run.stderr
+    assert "(the graph's), depth.onnx" in run.stdout and "backend onnx (without torch)" in run.stdout
+    assert re.search(r"\b[1-3] key frames", run.stdout), run.stdout
+    for k in range(len(DEPTHS)):
+        name = f"f{k:03d}.npy"
+        np.testing.assert_array_equal(np.load(tmp_path / "again" / name), np.load(first / name), err_msg=name)
+    for extra, message in ((["--rig", "small.json"], "--rig choose a model to build"),
+                           (["--z-range", "400", "700"], "--z-range choose a model to build"),
+                           (["--ply"], "--ply and --ray need it"),
+                           (["--backend", "torch"], "not with --backend torch")):
+        assert main(["depth", str(inputs / "one.png"), "--out", str(tmp_path / "x.npy"), "--graph", str(graph),
+                     *extra]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["depth", str(inputs / "one.png"), "--out", str(tmp_path / "x.npy"), "--temporal-graph",
+                 str(temporal)]) == 2
+    assert "--temporal-graph goes with --graph" in capsys.readouterr().err
+    assert main(["depth", str(inputs / "one.png"), "--out", str(tmp_path / "x.npy")]) == 2
+    assert "required: --rig (or --graph)" in capsys.readouterr().err
