@@ -180,13 +180,13 @@ def _deployed(args: argparse.Namespace):
     if args.ply or args.ray is not None:
         raise PrismStereoError("--graph runs without torch: --ply and --ray need it (export the model's request "
                                "instead, or pass --rig and the model flags)")
+    if args.temporal_binning is not None:
+        raise PrismStereoError("--temporal-binning places the band of a model to build: a temporal graph's band was "
+                               "placed when it was exported")
     predictor = GraphPredictor(Path(args.graph), None if args.temporal_graph is None else Path(args.temporal_graph),
                                spinning=False)
     tasks, options = _plan(args, None, predictor.dense)
-    tasks = _checked(tasks, predictor.image_size)
-    if _tracked(args, tasks) and predictor.temporal is None and args.temporal_binning is not None:
-        raise PrismStereoError("--temporal-binning: the temporal graph sets its band (--temporal-graph)")
-    return tasks, options, predictor
+    return _checked(tasks, predictor.image_size), options, predictor
 
 
 def _cmd_depth(args: argparse.Namespace) -> int:

@@ -107,7 +107,8 @@ def test_deployed_graph_files_run_without_torch(inputs, tmp_path, capsys):
     for extra, message in ((["--rig", "small.json"], "--rig choose a model to build"),
                            (["--z-range", "400", "700"], "--z-range choose a model to build"),
                            (["--ply"], "--ply and --ray need it"),
-                           (["--backend", "torch"], "not with --backend torch")):
+                           (["--backend", "torch"], "not with --backend torch"),
+                           (["--temporal-binning", "1"], "a temporal graph's band was placed when it was exported")):
         assert main(["depth", str(inputs / "one.png"), "--out", str(tmp_path / "x.npy"), "--graph", str(graph),
                      *extra]) == 2
         assert message in capsys.readouterr().err
