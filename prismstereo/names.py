@@ -10,12 +10,15 @@ from __future__ import annotations
 
 from typing import Literal
 
-__all__ = ["BACKENDS", "DEPTH_FILE_FORMATS", "DEPTH_SUFFIXES", "INPUT_NAME", "MODEL_KINDS", "NEXT_PRIOR_NAMES",
-           "OUTPUT_NAMES", "PRIOR_NAMES", "Backend", "ModelKind"]
+__all__ = ["BACKENDS", "DEPTH_FILE_FORMATS", "DEPTH_SUFFIXES", "INPUT_NAME", "LAST_STAGES", "MODEL_KINDS",
+           "NEXT_PRIOR_NAMES", "OUTPUT_NAMES", "PRIOR_NAMES", "Backend", "ModelKind"]
 
 ModelKind = Literal["hybrid", "classical", "learned"]
 MODEL_KINDS: tuple[str, ...] = ("hybrid", "classical", "learned")
 """The depth models :func:`~prismstereo.models.build_model` builds."""
+
+LAST_STAGES: tuple[str, ...] = ("exact", "learned")
+"""The hybrid's last stages (:class:`~prismstereo.learned.HybridStereo`'s ``last_stage``)."""
 
 Backend = Literal["torch", "onnx"]
 BACKENDS: tuple[str, ...] = ("torch", "onnx")

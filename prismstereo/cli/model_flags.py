@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from prismstereo.errors import PrismStereoError
-from prismstereo.names import MODEL_KINDS
+from prismstereo.names import LAST_STAGES, MODEL_KINDS
 
 if TYPE_CHECKING:  # imported where a model is asked for: parsing the flags needs no torch
     from prismstereo.geometry.rig import BiPrismRig
@@ -171,7 +171,7 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                              "(prismstereo.models.default_kind: hybrid from 512 x 384 up, when the reference half "
                              "is >= 192 px on its shorter side). On videos and sequences under the temporal prior "
                              "the hybrid computes the key frames and the classical model's band tracks between them")
-    parser.add_argument("--last-stage", choices=("exact", "learned"), default=None,
+    parser.add_argument("--last-stage", choices=LAST_STAGES, default=None,
                         help="the hybrid's last stage: exact (default: the classical band's exact fit where it "
                              "agrees with the learned estimate; textured surfaces as precise as the classical "
                              "model) or learned (the learned estimate as it is: about a fifth faster, planes about "

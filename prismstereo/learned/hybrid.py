@@ -61,6 +61,7 @@ from prismstereo.learned.weights import WeightsError, read_weights, write_weight
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.band import extend_estimate
 from prismstereo.matching.sweep_sampler import block_centres
+from prismstereo.names import LAST_STAGES  # what gives the final depth (HybridStereo's ``last_stage``)
 from prismstereo.runtime import box_max, sample_bilinear
 
 __all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "LAST_STAGES", "HybridStereo", "RefinementInputs", "classical_config",
@@ -74,8 +75,6 @@ RELIEF_STEPS = 8.0  # the estimate's local relief is given to the CNN in steps, 
 # neighbours' mean s, so the refinement starts near the truth there instead of at s = 0
 FILL_RADIUS = 3
 VALID_CONFIDENCE = 0.5  # the validity threshold of weights without a calibrated one (``valid_confidence``)
-LAST_STAGES = ("exact", "learned")
-"""What gives the final depth (:class:`HybridStereo`'s ``last_stage``)."""
 
 
 def load_hybrid_weights(path: str | Path) -> tuple[HybridArchitecture, dict[str, torch.Tensor], dict[str, Any]]:
