@@ -158,6 +158,11 @@ class Predictor:
         return self.rig.image_height, self.rig.image_width
 
     @property
+    def reference_width(self) -> int:
+        """W_ref, the reference half's columns (the outputs' width)."""
+        return self.rig.reference_width
+
+    @property
     def model(self) -> DepthModel:
         """The torch model (torch backend only)."""
         if self._model is None:

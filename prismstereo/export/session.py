@@ -165,7 +165,7 @@ class OnnxDepth:
                               f"{'track(image, prior)' if self.temporal else 'call it on the image alone'}")
 
     def _out(self, *arrays: np.ndarray) -> tuple[Any, ...]:
-        """The session's outputs as this session's kind of array (bool masks as bool)."""
+        """The graph's outputs as the arrays this runner returns (``arrays``), bool masks as bool."""
         if self.arrays == "numpy":
             return arrays
         import torch
@@ -216,7 +216,7 @@ class OnnxDepth:
     def band_prior(self, depth: Any, valid: Any, confidence: Any) -> BandPrior:
         """A full-resolution result (B, 1, H, W_ref) each (a key frame's) as a temporal graph's prior
         (:func:`~prismstereo.classical.prior.band_prior` with the graph's range, options and :attr:`prior_size`),
-        computed in numpy (the same prior in either kind of session), returned as this session's arrays.
+        computed in numpy (the same prior for either kind of ``arrays``), returned as the runner's arrays.
 
         Raises:
             OptionError: a per-frame graph.

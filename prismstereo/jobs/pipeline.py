@@ -285,7 +285,7 @@ class Pipeline:
         chunks = [list(tasks[i:i + batch_size]) for i in range(0, len(tasks), batch_size)]
         ready: deque = deque()
         writer = _Writer()
-        w_ref = self._reference_width()
+        w_ref = self.predictor.reference_width
         for chunk, images in zip(chunks, _prefetch([self._read(t.source) for t in c] for c in chunks), strict=True):
             good = [(t, im) for t, im in zip(chunk, images, strict=True) if not isinstance(im, str)]
             ready.extend(TaskReport(t.source, 0, 0, (), 0.0, im) for t, im in zip(chunk, images, strict=True)
@@ -305,11 +305,6 @@ class Pipeline:
                 yield ready.popleft()
         writer.close()
         yield from ready
-
-    def _reference_width(self) -> int:
-        """W_ref, the reference half's columns."""
-        predictor = self.predictor
-        return predictor.reference_width if isinstance(predictor, GraphPredictor) else predictor.rig.reference_width
 
     def _captured(self, ready: deque, task: Task, depth: Any, valid: Any, seconds: float, future: Future) -> None:
         """Queue the report of a capture whose files were written by ``future``."""
@@ -394,7 +389,7 @@ class Pipeline:
                 points = self._points(res.depth, mask)
                 writer.submit(functools.partial(job, files, res.depth[0, 0], mask[0, 0], res.confidence[0, 0],
                                                 None if points is None else points[0],
-                                                frame.image[:, :, : self._reference_width()]), done)
+                                                frame.image[:, :, : self.predictor.reference_width]), done)
                 if state["error"] is not None:
                     break
         except _FAILURES as exc:

@@ -106,11 +106,7 @@ class DepthStream(FrameStream):
         self._check_size(tuple(image.shape))
         if not torch.is_floating_point(image):
             image = image.float() / 255.0
-        if image.shape[1] != self.channels:
-            if self.channels != 1 or image.shape[1] != 3:
-                raise ShapeError(f"frame has {image.shape[1]} channels, the model takes {self.channels}")
-            image = to_grey(image)
-        return image
+        return self._model_channels(image, to_grey)
 
     def _thumbnail(self, image: torch.Tensor) -> np.ndarray:
         """The cut test's 8 x 8 block means: OpenCV's area resize of a float CPU frame (the same means as torch's

@@ -148,10 +148,14 @@ class FrameStream:
                              f"(H, W) / (H, W, 3) BGR, got {frame.dtype} {frame.shape}")
         image = np.asarray(frame if frame.ndim == 4 else frame[None], dtype=np.float32)
         self._check_size(image.shape)
+        return self._model_channels(image, grey_array)
+
+    def _model_channels(self, image: Any, grey: Any) -> Any:
+        """A (1, C, H, W) frame with the model's channels: a colour frame ``grey`` (image) for a grey model."""
         if image.shape[1] != self.channels:
             if self.channels != 1 or image.shape[1] != 3:
                 raise ShapeError(f"frame has {image.shape[1]} channels, the model takes {self.channels}")
-            image = grey_array(image)
+            image = grey(image)
         return image
 
     def _thumbnail(self, image: Any) -> np.ndarray:

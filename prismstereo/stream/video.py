@@ -69,22 +69,15 @@ def frame_to_grey(frame: np.ndarray) -> torch.Tensor:
 
 def read_frames(source: str | Path, *, every: int = 1, start: int = 0, stop: int | None = None,
                 grey: bool = False, decode_threads: int | None = None) -> Iterator[Frame]:
-    """The frames ``start``, ``start + every``, ... (< ``stop``) of a video file, directory or glob of images.
+    """The frames ``start``, ``start + every``, ... (< ``stop``) of a video file, directory or glob of images, as
+    tensors: :func:`~prismstereo.sources.decode_frames`' frames (the same bits), each image a tensor.
 
     Args:
-        source: a video file, a directory of images or a glob pattern.
-        every: keep one frame in ``every``.
-        start: first frame (0-based).
-        stop: end (exclusive), None for the whole source.
-        grey: frames as (1, H, W) grey, on the thread that reads them: what a one-channel model takes (a video's
-            decoded frames by :func:`frame_to_grey`, images by :func:`~prismstereo.io.to_grey`: bit for bit what
-            :class:`~prismstereo.stream.DepthStream` makes of the decoded frame or the image).
-        decode_threads: a video file's decoding threads (>= 1; None: OpenCV's default, about one per core). Where
-            the depth graph runs beside the reader on the same cores (``prismstereo depth``), the decoder's extra
-            threads preempt the graph's.
+        source, every, start, stop, grey, decode_threads: as :func:`~prismstereo.sources.decode_frames` (``grey``:
+            bit for bit what :class:`~prismstereo.stream.DepthStream` makes of the decoded frame or the image).
 
     Yields:
-        Frame(index, image (C, H, W) float32 in [0, 1], name).
+        Frame(index, image (C, H, W) float32 tensor in [0, 1], name).
 
     Raises:
         VideoError: a missing, unopenable or empty source, bad selection, or a frame that cannot be decoded.
