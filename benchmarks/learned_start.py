@@ -40,7 +40,7 @@ from prismstereo import thesis_setup1  # noqa: E402
 from prismstereo.conventions import to_grey  # noqa: E402
 from prismstereo.depth.resample import upsample  # noqa: E402
 from prismstereo.learned import HybridStereo  # noqa: E402
-from prismstereo.learned.hybrid import truth_sweep  # noqa: E402
+from prismstereo.learned.hybrid_data import truth_sweep  # noqa: E402
 from prismstereo.learned.network import normalise_image  # noqa: E402
 from prismstereo.learned.start_train import block_truth  # noqa: E402
 from prismstereo.learned.sweep_start import START_WEIGHTS, SweepStart, load_start  # noqa: E402

@@ -14,9 +14,11 @@ Contract::
 (kept in ``--cache``), trains :class:`~prismstereo.learned.LearnedStereo` (:func:`~prismstereo.learned.train.train`)
 and writes ``--out``. ``--model hybrid`` renders ``--captures`` scenes through each of the training rig variants
 (:func:`~prismstereo.learned.hybrid_data.training_rigs`), trains the refinement of
-:class:`~prismstereo.learned.hybrid.HybridStereo` (:func:`~prismstereo.learned.hybrid_train.train_hybrid`) and writes
-``--out``; it keeps a checkpoint beside ``--out`` and the same command resumes from it; ``--start learned`` refines
-the learned first stage's estimate instead of the classical block level's. ``--model start`` trains that first stage
+:class:`~prismstereo.learned.hybrid.HybridStereo` (:func:`~prismstereo.learned.hybrid_train.train_hybrid`), then its
+exact chain's confidence head (:func:`~prismstereo.learned.confidence_train.train_exact_confidence`, on those renders
+and two 512 x 384 sensors') and writes ``--out``; the refinement keeps a checkpoint beside ``--out`` and the same
+command resumes from it; ``--start learned`` refines the learned first stage's estimate instead of the classical block
+level's. ``--model start`` trains that first stage
 (:func:`~prismstereo.learned.start_train.train_start`) on the same renders, resumable too. The shipped default weights
 are only replaced when ``--out`` names them. Prints the loss at the start and end and the time. Errors exit with
 status 2 and a message: an unknown preset or bad rig file, an output that is not a ``.pt`` file, a bad range or
@@ -70,12 +72,18 @@ def _train(args: argparse.Namespace, out: Path):
         return train_start(out, steps=_or(args.steps, 3000), seed=args.seed, batch_size=_or(args.batch_size, 2),
                            captures=_or(args.captures, 24), cache=args.cache, progress=not args.quiet)
     if args.model == "hybrid":
-        from prismstereo.learned.hybrid_train import train_hybrid
+        from prismstereo.learned import confidence_train, hybrid_train
         from prismstereo.learned.refinement import HybridArchitecture
 
-        return train_hybrid(out, steps=_or(args.steps, 6000), seed=args.seed, batch_size=_or(args.batch_size, 8),
-                            captures=_or(args.captures, 24), cache=args.cache, progress=not args.quiet,
-                            architecture=HybridArchitecture(start=args.start or "classical"))
+        result = hybrid_train.train_hybrid(out, steps=_or(args.steps, 6000), seed=args.seed,
+                                           batch_size=_or(args.batch_size, 8), captures=_or(args.captures, 24),
+                                           cache=args.cache, progress=not args.quiet,
+                                           architecture=HybridArchitecture(start=args.start or "classical"))
+        head = confidence_train.train_exact_confidence(result.path, seed=args.seed, captures=_or(args.captures, 24),
+                                                       cache=args.cache, progress=not args.quiet)
+        print(f"confidence head: {len(head.losses)} steps in {head.seconds:.0f} s, loss "
+              f"{float(head.losses[-min(50, len(head.losses)):].mean()):.3f} (last steps)")
+        return result
     from prismstereo.geometry.presets import load_rig
     from prismstereo.learned.train import train
 

@@ -15,6 +15,8 @@ out: here they would only decide which fits replace the estimate, which the agre
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 from torch import nn
 
@@ -24,7 +26,7 @@ from prismstereo.classical.level import DepthLevel
 from prismstereo.errors import ShapeError, check_shape
 from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["EXACT_AGREEMENT", "EXACT_BAND", "ExactStage", "exact_config"]
+__all__ = ["EXACT_AGREEMENT", "EXACT_BAND", "ExactEvidence", "ExactStage", "exact_config"]
 
 EXACT_BAND = 1
 """R of the band: the learned estimate is within a step of the match wherever the fit replaces it, and with R = 1
@@ -47,6 +49,25 @@ def exact_config(rig: BiPrismRig, z_range_mm: tuple[float, float]) -> StereoConf
     config = StereoConfig().replace(search={"downsample": 2, "full_band": EXACT_BAND, "band_edges": "clamp"},
                                     validity={"validity": "thresholds", "occlusion_tolerance": None})
     return resolve_level(rig, z_range_mm, config, placed_by=2)
+
+
+class ExactEvidence(NamedTuple):
+    """What the exact stage found around an estimate, on its grid (B, 1, H', W'_ref) each (what
+    :class:`~prismstereo.learned.exact_confidence.ConfidenceHead` judges the final depth by).
+
+    Attributes:
+        s: the final sweep coordinate: the fit where it was taken, else the estimate.
+        similarity: the band's NCC at its fit, in [0, 1] (the classical similarity).
+        taken: 1 where the fit replaced the estimate, else 0 (``s``'s dtype).
+        move: how far the fit lay from the estimate, in the band's steps.
+        reference: the grey reference half on the grid.
+    """
+
+    s: torch.Tensor
+    similarity: torch.Tensor
+    taken: torch.Tensor
+    move: torch.Tensor
+    reference: torch.Tensor
 
 
 class ExactStage(nn.Module):
@@ -94,6 +115,27 @@ class ExactStage(nn.Module):
         Raises:
             ShapeError: ``s`` or ``grey`` not on the stage's grid.
         """
+        return self.evidence(grey, s).s
+
+    def evidence(self, grey: torch.Tensor, s: torch.Tensor) -> ExactEvidence:
+        """:meth:`forward` with what the band found: its NCC, where its fit was taken and how far it moved.
+
+        Args:
+            grey: (B, 1, H', W') the grey capture on the stage's grid.
+            s: (B, 1, H', W'_ref) the estimate on the stage's grid.
+
+        Returns:
+            ExactEvidence of (B, 1, H', W'_ref) maps.
+
+        Raises:
+            ShapeError: ``s`` or ``grey`` not on the stage's grid.
+
+        Example:
+            >>> stage = ExactStage(thesis_setup1().downscaled(2), (450.0, 900.0))
+            >>> out = stage.evidence(torch.rand(1, 1, 384, 512), torch.zeros(1, 1, 384, 256))
+            >>> out.similarity.shape, bool(out.move.min() >= 0)
+            (torch.Size([1, 1, 384, 256]), True)
+        """
         check_shape(s, ["B", 1, *self.estimate_size], "s")
         level = self.level
         reference, other = level.split(grey)
@@ -103,5 +145,6 @@ class ExactStage(nn.Module):
         placed = torch.ones_like(s0, dtype=torch.bool)  # every pixel has an estimate of its own
         fit = level.finish(level.search_band(reference, other, s0, placed, ~placed, None))
         fitted = fit.index * level.step - 1.0
-        take = fit.valid & ((fitted - s).abs() <= EXACT_AGREEMENT * level.step)
-        return torch.where(take, fitted, s)
+        move = (fitted - s).abs() / level.step
+        take = fit.valid & (move <= EXACT_AGREEMENT)
+        return ExactEvidence(torch.where(take, fitted, s), fit.confidence, take.to(s.dtype), move, reference)

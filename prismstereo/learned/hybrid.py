@@ -24,7 +24,9 @@ the reference half on that grid, k = ``block`` * b / 2 the classical level's bin
 3. the exact last stage (``last_stage='exact'``, the default; :mod:`~prismstereo.learned.exact_stage`): the
    classical band's fit on the exact sweep around the estimate, on the stages' grid, replaces the estimate where it
    is valid and agrees with it (a regressed estimate carries a smooth bias of a tenth of a step on textured
-   surfaces, the smoothed fit does not). The confidence is the learned one;
+   surfaces, the smoothed fit does not). Where the weights hold a confidence head
+   (:mod:`~prismstereo.learned.exact_confidence`), it re-scores the learned confidence with what the band found;
+   else the confidence is the learned one;
 4. s and the confidence bilinearly to full resolution (b = 2), depth exact from s (thesis eq. 6.1-6.10 via the
    sweep).
 
@@ -49,10 +51,11 @@ from prismstereo.conventions import to_grey
 from prismstereo.depth.bad_pixels import BadPixels
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
-from prismstereo.epipolar.sweep import depth_to_sweep, fit_sweep, sweep_coefficients, sweep_match, sweep_to_depth
+from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_match, sweep_to_depth
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
+from prismstereo.learned.exact_confidence import ConfidenceHead, exact_features
 from prismstereo.learned.exact_stage import EXACT_BAND, ExactStage
 from prismstereo.learned.network import normalise_image
 from prismstereo.learned.refinement import HybridArchitecture, RefinementCNN, RefinementInputs
@@ -65,7 +68,7 @@ from prismstereo.names import LAST_STAGES  # what gives the final depth (HybridS
 from prismstereo.runtime import box_max, sample_bilinear
 
 __all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "LAST_STAGES", "HybridStereo", "RefinementInputs", "classical_config",
-           "load_hybrid_weights", "truth_sweep"]
+           "load_hybrid_weights"]
 
 HYBRID_WEIGHTS = Path(__file__).resolve().parent / "weights" / "hybrid.pt"
 HYBRID_FORMAT = "prismstereo.hybrid/1"
@@ -105,8 +108,11 @@ class HybridStereo(nn.Module):
     Attributes:
         binning: b, the stages' grid's binning (2 or 1; module docstring).
         valid_confidence: the confidence from which a depth is valid: the threshold calibrated on the training
-            captures (:func:`~prismstereo.learned.hybrid_train.validity_threshold`, in the weights' metadata),
-            else :data:`VALID_CONFIDENCE`.
+            captures for this model's confidence (the head's, ``exact_valid_confidence``, with the exact stage and a
+            head; else the learned one's, ``valid_confidence``: in the weights' metadata), else
+            :data:`VALID_CONFIDENCE`.
+        head: the confidence head (:class:`~prismstereo.learned.exact_confidence.ConfidenceHead`) when the weights
+            hold one, else None; used with the exact stage only.
         exact: the exact last stage (:class:`~prismstereo.learned.exact_stage.ExactStage`; None with
             ``last_stage='learned'``).
 
@@ -143,9 +149,6 @@ class HybridStereo(nn.Module):
             architecture, state, metadata = load_hybrid_weights(path)
         self.architecture = arch = architecture or HybridArchitecture()
         self.metadata: dict[str, Any] = metadata
-        # the confidence from which a depth is valid: calibrated on the training captures when the weights were
-        # written (prismstereo.learned.hybrid_train.validity_threshold)
-        self.valid_confidence = float(metadata.get("valid_confidence", VALID_CONFIDENCE))
         if rig.image_width % arch.block or rig.image_height % arch.block:
             raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by block {arch.block}")
         self.binning = b = default_downsample(rig)
@@ -163,11 +166,19 @@ class HybridStereo(nn.Module):
                 raise WeightsError(f"weights do not fit the architecture {arch}: {exc}") from exc
             if self.start is not None and any(k.startswith("start.") for k in state):
                 self.start.load_weights({k[6:]: v for k, v in state.items() if k.startswith("start.")})
+        self.head: ConfidenceHead | None = None
+        if state is not None and any(k.startswith("head.") for k in state):
+            self.head = ConfidenceHead()
+            self.head.load_state_dict({k[5:]: v for k, v in state.items() if k.startswith("head.")})
         self.rig = rig
         self.half = half = rig.binned(b)
         z = self.classical.z_range
         self.last_stage = last_stage
         self.exact = ExactStage(rig, z) if last_stage == "exact" else None
+        # the confidence from which a depth is valid: calibrated on the training captures when the weights were
+        # written (prismstereo.learned.hybrid_train.validity_threshold, confidence_train.train_exact_confidence)
+        key = "exact_valid_confidence" if self.rescored else "valid_confidence"
+        self.valid_confidence = float(metadata.get(key, VALID_CONFIDENCE))
         # a step of s: the sweep's largest pixel spacing on the stages' grid is <= 1 px per step
         self.step = 2.0 / (default_hypotheses(half, z) - 1)
         self.register_buffer("coefficients", _sweep_grid(half, z), persistent=False)
@@ -180,6 +191,11 @@ class HybridStereo(nn.Module):
         rays = trace_pixels(rig, uv)
         self.register_buffer("rays_valid", (rays.valid & rays.left).view(1, 1, *uv.shape[:2]), persistent=False)
         self.bad_pixels = BadPixels(half, z)  # screens the stages' grid: a bin with a bad pixel is bad
+
+    @property
+    def rescored(self) -> bool:
+        """Whether the confidence is the head's (the exact stage and a head), else the last learned stage's."""
+        return self.exact is not None and self.head is not None
 
     @property
     def z_range(self) -> tuple[float, float]:
@@ -209,11 +225,12 @@ class HybridStereo(nn.Module):
         return PrismStereo(self.rig, self.z_range).tracker(options)
 
     def weights(self) -> dict[str, torch.Tensor]:
-        """The learned tensors (what a weights file holds): ``half.*`` and ``quarter.*`` stages, and ``start.*`` the
-        learned first stage's (``architecture.start == 'learned'``)."""
+        """The learned tensors (what a weights file holds): ``half.*`` and ``quarter.*`` stages, ``start.*`` the
+        learned first stage's (``architecture.start == 'learned'``) and ``head.*`` the confidence head's."""
         start = {} if self.start is None else {f"start.{k}": v for k, v in self.start.weights().items()}
+        head = {} if self.head is None else {f"head.{k}": v for k, v in self.head.state_dict().items()}
         return {**{f"half.{k}": v for k, v in self.stages.state_dict().items()},
-                **{f"quarter.{k}": v for k, v in self.quarter_stages.state_dict().items()}, **start}
+                **{f"quarter.{k}": v for k, v in self.quarter_stages.state_dict().items()}, **start, **head}
 
     def describe(self) -> dict[str, Any]:
         """What the model is, JSON-ready (the ONNX export's metadata and cache key).
@@ -247,6 +264,7 @@ class HybridStereo(nn.Module):
         first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/8)" if self.start is not None
                  else f"classical block level ({self.classical.summary()})")
         last = "" if self.exact is None else f", then the exact band +-{EXACT_BAND} at {grids[self.exact.binning]}"
+        last += ", its evidence re-scoring the confidence" if self.rescored else ""
         return (f"hybrid: {first}, then learned 2-D stages: "
                 f"{stages} ({a.layers} x {a.channels} ch, {count} parameters){last}")
 
@@ -379,9 +397,12 @@ class HybridStereo(nn.Module):
         s, logit = self.refine(self.initial_binned(grey))[-1]
         if b > 1:  # a bin next to a touched one too: the bilinear upsample below then gives 0 on every touched pixel
             touched = box_max(touched.to(dtype), 3) > 0
-        confidence = torch.sigmoid(logit) * (~touched).to(dtype)  # no depth where bad pixels reach (so invalid)
         if self.exact is not None:
-            s = self.exact(grey, s)
+            evidence = self.exact.evidence(grey, s)
+            s = evidence.s
+            if self.head is not None:
+                logit = self.head(exact_features(evidence, logit, self.step))
+        confidence = torch.sigmoid(logit) * (~touched).to(dtype)  # no depth where bad pixels reach (so invalid)
         match = sweep_match(self.coefficients, s)[0] * b + (b - 1) / 2  # full-sensor pixels
         if b > 1:  # each map on its own: the exported graph keeps only what its outputs need (not the match)
             size = (self.rig.image_height, self.rig.reference_width)
@@ -427,13 +448,3 @@ def classical_config(block: int) -> StereoConfig:
         (4, 0, True)
     """
     return preset("dense").replace(search={"downsample": block, "full_band": 0})
-
-
-def truth_sweep(depth: torch.Tensor, z_range_mm: tuple[float, float]) -> torch.Tensor:
-    """The sweep coordinate of true depths (mm, NaN where unknown) over a range (NaN stays NaN).
-
-    Example:
-        >>> truth_sweep(torch.tensor([450.0, float("nan")]), (450.0, 900.0))
-        tensor([-1., nan])
-    """
-    return depth_to_sweep(depth, torch.tensor(z_range_mm, dtype=depth.dtype, device=depth.device))

@@ -27,15 +27,16 @@ import torch
 import torch.nn.functional as F
 
 from prismstereo.classical.defaults import default_hypotheses
+from prismstereo.epipolar.sweep import depth_to_sweep
 from prismstereo.errors import OptionError
 from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.data import KINDS, SEED_LIMIT, random_capture_spec
-from prismstereo.learned.hybrid import HybridStereo, truth_sweep
+from prismstereo.learned.hybrid import HybridStereo
 from prismstereo.synthetic import ImageFormation, Scene, height_field_scene, render
 
 __all__ = ["HELD_OUT_PHOTOS", "TRAIN_PHOTOS", "HybridSet", "Rendered", "hybrid_set", "photo_scene", "photographs",
-           "render_set", "training_rigs", "training_sets"]
+           "render_set", "training_rigs", "training_sets", "truth_sweep"]
 
 TRAIN_PHOTOS: tuple[str, ...] = ("astronaut", "brick", "camera", "cat", "coffee", "coins", "grass", "gravel",
                                  "hubble_deep_field", "immunohistochemistry", "moon", "page", "retina", "rocket",
@@ -283,3 +284,13 @@ def training_sets(captures: int, *, seed: int = 0, variants: list[int] | None = 
     chosen = range(len(rigs)) if variants is None else variants
     return [hybrid_set(*rigs[i], captures, seed=seed * 100 + i, cache=cache, progress=progress,
                        model=None if models is None else models[i]) for i in chosen]
+
+
+def truth_sweep(depth: torch.Tensor, z_range_mm: tuple[float, float]) -> torch.Tensor:
+    """The sweep coordinate of true depths (mm, NaN where unknown) over a range (NaN stays NaN).
+
+    Example:
+        >>> truth_sweep(torch.tensor([450.0, float("nan")]), (450.0, 900.0))
+        tensor([-1., nan])
+    """
+    return depth_to_sweep(depth, torch.tensor(z_range_mm, dtype=depth.dtype, device=depth.device))

@@ -34,7 +34,7 @@ from prismstereo.learned.hybrid import HybridArchitecture, HybridStereo, Refinem
 from prismstereo.learned.hybrid_data import HybridSet, training_rigs, training_sets
 from prismstereo.learned.train import TrainResult, warmup_cosine
 
-__all__ = ["VALID_BAD", "hybrid_loss", "train_hybrid", "validity_threshold"]
+__all__ = ["VALID_BAD", "correct_depth", "hybrid_loss", "train_hybrid", "validity_threshold"]
 
 VALID_BAD = 0.03  # the share of wrong depths the calibrated validity threshold allows on the training captures
 
@@ -76,13 +76,21 @@ def hybrid_loss(model: HybridStereo, inputs: RefinementInputs, truth: torch.Tens
         loss = loss + weight * (error * known).sum() / count
     s, logit = outputs[-1]
     with torch.no_grad():
-        correct = _correct(model, s, truth, known)
+        correct = correct_depth(model, s, truth, known)
     bce = F.binary_cross_entropy_with_logits(logit, correct.to(logit.dtype), reduction="none")
     return loss + 0.3 * (bce * rays).sum() / rays.sum().clamp_min(1)
 
 
-def _correct(model: HybridStereo, s: torch.Tensor, truth: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
-    """The confidence's target: (B, 1, h, w) bool, known blocks whose depth from ``s`` is within 1 % of the truth's."""
+def correct_depth(model: HybridStereo, s: torch.Tensor, truth: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
+    """The confidence's target: (B, 1, h, w) bool, known blocks whose depth from ``s`` (B, 1, h, w) is within 1 % of
+    the truth's (``truth`` the true s, ``known`` bool, both (B, 1, h, w)).
+
+    Example:
+        >>> model = HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None)
+        >>> s = torch.zeros(1, 1, 2, 2); known = torch.tensor([[[[True, True], [False, True]]]])
+        >>> correct_depth(model, s, s + torch.tensor([0.0, 0.5]), known).tolist()
+        [[[[True, False], [False, False]]]]
+    """
     z_range = torch.tensor(model.z_range, dtype=s.dtype)
     true_depth = sweep_to_depth(torch.where(known, truth, torch.zeros_like(truth)), z_range)
     return known & ((sweep_to_depth(s, z_range) - true_depth).abs() < 0.01 * true_depth)
@@ -231,6 +239,6 @@ def validity_threshold(models: list[HybridStereo], sets: list[HybridSet], bad: f
                 s, logit = model.refine(inputs)[-1]
                 rays = data.rays[pick]
                 confidence.append(torch.sigmoid(logit)[rays])
-                right.append(_correct(model, s, data.truth[pick], data.known[pick])[rays])
+                right.append(correct_depth(model, s, data.truth[pick], data.known[pick])[rays])
     threshold = confidence_threshold(torch.cat(confidence), torch.cat(right), bad).value
     return 1.0 if threshold != threshold else round(threshold, 4)

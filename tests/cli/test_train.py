@@ -42,6 +42,7 @@ def test_cli_trains_the_hybrid_and_its_first_stage_with_their_options(tmp_path, 
     take minutes)."""
     import torch
 
+    import prismstereo.learned.confidence_train as confidence_train
     import prismstereo.learned.hybrid_train as hybrid_train
     import prismstereo.learned.start_train as start_train
     from prismstereo.learned.train import TrainResult
@@ -52,12 +53,25 @@ def test_cli_trains_the_hybrid_and_its_first_stage_with_their_options(tmp_path, 
         seen.update(options)
         return TrainResult(torch.zeros(3), 1.0, out)
 
+    head = {}
+
+    def fake_head(weights, **options):  # the hybrid's confidence head, trained after its refinement
+        head.update(options, weights=weights)
+        return TrainResult(torch.full((4,), 0.25), 1.0, weights)
+
     monkeypatch.setattr(start_train if model == "start" else hybrid_train, function, fake)
+    monkeypatch.setattr(confidence_train, "train_exact_confidence", fake_head)
     extra = ["--start", "learned"] if model == "hybrid" else []
-    assert main(["train", "--model", model, "--out", str(tmp_path / "w.pt"), "--steps", "7", "--captures", "3",
+    out = tmp_path / "w.pt"
+    assert main(["train", "--model", model, "--out", str(out), "--steps", "7", "--captures", "3", "--seed", "5",
                  "--cache", str(tmp_path), "--quiet", *extra]) == 0
     assert (seen["steps"], seen["captures"], seen["cache"], seen["progress"]) == (7, 3, str(tmp_path), False)
     assert seen["batch_size"] == (2 if model == "start" else 8)
+    printed = capsys.readouterr().out
     if model == "hybrid":
         assert seen["architecture"].start == "learned"
-    assert "trained 3 steps" in capsys.readouterr().out
+        assert head == {"weights": out, "seed": 5, "captures": 3, "cache": str(tmp_path), "progress": False}
+        assert "confidence head: 4 steps in 1 s, loss 0.250" in printed
+    else:
+        assert not head
+    assert "trained 3 steps" in printed

@@ -8,7 +8,7 @@ from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_matc
 from prismstereo.errors import ShapeError
 from prismstereo.learned import HybridStereo
 from prismstereo.learned.exact_stage import EXACT_AGREEMENT, EXACT_BAND, ExactStage, exact_config
-from prismstereo.learned.hybrid import truth_sweep
+from prismstereo.learned.hybrid_data import truth_sweep
 from prismstereo.synthetic import ImageFormation, fronto_parallel_plane, render
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -32,8 +32,12 @@ def test_exact_last_stage_keeps_a_textured_plane_as_exact_as_the_classical_model
              for name, r in (("exact", out), ("learned", plain), ("classical", classical))}
     assert error["exact"] <= 1.2 * error["classical"], error  # the issue's target
     assert error["exact"] < error["learned"], error
-    # the confidence and validity are the learned stages'; the fit moves s by at most EXACT_AGREEMENT steps
-    assert torch.equal(out.confidence, plain.confidence) and torch.equal(out.valid, plain.valid)
+    # without a confidence head the confidence is the learned stages'; the fit moves s by at most EXACT_AGREEMENT
+    # steps
+    head, exact.head = exact.head, None
+    with torch.inference_mode():
+        assert torch.equal(exact(plane.image).confidence, plain.confidence)
+    exact.head = head
     moved = (out.index - plain.index).abs() * learned.classical.step / exact.exact.level.step
     assert float(moved[inner].max()) <= EXACT_AGREEMENT + 1e-3
     assert float((moved[sel] > 1e-6).float().mean()) > 0.5  # the fit replaced most of the plane
@@ -66,6 +70,32 @@ def test_config_and_shape_errors(rig):
         stage(grey[..., :64, :64], torch.zeros(1, 1, rig.image_height, rig.reference_width))
     with pytest.raises(ShapeError, match="grey has 1 images, s 2"):
         stage(grey, torch.zeros(2, 1, rig.image_height, rig.reference_width))
+    with pytest.raises(ShapeError, match=r"s must have shape \(B, 1, 384, 256\)"):
+        stage.evidence(grey, torch.zeros(1, 1, 10, 10))
+
+
+def test_evidence_is_what_the_fit_found(rig, plane):
+    stage = ExactStage(rig, Z)
+    w = stage.rig.reference_width
+    truth = truth_sweep(plane.depth[..., :w].double(), Z).nan_to_num(0.0).to(plane.image.dtype)
+    s = truth + 0.3 * stage.level.step * torch.sin(torch.arange(w, dtype=truth.dtype) / 7.0)  # off by < 0.3 steps
+    s[..., :, : w // 4] += 8 * stage.level.step  # a quarter 8 steps off: no fit taken there
+    with torch.inference_mode():
+        out = stage.evidence(plane.image, s)
+        assert torch.equal(out.s, stage(plane.image, s))
+    assert out.reference.shape == s.shape and torch.equal(out.reference, plane.image[..., :w])
+    taken = out.taken.bool()
+    assert torch.equal(out.s, torch.where(taken, out.s, s)) and bool((out.move[taken] <= EXACT_AGREEMENT).all())
+    assert float(out.similarity.min()) >= 0.0 and float(out.similarity.max()) <= 1.0
+    inner = torch.zeros_like(taken)
+    inner[..., 8:-8, 8:-8] = True
+    column = torch.arange(w)
+    near, far = inner & (column >= w // 4 + 8), inner & (column < w // 4 - 8)  # apart from the 15 x 15 smoothing
+    assert float(taken[near].float().mean()) > 0.9 and float(taken[far].float().mean()) < 0.02
+    assert float(out.similarity[near].median()) > 0.9
+    # the fit lands on the truth: the move is the offset given
+    offset = ((s - truth) / stage.level.step).abs()
+    assert float((out.move - offset)[near & taken].abs().median()) < 0.1
 
 
 @pytest.mark.parametrize(("sensor", "binning"), [("800x400 setup 1", 2), ("480x360 other rig", 1)])

@@ -18,9 +18,15 @@ from prismstereo.learned.hybrid import (
     VALID_CONFIDENCE,
     RefinementInputs,
     load_hybrid_weights,
+)
+from prismstereo.learned.hybrid_data import (
+    hybrid_set,
+    photo_scene,
+    photographs,
+    render_set,
+    training_rigs,
     truth_sweep,
 )
-from prismstereo.learned.hybrid_data import hybrid_set, photo_scene, photographs, render_set, training_rigs
 from prismstereo.learned.hybrid_train import hybrid_loss, train_hybrid, validity_threshold
 
 pytestmark = pytest.mark.usefixtures("one_thread")

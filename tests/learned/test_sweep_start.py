@@ -224,7 +224,7 @@ def test_shipped_weights_start_a_textured_plane_within_a_step(setup):
 def test_hybrid_refines_the_learned_start(rig, tmp_path):
     from prismstereo.depth.resample import upsample
     from prismstereo.learned import HybridArchitecture, HybridStereo
-    from prismstereo.learned.hybrid import truth_sweep
+    from prismstereo.learned.hybrid_data import truth_sweep
 
     with pytest.raises(OptionError, match="Unknown start 'x'. Choose from: classical, learned"):
         HybridArchitecture(start="x")

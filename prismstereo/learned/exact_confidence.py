@@ -1,0 +1,103 @@
+"""The exact chain's confidence: the last learned stage's confidence re-scored with what the exact stage found.
+
+The refinement's confidence sees the learned estimate's own inputs: 3 x 3 absolute differences at five offsets
+around it. The exact last stage (:mod:`~prismstereo.learned.exact_stage`) measures more: the NCC of a 5 x 5 window
+on the exact sweep at its fit, whether the fit agreed with the estimate and how far it lay from it. Where a photograph's
+texture is weak, or where the other half cannot see the point (an occlusion whose fattened foreground depth the
+learned estimate carries), those tell a wrong depth from a right one that the learned logit ranks alike.
+
+:class:`ConfidenceHead` is a small CNN on :func:`exact_features` (six maps on the stages' grid):
+
+1. the last learned stage's confidence logit (clipped to +-10); the head adds its output to it (a residual: an
+   untrained head keeps the learned confidence);
+2. the band's NCC at its fit (:attr:`~prismstereo.learned.exact_stage.ExactEvidence.similarity`);
+3. 1 where the fit replaced the estimate;
+4. the fit's distance from the estimate in the band's steps (clipped at 3);
+5. the spread of the final s over 5 x 5 pixels (its standard deviation in steps, clipped at 5): neighbours that
+   disagree;
+6. the reference's texture: the grey standard deviation over 5 x 5 pixels (x 20, clipped at 3).
+
+It is trained after the refinement, on the same renders, against "within 1 % of the true depth" with the pixels the
+other half cannot see counted as wrong (:mod:`~prismstereo.learned.confidence_train`); the weights file holds it as
+``head.*`` and its calibrated validity threshold as ``exact_valid_confidence``.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from prismstereo.errors import ShapeError, check_shape
+from prismstereo.learned.exact_stage import ExactEvidence
+from prismstereo.matching.aggregate import box_filter
+
+__all__ = ["FEATURES", "HEAD_CHANNELS", "ConfidenceHead", "exact_features"]
+
+FEATURES = ("logit", "similarity", "taken", "move", "spread", "texture")
+"""The head's input maps, in order (module docstring)."""
+HEAD_CHANNELS = 16
+"""Channels of the head's hidden convolutions."""
+LOGIT_CLIP, MOVE_CLIP, SPREAD_CLIP, TEXTURE_SCALE, TEXTURE_CLIP = 10.0, 3.0, 5.0, 20.0, 3.0
+
+
+def exact_features(evidence: ExactEvidence, logit: torch.Tensor, step: float) -> torch.Tensor:
+    """The head's inputs (:data:`FEATURES`) from the exact stage's evidence and the last learned logit.
+
+    Args:
+        evidence: :meth:`~prismstereo.learned.exact_stage.ExactStage.evidence`, (B, 1, h, w) maps.
+        logit: (B, 1, h, w) the last learned stage's confidence logit.
+        step: a step of s on the stages' grid (the spread's unit).
+
+    Returns:
+        (B, 6, h, w).
+
+    Raises:
+        ShapeError: maps of different shapes.
+
+    Example:
+        >>> from prismstereo.learned.exact_stage import ExactEvidence
+        >>> ones = torch.ones(1, 1, 8, 8)
+        >>> exact_features(ExactEvidence(ones, ones, ones, ones, ones), ones, 0.01).shape
+        torch.Size([1, 6, 8, 8])
+    """
+    check_shape(logit, ["B", 1, "H", "W"], "logit")
+    for name, t in zip(evidence._fields, evidence, strict=True):
+        if t.shape != logit.shape:
+            raise ShapeError(f"evidence.{name} {tuple(t.shape)} must have the logit's shape {tuple(logit.shape)}")
+    s, ref = evidence.s, evidence.reference
+    spread = (box_filter(s * s, 5) - box_filter(s, 5) ** 2).clamp_min(0.0).sqrt() / step
+    texture = (box_filter(ref * ref, 5) - box_filter(ref, 5) ** 2).clamp_min(0.0).sqrt() * TEXTURE_SCALE
+    return torch.cat([logit.clamp(-LOGIT_CLIP, LOGIT_CLIP), evidence.similarity, evidence.taken,
+                      evidence.move.clamp(max=MOVE_CLIP), spread.clamp(max=SPREAD_CLIP),
+                      texture.clamp(max=TEXTURE_CLIP)], 1)
+
+
+class ConfidenceHead(nn.Module):
+    """The re-scoring CNN (module docstring): a 3 x 3 convolution, a 3 x 3 one of dilation 2 (ReLUs) and a 1 x 1
+    output added to the learned logit.
+
+    Args:
+        channels: the hidden convolutions' channels.
+
+    Example:
+        >>> head = ConfidenceHead()
+        >>> head(torch.zeros(2, len(FEATURES), 16, 12)).shape
+        torch.Size([2, 1, 16, 12])
+    """
+
+    def __init__(self, channels: int = HEAD_CHANNELS) -> None:
+        super().__init__()
+        self.first = nn.Conv2d(len(FEATURES), channels, 3, padding=1)
+        self.dilated = nn.Conv2d(channels, channels, 3, padding=2, dilation=2)
+        self.out = nn.Conv2d(channels, 1, 1)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        """The confidence logit, (B, 1, h, w), of :func:`exact_features` ``features`` (B, 6, h, w).
+
+        Raises:
+            ShapeError: not (B, 6, h, w).
+        """
+        check_shape(features, ["B", len(FEATURES), "H", "W"], "features")
+        hidden = F.relu(self.dilated(F.relu(self.first(features))))
+        return self.out(hidden) + features[:, :1]
