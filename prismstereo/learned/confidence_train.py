@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from prismstereo.errors import OptionError, check_int
 from prismstereo.geometry.presets import thesis_setup1, thesis_setup2
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.learned.exact_confidence import ConfidenceHead, exact_features
+from prismstereo.learned.exact_confidence import HEAD_CHANNELS, ConfidenceHead, exact_features
 from prismstereo.learned.hybrid import HybridStereo
 from prismstereo.learned.hybrid_data import render_set, training_rigs
 from prismstereo.learned.hybrid_train import correct_depth
@@ -93,6 +93,7 @@ def train_exact_confidence(
     seed: int = 0,
     batch_size: int = 4,
     crop: int = 128,
+    channels: int = HEAD_CHANNELS,
     captures: int = 24,
     cache: str | Path | None = None,
     variants: list[tuple[str, BiPrismRig, tuple[float, float]]] | None = None,
@@ -107,6 +108,7 @@ def train_exact_confidence(
         seed: seeds the head's initialisation and crops, and (as the refinement's ``seed``) the renders.
         batch_size: crops per step.
         crop: the crops' side on the stages' grid (smaller captures: the whole of them).
+        channels: the head's hidden channels.
         captures: captures per variant (>= 2: half fit, half calibrate).
         cache: folder of the rendered sets (the refinement's).
         variants: (name, rig, range) rig variants (default :func:`head_rigs`; variant i renders with seed
@@ -123,13 +125,13 @@ def train_exact_confidence(
         >>> result = train_exact_confidence("hybrid.pt", cache=".cache/hybrid")  # doctest: +SKIP
     """
     for name, value, low in (("steps", steps, 1), ("batch_size", batch_size, 1), ("crop", crop, 8),
-                             ("captures", captures, 2)):
+                             ("channels", channels, 1), ("captures", captures, 2)):
         check_int(value, name, low)
     out_path = Path(weights if out_path is None else out_path)
     variants = head_rigs() if variants is None else variants
     features, right, rays, calibration = _render(weights, variants, captures, seed, cache, progress)
     torch.manual_seed(seed)
-    head = ConfidenceHead()
+    head = ConfidenceHead(channels)
     optimiser = torch.optim.Adam(head.parameters(), lr=3e-3)
     gen = torch.Generator().manual_seed(seed)
     counts = torch.tensor([float(f.shape[0]) for f in features])

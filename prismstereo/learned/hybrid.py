@@ -168,7 +168,7 @@ class HybridStereo(nn.Module):
                 self.start.load_weights({k[6:]: v for k, v in state.items() if k.startswith("start.")})
         self.head: ConfidenceHead | None = None
         if state is not None and any(k.startswith("head.") for k in state):
-            self.head = ConfidenceHead()
+            self.head = ConfidenceHead(channels=int(state["head.first.weight"].shape[0]))
             self.head.load_state_dict({k[5:]: v for k, v in state.items() if k.startswith("head.")})
         self.rig = rig
         self.half = half = rig.binned(b)

@@ -38,7 +38,8 @@ __all__ = ["VALID_BAD", "correct_depth", "hybrid_loss", "train_hybrid", "validit
 
 VALID_BAD = 0.03  # the share of wrong depths the calibrated validity threshold allows on the training captures
 
-# The shipped weights/hybrid.pt (7 rig variants x 24 captures, 6000 steps, one torch thread; its time: metadata):
+# The shipped weights/hybrid.pt (7 rig variants x 24 captures, 6000 steps, one torch thread; its time: metadata; the
+# command then trains the confidence head, prismstereo.learned.confidence_train):
 #   OMP_NUM_THREADS=1 .venv/bin/prismstereo train --model hybrid --cache .cache/hybrid \
 #       --out prismstereo/learned/weights/hybrid.pt
 

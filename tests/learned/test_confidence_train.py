@@ -40,7 +40,8 @@ def test_a_tiny_run_writes_the_weights_with_a_calibrated_head(tmp_path):
     with torch.no_grad():
         head = torch.sigmoid(model.head(features))[known]
     learned = torch.sigmoid(features[:, :1])[known]
-    assert int((head >= model.valid_confidence).sum()) == int((learned >= metadata["valid_confidence"]).sum())
+    counts = int((head >= model.valid_confidence).sum()), int((learned >= metadata["valid_confidence"]).sum())
+    assert abs(counts[0] - counts[1]) <= 0.001 * counts[1], counts  # (the stored threshold is rounded)
 
 
 def test_trainer_errors(tmp_path):
