@@ -13,8 +13,8 @@ Chains: ``accurate`` (:class:`~prismstereo.PrismStereo`'s defaults: the pyramid 
 ``dense`` (its 'dense' preset), ``learned`` (:class:`~prismstereo.learned.LearnedStereo`, hypotheses by range;
 only when asked for by ``--chains``: seconds a capture), ``block`` (the classical level of the hybrid alone: block
 mode on 4 x 4-binned pixels, 2 x 2 where the hybrid's stages run at full resolution (512 x 384), dense), ``hybrid``
-(:class:`~prismstereo.learned.HybridStereo`, the default: learned stages and the exact last stage) and
-``hybrid-learned`` (the same without the exact last stage, ``last_stage='learned'``); the hybrids with the shipped
+(:class:`~prismstereo.learned.HybridStereo`, the default: learned stages, the exact last stage and its confidence
+head) and ``hybrid-learned`` (the same without them, ``last_stage='learned'``); the hybrids with the shipped
 weights or ``--hybrid-weights FILE``. Per capture and chain: ``valid`` (co-visible pixels the chain calls valid, and
 the share of them off by more than 1 %), ``dense`` (every co-visible pixel it gives a depth, same), mean relative error
 of the valid ones, ``@3 %``: the largest share of co-visible pixels a threshold on the confidence keeps with
