@@ -31,14 +31,13 @@ from torch import nn
 
 from prismstereo.classical.config import StereoConfig
 from prismstereo.classical.defaults import resolve_level
+from prismstereo.classical.level_geometry import fine_coefficients, level_geometry
 from prismstereo.classical.search import build_search
 from prismstereo.depth.resample import upsample
 from prismstereo.depth.result import DepthResult
-from prismstereo.epipolar.series import series_at, sweep_series
-from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_to_depth
-from prismstereo.epipolar.sweep_table import tabulate_sweep, valid_interval
+from prismstereo.epipolar.series import series_at
+from prismstereo.epipolar.sweep import fit_sweep, sweep_to_depth
 from prismstereo.errors import OptionError
-from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.band import FineBand, extend_estimate, texture_of
 from prismstereo.matching.confidence import (
@@ -123,11 +122,6 @@ class DepthLevel(nn.Module):
         search, validity = config.search, config.validity
         self.rig, self.split = rig, SplitImage(rig)
         fit = fit_sweep(rig, self.z_range)
-        h, w_ref = rig.image_height, rig.reference_width
-        f64 = torch.float64
-        uv = torch.stack(torch.meshgrid(torch.arange(w_ref, dtype=f64), torch.arange(h, dtype=f64),
-                                        indexing="xy"), -1)  # (H, W_ref, 2)
-        fine = sweep_coefficients(fit, uv).permute(2, 0, 1, 3).contiguous()  # (N, H, W_ref, 2) pixels
         self.num_hypotheses, self.factor, self.band = search.num_hypotheses, search.coarse_factor, search.band
         self.placed_by = placed_by
         calibrated = validity.validity == "calibrated"
@@ -136,26 +130,21 @@ class DepthLevel(nn.Module):
         self.calibration = ConfidenceModel(stage1) if calibrated else None
         self.smoothed_calibration = ConfidenceModel(stage2, SMOOTHED_FEATURES) if calibrated and smoothing else None
 
-        w_o = rig.image_width - w_ref
-        rays = trace_pixels(rig, uv.view(-1, 2))
-        self.register_buffer("reference_valid", (rays.valid & rays.left).view(h, w_ref))
-        uv_o = torch.stack(torch.meshgrid(torch.arange(w_ref, rig.image_width, dtype=f64),
-                                          torch.arange(h, dtype=f64), indexing="xy"), -1)
-        rays_o = trace_pixels(rig, uv_o.view(-1, 2))
-        other_valid = (rays_o.valid & ~rays_o.left).view(h, w_o)
-        self.register_buffer("other_valid", other_valid)
-        self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, self.num_hypotheses, dtype=f64),
-                                                      fit.z_range).float())
-        # the final band and the match output evaluate the sweep as truncated power series in s (Horner's rule,
-        # within a fraction of a thousandth of a pixel of the polynomials) and the band's validity from each pixel's
-        # interval of real samples (found on a table of positions, at build time only); a single-level search keeps
-        # the polynomials
-        self.register_buffer("series", sweep_series(fine).float())
-        self.register_buffer("interval", valid_interval(tabulate_sweep(fine).float(), other_valid, self.split.split))
+        # the masks of rays through the prism; the final band and the match output evaluate the sweep as truncated
+        # power series in s (Horner's rule, within a fraction of a thousandth of a pixel of the polynomials) and the
+        # band's validity from each pixel's interval of real samples (found on a table of positions, at build time
+        # only): computed once per rig and range (level_geometry); a single-level search keeps the polynomials
+        geometry = level_geometry(rig, self.z_range, fit, self.split.split)
+        self.register_buffer("reference_valid", geometry.reference_valid)
+        self.register_buffer("other_valid", geometry.other_valid)
+        self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, self.num_hypotheses,
+                                                                     dtype=torch.float64), fit.z_range).float())
+        self.register_buffer("series", geometry.series)
+        self.register_buffer("interval", geometry.interval)
         self.search = None
         self.rectification_residual_px: float | None = None
         if not placed_by:
-            built = build_search(rig, fit, fine, config, other_valid)
+            built = build_search(rig, fit, fine_coefficients(rig, fit), config, geometry.other_valid)
             self.search, self.rectification_residual_px = built.search, built.rectification_residual_px
         self.fine = None
         if self.factor > 1:  # a smoothed s gets its match afterwards
