@@ -55,7 +55,7 @@ from prismstereo.epipolar.sweep import fit_sweep, sweep_coefficients, sweep_matc
 from prismstereo.errors import OptionError, ShapeError, check_option, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
-from prismstereo.learned.exact_confidence import ConfidenceHead, exact_features
+from prismstereo.learned.exact_confidence import ConfidenceHead, exact_features, load_head
 from prismstereo.learned.exact_stage import EXACT_BAND, ExactStage
 from prismstereo.learned.network import normalise_image
 from prismstereo.learned.refinement import HybridArchitecture, RefinementCNN, RefinementInputs
@@ -166,10 +166,7 @@ class HybridStereo(nn.Module):
                 raise WeightsError(f"weights do not fit the architecture {arch}: {exc}") from exc
             if self.start is not None and any(k.startswith("start.") for k in state):
                 self.start.load_weights({k[6:]: v for k, v in state.items() if k.startswith("start.")})
-        self.head: ConfidenceHead | None = None
-        if state is not None and any(k.startswith("head.") for k in state):
-            self.head = ConfidenceHead(channels=int(state["head.first.weight"].shape[0]))
-            self.head.load_state_dict({k[5:]: v for k, v in state.items() if k.startswith("head.")})
+        self.head: ConfidenceHead | None = None if state is None else load_head(state)
         self.rig = rig
         self.half = half = rig.binned(b)
         z = self.classical.z_range

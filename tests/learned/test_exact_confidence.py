@@ -66,6 +66,20 @@ def test_head_adds_to_the_learned_logit_and_is_differentiable():
                                                        requires_grad=True),))
 
 
+def test_a_head_that_does_not_fit_is_refused(tmp_path):
+    from prismstereo.learned import WeightsError
+    from prismstereo.learned.exact_confidence import load_head
+
+    state = {f"head.{k}": v for k, v in ConfidenceHead(channels=4).state_dict().items()}
+    assert load_head({"half.x": torch.zeros(1)}) is None and load_head(state).first.out_channels == 4
+    state["head.hidden.weight"] = torch.zeros(4, 4, 3, 3)  # a 3 x 3 convolution where the MLP has 1 x 1
+    with pytest.raises(WeightsError, match="the confidence head's weights do not fit ConfidenceHead"):
+        load_head(state)
+    del state["head.first.weight"]
+    with pytest.raises(WeightsError, match="first.weight"):
+        load_head(state)
+
+
 def test_shipped_weights_hold_a_calibrated_head():
     _, state, metadata = load_hybrid_weights(HYBRID_WEIGHTS)
     assert any(k.startswith("head.") for k in state)
