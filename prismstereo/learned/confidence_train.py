@@ -119,7 +119,8 @@ def train_exact_confidence(
         TrainResult(losses, seconds, path).
 
     Raises:
-        OptionError: bad ``steps``, ``batch_size``, ``crop`` or ``captures``. WeightsError: an unreadable file.
+        OptionError: bad ``steps``, ``batch_size``, ``crop``, ``channels`` or ``captures``. WeightsError: an unreadable
+            file, or one whose refinement does not fit.
 
     Example:
         >>> result = train_exact_confidence("hybrid.pt", cache=".cache/hybrid")  # doctest: +SKIP

@@ -8,8 +8,8 @@ learned estimate carries), those tell a wrong depth from a right one that the le
 
 :class:`ConfidenceHead` is a per-pixel MLP on :func:`exact_features` (six maps on the stages' grid):
 
-1. the last learned stage's confidence logit (clipped to +-10); the head adds its output to it (a residual: an
-   untrained head keeps the learned confidence);
+1. the last learned stage's confidence logit (clipped to +-10); the head adds its output to it (a residual: a head
+   whose output layer is zero keeps the learned confidence);
 2. the band's NCC at its fit (:attr:`~prismstereo.learned.exact_stage.ExactEvidence.similarity`);
 3. 1 where the fit replaced the estimate;
 4. the fit's distance from the estimate in the band's steps (clipped at 3);
