@@ -6,9 +6,9 @@ series per reference pixel (eq. 4.1-4.10 done exactly, :mod:`~prismstereo.epipol
 of sweep coordinates whose sample is real (:func:`~prismstereo.epipolar.sweep_table.valid_interval`). Building them
 costs seconds on a 1024 x 768 sensor, far more than a forward pass; tests, notebooks, benchmarks and applications
 build several models of one rig and range (a pyramid's levels, option sets, exports, the hybrid's classical level and
-exact stage). :func:`level_geometry` keeps the :data:`KEPT` most recently used ones (a hit is a copy, bitwise what
-computing them again gives: the computation is deterministic), as :func:`~prismstereo.epipolar.sweep.fit_sweep` keeps
-its fits.
+exact stage). :func:`level_geometry` keeps the most recently used ones (:data:`KEPT`, :data:`KEPT_BYTES`; a hit is a
+copy, bitwise what computing them again gives: the computation is deterministic), as
+:func:`~prismstereo.epipolar.sweep.fit_sweep` keeps its fits.
 """
 
 from __future__ import annotations
@@ -26,10 +26,13 @@ from prismstereo.errors import OptionError
 from prismstereo.geometry.optics import trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 
-__all__ = ["KEPT", "LevelGeometry", "fine_coefficients", "level_geometry"]
+__all__ = ["KEPT", "KEPT_BYTES", "LevelGeometry", "fine_coefficients", "level_geometry"]
 
 KEPT = 8
-"""Rig and range pairs whose maps are kept (a 1024 x 768 one holds ~30 MB)."""
+"""Rig and range pairs whose maps are kept at most."""
+KEPT_BYTES = 256 * 2**20
+"""and the most memory they hold together (a 1024 x 768 rig's maps take 19 MB, a 1920 x 1080 one's 57 MB): the least
+recently used go first."""
 
 _CACHE: OrderedDict[tuple, LevelGeometry] = OrderedDict()
 _LOCK = threading.Lock()
@@ -100,9 +103,13 @@ def level_geometry(rig: BiPrismRig, z_range: tuple[float, float], fit: SweepFit,
         hit = _compute(rig, fit, split)
         with _LOCK:
             _CACHE[key] = hit
-            while len(_CACHE) > KEPT:
+            while len(_CACHE) > KEPT or (len(_CACHE) > 1 and sum(map(_bytes, _CACHE.values())) > KEPT_BYTES):
                 _CACHE.popitem(last=False)
     return LevelGeometry(*(t.clone() for t in hit))
+
+
+def _bytes(maps: LevelGeometry) -> int:
+    return sum(t.numel() * t.element_size() for t in maps)
 
 
 def _compute(rig: BiPrismRig, fit: SweepFit, split: int) -> LevelGeometry:

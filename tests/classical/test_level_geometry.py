@@ -45,6 +45,11 @@ def test_least_recently_used_ones_go(monkeypatch):
         lg.level_geometry(rig, z, fit_sweep(rig, z), rig.reference_width)
     kept = [key[1] for key in lg._CACHE]
     assert kept == [tuple(float(x).hex() for x in z) for z in ranges[1:]]
+    one = sum(t.numel() * t.element_size() for t in next(iter(lg._CACHE.values())))
+    monkeypatch.setattr(lg, "KEPT_BYTES", one + 1)  # room for one: the newest stays
+    z = (450.0, 950.0)
+    lg.level_geometry(rig, z, fit_sweep(rig, z), rig.reference_width)
+    assert [key[1] for key in lg._CACHE] == [tuple(float(x).hex() for x in z)]
 
 
 def test_models_built_twice_are_the_same(monkeypatch):
