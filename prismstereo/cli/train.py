@@ -9,6 +9,8 @@ Contract::
         [--cache DIR] [--batch-size B] [--captures N] [--quiet]
     prismstereo train --model start --out WEIGHTS.pt [--steps N] [--seed S] [--cache DIR] [--batch-size B]
         [--captures N] [--quiet]
+    prismstereo train --model head --out WEIGHTS.pt [--weights HYBRID.pt] [--steps N] [--seed S] [--cache DIR]
+        [--batch-size B] [--captures N] [--quiet]
 
 ``--model learned`` (the default) renders ``--captures`` random scenes through the rig binned by ``--downscale``
 (kept in ``--cache``), trains :class:`~prismstereo.learned.LearnedStereo` (:func:`~prismstereo.learned.train.train`)
@@ -18,12 +20,14 @@ and writes ``--out``. ``--model hybrid`` renders ``--captures`` scenes through e
 exact chain's confidence head (:func:`~prismstereo.learned.confidence_train.train_exact_confidence`, on those renders
 and two 512 x 384 sensors') and writes ``--out``; the refinement keeps a checkpoint beside ``--out`` and the same
 command resumes from it; ``--start learned`` refines the learned first stage's estimate instead of the classical block
-level's. ``--model start`` trains that first stage
+level's. ``--model head`` trains only that confidence head, of the hybrid weights ``--weights`` (default: the
+shipped ones), and writes them with it to ``--out``. ``--model start`` trains that first stage
 (:func:`~prismstereo.learned.start_train.train_start`) on the same renders, resumable too. The shipped default weights
 are only replaced when ``--out`` names them. Prints the loss at the start and end and the time. Errors exit with
 status 2 and a message: an unknown preset or bad rig file, an output that is not a ``.pt`` file, a bad range or
 count, a missing ``--rig`` for the learned model, ``--rig`` / ``--z-range`` / ``--downscale`` / ``--hypotheses``
-with the hybrid or the start, ``--start`` with another model than the hybrid.
+with the hybrid, the head or the start, ``--start`` with another model than the hybrid, ``--weights`` with another
+model than the head.
 """
 
 from __future__ import annotations
@@ -59,18 +63,29 @@ def _train(args: argparse.Namespace, out: Path):
     """The model's trainer with the flags' options (its TrainResult)."""
     if args.start is not None and args.model != "hybrid":
         raise OptionError("--start applies to --model hybrid only")
-    if args.model in ("hybrid", "start"):
+    if args.weights is not None and args.model != "head":
+        raise OptionError("--weights applies to --model head only")
+    if args.model in ("hybrid", "start", "head"):
         learned_only = [flag for flag, value in (("--rig", args.rig), ("--z-range", args.z_range),
                                                  ("--downscale", args.downscale), ("--hypotheses", args.hypotheses))
                         if value is not None]
         if learned_only:
             raise OptionError(f"{', '.join(learned_only)} apply to --model learned only (the {args.model} trains on "
-                              "the rig variants of prismstereo.learned.hybrid_data.training_rigs)")
+                              "the rig variants of prismstereo.learned.hybrid_data.training_rigs"
+                              f"{' and two 512 x 384 sensors' if args.model == 'head' else ''})")
     if args.model == "start":
         from prismstereo.learned.start_train import train_start
 
         return train_start(out, steps=_or(args.steps, 3000), seed=args.seed, batch_size=_or(args.batch_size, 2),
                            captures=_or(args.captures, 24), cache=args.cache, progress=not args.quiet)
+    if args.model == "head":
+        from prismstereo.learned import confidence_train
+        from prismstereo.learned.hybrid import HYBRID_WEIGHTS
+
+        return confidence_train.train_exact_confidence(
+            args.weights or HYBRID_WEIGHTS, out, steps=_or(args.steps, 1500), seed=args.seed,
+            batch_size=_or(args.batch_size, 4), captures=_or(args.captures, 24), cache=args.cache,
+            progress=not args.quiet)
     if args.model == "hybrid":
         from prismstereo.learned import confidence_train, hybrid_train
         from prismstereo.learned.refinement import HybridArchitecture
@@ -106,14 +121,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                      "--rig) or of HybridStereo (--model hybrid: through the training rig variants, "
                                      "resumable) on them on the CPU and write a weights file for "
                                      "prismstereo.learned.LearnedStereo / HybridStereo(weights=...).")
-    cmd.add_argument("--model", choices=("learned", "hybrid", "start"), default="learned",
+    cmd.add_argument("--model", choices=("learned", "hybrid", "start", "head"), default="learned",
                      help="learned: LearnedStereo on one rig (default); hybrid: HybridStereo's refinement on the "
-                          "training rig variants, resumable; start: the hybrid's learned first stage, same renders")
+                          "training rig variants, resumable, then its confidence head; start: the hybrid's learned "
+                          "first stage, same renders; head: only the confidence head of --weights")
+    cmd.add_argument("--weights", default=None, help="the hybrid weights whose confidence head --model head trains "
+                                                     "(default: the shipped ones)")
     cmd.add_argument("--start", choices=("classical", "learned"), default=None,
                      help="what the hybrid's refinement starts from (default classical; --model hybrid)")
     cmd.add_argument("--rig", default=None, help="rig JSON file or preset name (--model learned)")
     cmd.add_argument("--out", required=True, help="weights file to write (.pt)")
-    cmd.add_argument("--steps", type=int, default=None, help="optimiser steps (default 900; hybrid 6000; start 3000)")
+    cmd.add_argument("--steps", type=int, default=None,
+                     help="optimiser steps (default 900; hybrid 6000; start 3000; head 1500)")
     cmd.add_argument("--seed", type=int, default=0, help="seed of the renders, the initialisation and the data order")
     cmd.add_argument("--z-range", type=float, nargs=2, default=None, metavar=("ZMIN", "ZMAX"),
                      help="depths rendered and searched (mm, default 450 1000; --model learned)")

@@ -28,6 +28,10 @@ def test_cli_train(tmp_path, capsys):
     (["--rig", "thesis_setup1", "--out", "w.pt", "--z-range", "900", "400"], "increasing"),
     (["--rig", "thesis_setup1", "--out", "w.pt", "--start", "learned"], "--start applies to --model hybrid only"),
     (["--model", "start", "--rig", "thesis_setup1", "--out", "w.pt"], "--rig apply to --model learned only (the start"),
+    (["--model", "head", "--z-range", "400", "900", "--out", "w.pt"],
+     "--z-range apply to --model learned only (the head trains on the rig variants"),
+    (["--model", "hybrid", "--weights", "h.pt", "--out", "w.pt"], "--weights applies to --model head only"),
+    (["--model", "head", "--weights", "w.missing", "--out", "w.pt", "--steps", "1"], "w.missing"),
 ])
 def test_cli_train_errors(tmp_path, capsys, args, message):
     args = [str(tmp_path / a) if a.startswith("w.") else a for a in args]
@@ -75,3 +79,29 @@ def test_cli_trains_the_hybrid_and_its_first_stage_with_their_options(tmp_path, 
     else:
         assert not head
     assert "trained 3 steps" in printed
+
+
+def test_cli_trains_only_the_confidence_head(tmp_path, monkeypatch, capsys):
+    """--model head: the hybrid weights given (default: the shipped ones) and the flags reach the head's trainer."""
+    import torch
+
+    import prismstereo.learned.confidence_train as confidence_train
+    from prismstereo.learned import HYBRID_WEIGHTS
+    from prismstereo.learned.train import TrainResult
+
+    seen = []
+
+    def fake(weights, out, **options):
+        seen.append((weights, out, options))
+        return TrainResult(torch.zeros(5), 2.0, out)
+
+    monkeypatch.setattr(confidence_train, "train_exact_confidence", fake)
+    out = tmp_path / "w.pt"
+    assert main(["train", "--model", "head", "--out", str(out), "--quiet", "--cache", str(tmp_path)]) == 0
+    assert main(["train", "--model", "head", "--weights", str(tmp_path / "h.pt"), "--out", str(out), "--steps", "9",
+                 "--seed", "2", "--captures", "4", "--batch-size", "3", "--quiet"]) == 0
+    assert seen[0][:2] == (HYBRID_WEIGHTS, out) and seen[0][2] == {
+        "steps": 1500, "seed": 0, "batch_size": 4, "captures": 24, "cache": str(tmp_path), "progress": False}
+    assert seen[1][0] == str(tmp_path / "h.pt") and seen[1][2] == {
+        "steps": 9, "seed": 2, "batch_size": 3, "captures": 4, "cache": None, "progress": False}
+    assert "trained 5 steps" in capsys.readouterr().out
