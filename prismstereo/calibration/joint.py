@@ -133,8 +133,7 @@ class JointProblem(RigProblem):
         """(2M + P,) every part's data rows (each over its own noise), then the P prior rows."""
         data = [part.residuals(self.part_x(x, k))[: 2 * m] for k, (part, m) in enumerate(zip(self.parts, self.rows,
                                                                                                strict=True))]
-        prior = (x[: self.num_rig] - self.base[self.index]) * self.prior_weight
-        return torch.cat([*data, prior])
+        return torch.cat([*data, self.prior_rows(x)[0]])
 
     def jacobian(self, x: torch.Tensor) -> torch.Tensor:
         """(2M + P, n) Jacobian of :meth:`residuals`: each part's rows on the rig columns and its own blocks."""
@@ -146,7 +145,7 @@ class JointProblem(RigProblem):
             full[row:row + j.shape[0], :p] = j[:, :p]
             full[row:row + j.shape[0], col:col + self.sizes[k]] = j[:, p:]
             row, col = row + j.shape[0], col + self.sizes[k]
-        full[m + torch.arange(p), torch.arange(p)] = self.prior_weight
+        full[m:] = self.prior_rows(x)[1]
         return full
 
     def reweight(self, x: torch.Tensor) -> bool:

@@ -110,14 +110,25 @@ class RigProblem:
         self._last = (x.detach().clone(), uv, valid, self.base)  # (a new base, e.g. selfcal's priors: recomputed)
         return uv, valid
 
+    def prior_rows(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The P prior rows at x (the free rig values held to the nominal ones within their tolerances): their
+        residuals (P,), (x_rig - nominal) * prior_weight, and their Jacobian (P, n).
+
+        Example:
+            >>> residuals, jacobian = problem.prior_rows(problem.x0)  # doctest: +SKIP
+        """
+        p = self.num_rig
+        jacobian = torch.zeros(p, x.numel(), dtype=x.dtype)
+        jacobian[torch.arange(p), torch.arange(p)] = self.prior_weight
+        return (x[:p] - self.base[self.index]) * self.prior_weight, jacobian
+
     def residuals(self, x: torch.Tensor) -> torch.Tensor:
         """(2M + P,) (predicted - observed) / sigma_px, u and v interleaved (zero for inactive observations), then
         the P prior rows."""
         uv, _ = self.projections(x)
-        prior = (x[: self.num_rig] - self.base[self.index]) * self.prior_weight
         res = torch.where(self.active.unsqueeze(-1), (uv - self.observed) * self.weight.unsqueeze(-1),
                           torch.zeros_like(uv))
-        return torch.cat([res.reshape(-1) / self.sigma_px, prior])
+        return torch.cat([res.reshape(-1) / self.sigma_px, self.prior_rows(x)[0]])
 
     def reweight(self, x: torch.Tensor, *, rig_unknowns: float | None = None) -> bool:
         """Set ``sigma_px`` to the noise the weighted residuals at x show (their RMS per coordinate over the degrees
@@ -157,5 +168,5 @@ class RigProblem:
         for c in range(b):
             full[rows, p + b * block + c] = j[:, p + c] / self.sigma_px
         full[:m] *= (self.active.to(full) * self.weight.to(full)).repeat_interleave(2).unsqueeze(-1)
-        full[m + torch.arange(p), torch.arange(p)] = self.prior_weight
+        full[m:] = self.prior_rows(x)[1]
         return full
