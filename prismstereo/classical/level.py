@@ -134,7 +134,8 @@ class DepthLevel(nn.Module):
         # power series in s (Horner's rule, within a fraction of a thousandth of a pixel of the polynomials) and the
         # band's validity from each pixel's interval of real samples (found on a table of positions, at build time
         # only): computed once per rig and range (level_geometry); a single-level search keeps the polynomials
-        geometry = level_geometry(rig, self.z_range, fit, self.split.split)
+        fine = None if placed_by else fine_coefficients(rig, fit)  # the search's polynomials
+        geometry = level_geometry(rig, self.z_range, fit, self.split.split, fine)
         self.register_buffer("reference_valid", geometry.reference_valid)
         self.register_buffer("other_valid", geometry.other_valid)
         self.register_buffer("depths", sweep_to_depth(torch.linspace(-1, 1, self.num_hypotheses,
@@ -144,7 +145,7 @@ class DepthLevel(nn.Module):
         self.search = None
         self.rectification_residual_px: float | None = None
         if not placed_by:
-            built = build_search(rig, fit, fine_coefficients(rig, fit), config, geometry.other_valid)
+            built = build_search(rig, fit, fine, config, geometry.other_valid)
             self.search, self.rectification_residual_px = built.search, built.rectification_residual_px
         self.fine = None
         if self.factor > 1:  # a smoothed s gets its match afterwards

@@ -64,13 +64,19 @@ def fine_coefficients(rig: BiPrismRig, fit: SweepFit) -> torch.Tensor:
         >>> fine_coefficients(rig, fit_sweep(rig, (450.0, 900.0))).shape[1:]
         torch.Size([96, 64, 2])
     """
-    f64 = torch.float64
-    uv = torch.stack(torch.meshgrid(torch.arange(rig.reference_width, dtype=f64),
-                                    torch.arange(rig.image_height, dtype=f64), indexing="xy"), -1)
+    uv = _pixels(0, rig.reference_width, rig.image_height)
     return sweep_coefficients(fit, uv).permute(2, 0, 1, 3).contiguous()
 
 
-def level_geometry(rig: BiPrismRig, z_range: tuple[float, float], fit: SweepFit, split: int) -> LevelGeometry:
+def _pixels(first: int, end: int, h: int) -> torch.Tensor:
+    """(h, end - first, 2) float64 (u, v) of the columns first..end - 1 of every row."""
+    f64 = torch.float64
+    return torch.stack(torch.meshgrid(torch.arange(first, end, dtype=f64), torch.arange(h, dtype=f64),
+                                      indexing="xy"), -1)
+
+
+def level_geometry(rig: BiPrismRig, z_range: tuple[float, float], fit: SweepFit, split: int,
+                   fine: torch.Tensor | None = None) -> LevelGeometry:
     """The maps of a level of ``rig`` over ``z_range`` (module docstring), from the cache when recently computed.
 
     Args:
@@ -78,6 +84,8 @@ def level_geometry(rig: BiPrismRig, z_range: tuple[float, float], fit: SweepFit,
         z_range: (z_min, z_max) mm, the range ``fit`` was fitted over.
         fit: :func:`~prismstereo.epipolar.sweep.fit_sweep` of the rig and range.
         split: the other half's first full-sensor column.
+        fine: :func:`fine_coefficients` of the rig and fit when the caller has them (a level with its own search
+            needs them anyway), else computed on a miss.
 
     Returns:
         LevelGeometry.
@@ -100,7 +108,7 @@ def level_geometry(rig: BiPrismRig, z_range: tuple[float, float], fit: SweepFit,
         if hit is not None:
             _CACHE.move_to_end(key)
     if hit is None:
-        hit = _compute(rig, fit, split)
+        hit = _compute(rig, fit, split, fine_coefficients(rig, fit) if fine is None else fine)
         with _LOCK:
             _CACHE[key] = hit
             while len(_CACHE) > KEPT or (len(_CACHE) > 1 and sum(map(_bytes, _CACHE.values())) > KEPT_BYTES):
@@ -112,13 +120,9 @@ def _bytes(maps: LevelGeometry) -> int:
     return sum(t.numel() * t.element_size() for t in maps)
 
 
-def _compute(rig: BiPrismRig, fit: SweepFit, split: int) -> LevelGeometry:
-    f64 = torch.float64
+def _compute(rig: BiPrismRig, fit: SweepFit, split: int, fine: torch.Tensor) -> LevelGeometry:
     h, w_ref, w = rig.image_height, rig.reference_width, rig.image_width
-    fine = fine_coefficients(rig, fit)
-    grid = [torch.stack(torch.meshgrid(torch.arange(lo, hi, dtype=f64), torch.arange(h, dtype=f64), indexing="xy"),
-                        -1).view(-1, 2) for lo, hi in ((0, w_ref), (w_ref, w))]
-    rays, rays_o = trace_pixels(rig, grid[0]), trace_pixels(rig, grid[1])
+    rays, rays_o = (trace_pixels(rig, _pixels(lo, hi, h).view(-1, 2)) for lo, hi in ((0, w_ref), (w_ref, w)))
     other_valid = (rays_o.valid & ~rays_o.left).view(h, w - w_ref)
     return LevelGeometry((rays.valid & rays.left).view(h, w_ref), other_valid, sweep_series(fine).float(),
                          valid_interval(tabulate_sweep(fine).float(), other_valid, split))

@@ -29,7 +29,7 @@ def test_maps_are_the_traced_masks_and_a_hit_is_an_equal_copy(monkeypatch):
     first.interval.fill_(0.0)  # a copy: the cache keeps its own
     again = lg.level_geometry(rig, Z, fit, rig.reference_width)
     assert not calls  # a hit
-    fresh = compute(rig, fit, rig.reference_width)
+    fresh = compute(rig, fit, rig.reference_width, lg.fine_coefficients(rig, fit))
     for name, a, b in zip(fresh._fields, again, fresh, strict=True):
         assert torch.equal(a, b), name
     lg.level_geometry(rig, (450.0, 901.0), fit_sweep(rig, (450.0, 901.0)), rig.reference_width)
