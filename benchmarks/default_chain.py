@@ -11,11 +11,13 @@ defocus renders are ``benchmarks/dense_depth.py``'s (shared cache).
 
 Chains: ``accurate`` (:class:`~prismstereo.PrismStereo`'s defaults: the pyramid with the calibrated confidence),
 ``dense`` (its 'dense' preset), ``learned`` (:class:`~prismstereo.learned.LearnedStereo`, hypotheses by range;
-only when asked for by ``--chains``: seconds a capture), ``block`` (the classical level of the hybrid alone: block
-mode on 4 x 4-binned pixels, 2 x 2 where the hybrid's stages run at full resolution (512 x 384), dense), ``hybrid``
-(:class:`~prismstereo.learned.HybridStereo`, the default: learned stages, the exact last stage and its confidence
-head) and ``hybrid-learned`` (the same without them, ``last_stage='learned'``); the hybrids with the shipped
-weights or ``--hybrid-weights FILE``. Per capture and chain: ``valid`` (co-visible pixels the chain calls valid, and
+only when asked for by ``--chains``: seconds a capture), ``block`` (the hybrid's classical level alone: block
+mode on 4 x 4-binned pixels, 2 x 2 where the hybrid's stages run at full resolution (512 x 384), dense),
+``hybrid-block`` (the hybrid started from that level: the stages' weights ``HYBRID_BLOCK_WEIGHTS``, trained on its
+estimates), ``hybrid`` (:class:`~prismstereo.learned.HybridStereo`, the default: the learned first stage, learned
+stages, the exact last stage and its confidence head) and ``hybrid-learned`` (the same without the last two,
+``last_stage='learned'``); the default hybrids with the shipped weights or ``--hybrid-weights FILE``. Per capture
+and chain: ``valid`` (co-visible pixels the chain calls valid, and
 the share of them off by more than 1 %), ``dense`` (every co-visible pixel it gives a depth, same), mean relative error
 of the valid ones, ``@3 %``: the largest share of co-visible pixels a threshold on the confidence keeps with
 <= 3 % of them off by more than 1 %, and ``hidden``: the valid pixels whose point the other half cannot see (occluded
@@ -57,12 +59,13 @@ from video_speed import disparities  # noqa: E402
 from prismstereo import BiPrismRig, PrismStereo, thesis_setup1, thesis_setup2  # noqa: E402
 from prismstereo.export import OnnxDepth, export_onnx  # noqa: E402
 from prismstereo.learned import HybridStereo, LearnedStereo  # noqa: E402
+from prismstereo.learned.hybrid import HYBRID_BLOCK_WEIGHTS  # noqa: E402
 from prismstereo.synthetic import ImageFormation, disparity_scene, fronto_parallel_plane, render  # noqa: E402
 from prismstereo.threads import set_torch_threads  # noqa: E402
 
 Z_RANGE = (228.0, 1374.0)
-CHAINS = ("accurate", "dense", "learned", "block", "hybrid", "hybrid-learned")
-DEFAULT_CHAINS = ("accurate", "dense", "block", "hybrid", "hybrid-learned")  # the learned model: seconds a capture
+CHAINS = ("accurate", "dense", "learned", "block", "hybrid-block", "hybrid", "hybrid-learned")
+DEFAULT_CHAINS = ("accurate", "dense", "block", "hybrid-block", "hybrid", "hybrid-learned")  # not learned: slow
 SLOW = ("learned",)  # timed in rounds of their own (see main)
 PHOTOS = ("Tsukuba 450-900 mm", "Venus 450-900 mm", "Motorcycle 450-900 mm")
 BANDS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.85, 0.95, 1.0)  # confidence bands of the reliability table (the last closed)
@@ -139,6 +142,8 @@ def build(chain: str, rig, hybrid_weights: str) -> torch.nn.Module:
         return PrismStereo(rig, Z_RANGE, "dense").eval()
     if chain == "learned":
         return LearnedStereo(rig, Z_RANGE).eval()
+    if chain == "hybrid-block":
+        return HybridStereo(rig, Z_RANGE, weights=HYBRID_BLOCK_WEIGHTS).eval()
     hybrid = HybridStereo(rig, Z_RANGE, weights=hybrid_weights,
                           last_stage="learned" if chain in ("block", "hybrid-learned") else "exact").eval()
     return hybrid.classical if chain == "block" else hybrid

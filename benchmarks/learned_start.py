@@ -80,7 +80,7 @@ def main() -> None:
     set_torch_threads(2)
     rig = thesis_setup1()
     caps = captures(rig, CACHE)
-    caps["Motorcycle 450-900 mm"] = more_captures(CACHE)["Motorcycle 450-900 mm"][1]
+    caps["Motorcycle 450-900 mm"] = more_captures(rig, CACHE)["Motorcycle 450-900 mm"][1]
     hybrid = HybridStereo(rig, Z_RANGE).eval()
     start = load_start(rig, Z_RANGE, args.weights).eval()
     graph = StartGraph(start).eval()

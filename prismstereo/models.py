@@ -85,18 +85,21 @@ class DepthModel(Protocol):
 
 def default_kind(rig: BiPrismRig) -> Literal["hybrid", "classical"]:
     """The model a capture of ``rig`` gets by default: ``'hybrid'`` where the reference half is at least
-    :data:`HYBRID_MIN_SIDE` px on its shorter side and the sensor divides into the hybrid's 4 x 4 blocks, else
-    ``'classical'``. The hybrid's stages run where the classical default fits its band (2 x 2 bins from 384 px, else
-    the full sensor), so they see a surface in about as many pixels on every sensor; below that side its classical
-    level's blocks are large against the surfaces and the classical chain matches it (``docs/benchmarks.md``,
-    *One default*: the hybrid ahead on every capture at 512 x 384, mixed at 256 x 192).
+    :data:`HYBRID_MIN_SIDE` px on its shorter side and the sensor divides into its first stage's cells (8 x 8 pixels
+    where its stages run 2 x 2-binned, else 4 x 4), else ``'classical'``. The hybrid's stages run where the classical
+    default fits its band (2 x 2 bins from 384 px, else the full sensor), so they see a surface in about as many pixels
+    on every sensor; below that side its classical level's blocks are large against the surfaces and the classical chain
+    matches it (``docs/benchmarks.md``, *One default*: the hybrid ahead on every capture at 512 x 384, mixed at 256 x
+    192).
 
     Example:
         >>> [default_kind(thesis_setup1().downscaled(k)) for k in (1, 2, 4)]
         ['hybrid', 'hybrid', 'classical']
     """
-    blocks = rig.image_width % 4 == 0 and rig.image_height % 4 == 0
-    return "hybrid" if blocks and min(rig.image_height, rig.reference_width) >= HYBRID_MIN_SIDE else "classical"
+    side = min(rig.image_height, rig.reference_width)
+    cell = 8 if side >= 384 else 4  # the stages' binning is classical.defaults.default_downsample's
+    cells = rig.image_width % cell == 0 and rig.image_height % cell == 0
+    return "hybrid" if cells and side >= HYBRID_MIN_SIDE else "classical"
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

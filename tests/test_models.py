@@ -18,11 +18,15 @@ def test_default_kind_is_the_hybrid_from_512_x_384():
     kinds = [default_kind(thesis_setup1().downscaled(k)) for k in (1, 2, 4, 8)]
     assert kinds == ["hybrid", "hybrid", "classical", "classical"]
     assert default_kind(thesis_setup2()) == "hybrid"
-    # the rule's edge: the reference half's shorter side, and a sensor the hybrid's 4 x 4 blocks divide
+    # the rule's edge: the reference half's shorter side, and a sensor the first stage's cells divide (4 x 4 pixels
+    # where the stages run at full resolution, 8 x 8 where they run 2 x 2-binned)
     rig = thesis_setup1().downscaled(2)
     side = min(rig.image_height, rig.reference_width)
     assert side >= HYBRID_MIN_SIDE > thesis_setup1().downscaled(4).reference_width
     assert default_kind(rig.replace(image_width=510, principal_point=(254.5, 191.5))) == "classical"
+    assert default_kind(rig.replace(image_width=516, principal_point=(257.5, 191.5))) == "hybrid"
+    assert default_kind(thesis_setup1().replace(image_width=1028, principal_point=(513.5, 383.5))) == "classical"
+    assert default_kind(thesis_setup1().replace(image_width=1032, principal_point=(515.5, 383.5))) == "hybrid"
 
 
 @pytest.fixture(scope="module")

@@ -93,7 +93,7 @@ def _train(args: argparse.Namespace, out: Path):
         result = hybrid_train.train_hybrid(out, steps=_or(args.steps, 6000), seed=args.seed,
                                            batch_size=_or(args.batch_size, 8), captures=_or(args.captures, 24),
                                            cache=args.cache, progress=not args.quiet,
-                                           architecture=HybridArchitecture(start=args.start or "classical"))
+                                           architecture=HybridArchitecture(start=args.start or "learned"))
         head = confidence_train.train_exact_confidence(result.path, seed=args.seed, captures=_or(args.captures, 24),
                                                        cache=args.cache, progress=not args.quiet)
         print(f"confidence head: {len(head.losses)} steps in {head.seconds:.0f} s, loss "
@@ -128,7 +128,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     cmd.add_argument("--weights", default=None, help="the hybrid weights whose confidence head --model head trains "
                                                      "(default: the shipped ones)")
     cmd.add_argument("--start", choices=("classical", "learned"), default=None,
-                     help="what the hybrid's refinement starts from (default classical; --model hybrid)")
+                     help="what the hybrid's refinement starts from (default learned: the shipped first stage; "
+                          "--model hybrid)")
     cmd.add_argument("--rig", default=None, help="rig JSON file or preset name (--model learned)")
     cmd.add_argument("--out", required=True, help="weights file to write (.pt)")
     cmd.add_argument("--steps", type=int, default=None,

@@ -286,6 +286,24 @@ class BiPrismRig:
         shift = (factor - 1) / 2
         return coarse.replace(principal_point=((cx - shift) / factor, (cy - shift) / factor))
 
+    def unbinned(self, factor: int) -> BiPrismRig:
+        """The rig of a sensor ``factor`` times finer whose :meth:`binned` (``factor``) is this rig: pixels ``factor``
+        times smaller, image size multiplied, c_fine = factor c + (factor - 1) / 2. A model made for binned captures
+        runs on this rig's captures as if they were the binned ones of the finer sensor.
+
+        Example:
+            >>> rig = thesis_setup1().downscaled(2)
+            >>> rig.unbinned(2).binned(2) == rig, rig.unbinned(2).image_width
+            (True, 1024)
+        """
+        if not isinstance(factor, int) or factor < 1:
+            raise RigError(f"factor must be a positive int, got {factor!r}")
+        cx, cy = self.principal_point  # type: ignore[misc]
+        shift = (factor - 1) / 2
+        return self.replace(image_width=self.image_width * factor, image_height=self.image_height * factor,
+                            pixel_size_mm=self.pixel_size_mm / factor,
+                            principal_point=(cx * factor + shift, cy * factor + shift))
+
     def replace(self, **changes: Any) -> BiPrismRig:
         """Return a copy with some fields changed, its fields validated (as the constructor does; no ray tracing).
 

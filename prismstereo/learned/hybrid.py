@@ -1,16 +1,19 @@
-"""HybridStereo: the exact classical sweep at its cheap binned level, then a learned image-guided 2-D refinement.
+"""HybridStereo: a first stage on the exact sweep at a coarse level, then a learned image-guided 2-D refinement and the
+exact classical band.
 
 Data path (one capture, both halves as recorded). The stages work on a b x b-binned grid, b = 2 where the classical
 default fits its band on the 2 x 2-binned grid (:func:`~prismstereo.classical.defaults.default_downsample`: reference
 half >= 384 px on its shorter side), else 1: a surface covers about as many of its pixels on every sensor. (h, w) is
 the reference half on that grid, k = ``block`` * b / 2 the classical level's binning:
 
-1. :class:`~prismstereo.classical.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band) with the
-   'dense' preset (:func:`classical_config`): the exact plane sweep on the k x k-binned capture gives every covered
-   block a sweep coordinate s (linear in 1/Z), its calibrated confidence and the coverage
-   (:meth:`~prismstereo.classical.model.PrismStereo.block_estimate`); or, with ``HybridArchitecture(start='learned')``,
-   the learned first stage (:class:`~prismstereo.learned.sweep_start.SweepStart`, on 8 x 8 bins, carried to that
-   grid bilinearly);
+1. the first stage (``HybridArchitecture.start``): ``'learned'`` (the default;
+   :class:`~prismstereo.learned.sweep_start.SweepStart`: learned features correlated along the exact sweep over the
+   whole range on 4 x 4 cells of the stages' grid, aggregated on those cells pooled 2 x 2, 4 x 4 and 8 x 8, its s and
+   confidence carried to the 2b x 2b-binned grid bilinearly), or ``'classical'``:
+   :class:`~prismstereo.classical.model.PrismStereo` in block mode (``downsample`` k, no full-resolution band) with the
+   'dense' preset (:func:`~prismstereo.learned.refinement.classical_config`): the exact plane sweep on the k x k-binned
+   capture gives every covered block a sweep coordinate s (linear in 1/Z), its calibrated confidence and the coverage
+   (:meth:`~prismstereo.classical.model.PrismStereo.block_estimate`);
 2. refinement stages, first on that grid (``quarter``, block 4: the 2b x 2b-binned grid, twice the reach per layer),
    then on the stages' grid (``iterations``; the maps carried over bilinearly, block centres kept: pixel j of a
    b x b-binned grid is at full-sensor b j + (b - 1) / 2). Each samples the other half of the normalised capture
@@ -45,7 +48,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from prismstereo.classical import PrismStereo, StereoConfig, TemporalDepth, TemporalOptions, preset
+from prismstereo.classical import PrismStereo, TemporalDepth, TemporalOptions
 from prismstereo.classical.defaults import default_downsample, default_hypotheses
 from prismstereo.conventions import to_grey
 from prismstereo.depth.bad_pixels import BadPixels
@@ -58,8 +61,8 @@ from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.learned.exact_confidence import ConfidenceHead, exact_features, load_head
 from prismstereo.learned.exact_stage import EXACT_BAND, ExactStage
 from prismstereo.learned.network import normalise_image
-from prismstereo.learned.refinement import HybridArchitecture, RefinementCNN, RefinementInputs
-from prismstereo.learned.sweep_start import SweepStart, load_start
+from prismstereo.learned.refinement import HybridArchitecture, RefinementCNN, RefinementInputs, classical_config
+from prismstereo.learned.sweep_start import StartArchitecture, SweepStart, load_start
 from prismstereo.learned.weights import WeightsError, read_weights, write_weights
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.band import extend_estimate
@@ -67,10 +70,12 @@ from prismstereo.matching.sweep_sampler import block_centres
 from prismstereo.names import LAST_STAGES  # what gives the final depth (HybridStereo's ``last_stage``)
 from prismstereo.runtime import box_max, sample_bilinear
 
-__all__ = ["HYBRID_FORMAT", "HYBRID_WEIGHTS", "LAST_STAGES", "HybridStereo", "RefinementInputs", "classical_config",
-           "load_hybrid_weights"]
+__all__ = ["HYBRID_BLOCK_WEIGHTS", "HYBRID_FORMAT", "HYBRID_WEIGHTS", "LAST_STAGES", "HybridStereo", "RefinementInputs",
+           "classical_config", "load_hybrid_weights"]
 
 HYBRID_WEIGHTS = Path(__file__).resolve().parent / "weights" / "hybrid.pt"
+# the stages trained on the classical block level's estimates (``start='classical'``): less dense, faster
+HYBRID_BLOCK_WEIGHTS = HYBRID_WEIGHTS.with_name("hybrid_block.pt")
 HYBRID_FORMAT = "prismstereo.hybrid/1"
 RELIEF_STEPS = 8.0  # the estimate's local relief is given to the CNN in steps, clipped to +- this
 # the classical level leaves a margin uncovered at the sensor's edges and along the common field of view's edge (its
@@ -96,7 +101,8 @@ class HybridStereo(nn.Module):
     """Dense depth of the reference half: classical block mode refined by a learned 2-D stage (module docstring).
 
     Args:
-        rig: the full-resolution rig; its sensor size must be divisible by the architecture's ``block``.
+        rig: the full-resolution rig; its sensor size must be divisible by the first stage's cells (4 x 4 of the
+            stages' grid), or by the architecture's ``block`` with the classical start.
         z_range: (z_min, z_max) searched, mm; None: the classical model's default
             (:func:`~prismstereo.depth.range.default_z_range`).
         weights: ``'default'`` (the shipped ``weights/hybrid.pt``), None (random initialisation from torch's global
@@ -117,8 +123,8 @@ class HybridStereo(nn.Module):
             ``last_stage='learned'``).
 
     Raises:
-        OptionError: a sensor the block does not divide, or bad options. WeightsError: a weights file that cannot
-            be read. RigError: bad rig or range.
+        OptionError: a sensor the cells or blocks do not divide, or bad options. WeightsError: a weights file that
+            cannot be read. RigError: bad rig or range.
 
     Example:
         >>> model = HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None)
@@ -149,15 +155,21 @@ class HybridStereo(nn.Module):
             architecture, state, metadata = load_hybrid_weights(path)
         self.architecture = arch = architecture or HybridArchitecture()
         self.metadata: dict[str, Any] = metadata
-        if rig.image_width % arch.block or rig.image_height % arch.block:
-            raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by block {arch.block}")
         self.binning = b = default_downsample(rig)
+        # the classical level's blocks, or the learned first stage's cells: 4 x 4 of the stages' grid
+        cell, what = (4 * b, "the first stage's cells") if arch.start == "learned" else (arch.block, "block")
+        if rig.image_width % cell or rig.image_height % cell:
+            raise OptionError(f"the {rig.image_width}x{rig.image_height} sensor is not divisible by {what} {cell}")
         z = default_z_range(rig) if z_range is None else check_z_range(rig, z_range)
         self.classical = PrismStereo(rig, z, classical_config(arch.block * b // 2))
         self.stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.iterations)])
         self.quarter_stages = nn.ModuleList([RefinementCNN(arch) for _ in range(arch.quarter)])
-        # the learned first stage: the shipped one unless the weights file holds its own
-        self.start: SweepStart | None = load_start(rig, z) if arch.start == "learned" else None
+        # the first stage the weights hold (else the shipped), on 4 x 4 cells of the stages' grid on every sensor
+        self.start: SweepStart | None = None
+        if arch.start == "learned":
+            held, start_rig = metadata.get("start_architecture"), rig if b == 2 else rig.unbinned(2)
+            self.start = (load_start(start_rig, z) if held is None
+                          else SweepStart(start_rig, z, architecture=StartArchitecture.recorded(held)))
         if state is not None:
             try:
                 self.stages.load_state_dict({k[5:]: v for k, v in state.items() if k.startswith("half.")})
@@ -250,7 +262,7 @@ class HybridStereo(nn.Module):
 
         Example:
             >>> summary = HybridStereo(thesis_setup1().downscaled(4), (450.0, 1000.0), weights=None).summary()
-            >>> summary.startswith("hybrid: classical block level ("), "on 2x2-binned pixels" in summary  # small sensor
+            >>> summary.startswith("hybrid: learned first stage ("), "at 1/4)" in summary  # a small sensor
             (True, True)
         """
         a = self.architecture
@@ -258,7 +270,8 @@ class HybridStereo(nn.Module):
         grids = {1: "full resolution", 2: "1/2", 4: "1/4"}
         stages = " and ".join(f"{n} at {grids[k * self.binning]}" for n, k in ((a.quarter, 2), (a.iterations, 1))
                               if n)
-        first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/8)" if self.start is not None
+        first = (f"learned first stage ({self.start.num_hypotheses} hypotheses at 1/{4 * self.binning})"
+                 if self.start is not None
                  else f"classical block level ({self.classical.summary()})")
         last = "" if self.exact is None else f", then the exact band +-{EXACT_BAND} at {grids[self.exact.binning]}"
         last += ", its evidence re-scoring the confidence" if self.rescored else ""
@@ -266,7 +279,10 @@ class HybridStereo(nn.Module):
                 f"{stages} ({a.layers} x {a.channels} ch, {count} parameters){last}")
 
     def save(self, path: str | Path, **metadata: Any) -> Path:
-        """Write the CNNs' weights with the architecture and ``metadata`` (small, plain values)."""
+        """Write the CNNs' weights with the architecture and ``metadata`` (small, plain values); a learned first
+        stage's architecture goes into the metadata (``start_architecture``), so the file holds all of it."""
+        if self.start is not None:
+            metadata = {"start_architecture": dataclasses.asdict(self.start.architecture), **metadata}
         return write_weights(path, HYBRID_FORMAT, self.architecture, self.weights(), {**self.metadata, **metadata})
 
     def initial(self, image: torch.Tensor) -> RefinementInputs:
@@ -293,10 +309,10 @@ class HybridStereo(nn.Module):
         k = self.architecture.block
         image = normalise_image(grey)
         with torch.no_grad():
-            if self.start is not None:  # the learned first stage on 8 x 8 bins, carried to the classical grid
-                out = self.start(image if self.binning == 2 else normalise_image(F.avg_pool2d(grey, 2)))
-                s, confidence, covered = upsample(torch.cat([out.s, out.confidence, out.covered], 1),
-                                                  4 // self.binning, self.quarter_size, mode="bilinear").split(1, 1)
+            if self.start is not None:  # the learned first stage on 4 x 4 cells, carried to the classical grid
+                out = self.start(image)
+                s, confidence, covered = upsample(torch.cat([out.s, out.confidence, out.covered], 1), 2,
+                                                  self.quarter_size, mode="bilinear").split(1, 1)
                 return RefinementInputs(image, s, confidence, (covered > 0.5).to(grey.dtype))
             block = self.classical.block_estimate(grey if k == 2 else F.avg_pool2d(grey, k // 2))
             s = extend_estimate(block.s, block.covered, FILL_RADIUS).s
@@ -432,16 +448,3 @@ def _crop(t: torch.Tensor, window: tuple[int, int], size: tuple[int, int]) -> to
     copies even a whole tensor)."""
     (r, c), (h, w) = window, size
     return t if (r, c) == (0, 0) and tuple(t.shape[-2:]) == (h, w) else t[..., r:r + h, c:c + w]
-
-
-def classical_config(block: int) -> StereoConfig:
-    """The hybrid's classical level: the 'dense' preset (gradient-augmented absolute differences, guided-filter
-    aggregation, a coarse level at factor 2, a depth for every covered pixel) in block mode on ``block`` x ``block``
-    bins.
-
-    Example:
-        >>> config = classical_config(4)
-        >>> config.search.downsample, config.search.full_band, config.validity.dense
-        (4, 0, True)
-    """
-    return preset("dense").replace(search={"downsample": block, "full_band": 0})

@@ -1,8 +1,8 @@
-"""The hybrid's learned refinement stage: its hyper-parameters (:class:`HybridArchitecture`, stored beside the
-weights) and its CNN (:class:`RefinementCNN`), a dilated 3 x 3 network in the manner of StereoNet's and HITNet's
-refinements that reads the reference image, the cost curve around the estimate on the exact sweep, the estimate's
-relief and the classical confidence, and predicts a residual and a confidence logit
-(:class:`~prismstereo.learned.hybrid.HybridStereo` composes them).
+"""The hybrid's learned refinement stage: its hyper-parameters (:class:`HybridArchitecture`, stored beside the weights),
+the configuration of its classical level (:func:`classical_config`) and its CNN (:class:`RefinementCNN`), a dilated
+3 x 3 network in the manner of StereoNet's and HITNet's refinements that reads the reference image, the cost curve
+around the estimate on the exact sweep, the estimate's relief and the classical confidence, and predicts a residual and
+a confidence logit (:class:`~prismstereo.learned.hybrid.HybridStereo` composes them).
 """
 
 from __future__ import annotations
@@ -14,9 +14,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from prismstereo.classical import StereoConfig, preset
 from prismstereo.errors import OptionError, check_int
 
-__all__ = ["DILATIONS", "STARTS", "HybridArchitecture", "RefinementCNN", "RefinementInputs"]
+__all__ = ["DILATIONS", "STARTS", "HybridArchitecture", "RefinementCNN", "RefinementInputs", "classical_config"]
 
 STARTS = ("classical", "learned")
 """What the refinement stages start from (:attr:`HybridArchitecture.start`)."""
@@ -40,8 +41,9 @@ class HybridArchitecture:
             classical level's grid, its estimate carried over bilinearly; needs ``quarter`` >= 1).
         quarter: refinement stages on the classical level's grid before them (block 4 only: twice the reach per
             layer).
-        start: what the stages start from: ``'classical'`` (the classical block level) or ``'learned'`` (the learned
-            first stage, :class:`~prismstereo.learned.sweep_start.SweepStart`, on 8 x 8 bins; block 4 only).
+        start: what the stages start from: ``'learned'`` (the learned first stage,
+            :class:`~prismstereo.learned.sweep_start.SweepStart`, on 4 x 4 cells of the stages' grid; block 4 only) or
+            ``'classical'`` (the classical block level).
 
     Example:
         >>> HybridArchitecture().block, HybridArchitecture(offsets=1).inputs
@@ -54,7 +56,7 @@ class HybridArchitecture:
     offsets: int = 2
     iterations: int = 1
     quarter: int = 1
-    start: str = "classical"
+    start: str = "learned"
 
     def __post_init__(self) -> None:
         if self.block not in (2, 4):
@@ -121,3 +123,16 @@ class RefinementInputs(NamedTuple):
     s: torch.Tensor
     confidence: torch.Tensor
     covered: torch.Tensor
+
+
+def classical_config(block: int) -> StereoConfig:
+    """The hybrid's classical level: the 'dense' preset (gradient-augmented absolute differences, guided-filter
+    aggregation, a coarse level at factor 2, a depth for every covered pixel) in block mode on ``block`` x ``block``
+    bins.
+
+    Example:
+        >>> config = classical_config(4)
+        >>> config.search.downsample, config.search.full_band, config.validity.dense
+        (4, 0, True)
+    """
+    return preset("dense").replace(search={"downsample": block, "full_band": 0})

@@ -15,20 +15,26 @@ Data path (one capture; h, w the reference half binned 8 x 8, D hypotheses):
    sampled bilinearly on its exact sweep (:class:`~prismstereo.nn.PrismCostVolume`; onnxruntime samples it on one
    thread, several times slower);
 3. aggregation by 2-D convolutions shared by every hypothesis (a 3 x 3 one with the reference features' context
-   added, a dilated 3 x 3 one and a 3 x 3 head), so the weights do not depend on D: any range, any rig;
+   added, a dilated 3 x 3 one and a 3 x 3 head), so the weights do not depend on D: any range, any rig. By default
+   (:class:`StartArchitecture`) they work on the correlation pooled 2 x 2, with two coarser levels (pooled 4 x 4 and
+   8 x 8) carried back up, and the scores come back to 1/8 with the 1/8 grid's own correlations added: a weakly
+   textured region takes the hypothesis of textured surroundings up to ~350 sensor pixels away (a score depends on
+   ~690 sensor rows around its cell, ~150 without the coarse levels);
 4. a softmax over the hypotheses, and the expected hypothesis within :attr:`StartArchitecture.window` of the best
    one (a multi-modal curve is not averaged across its modes), as s on the reference grid; the probability mass in
    that window is the confidence.
 
-The estimate starts :class:`~prismstereo.learned.hybrid.HybridStereo`'s refinement stages in place of the classical
-block level (``HybridArchitecture(start='learned')``). Training: :mod:`prismstereo.learned.start_train`.
+The estimate starts :class:`~prismstereo.learned.hybrid.HybridStereo`'s refinement stages (``HybridArchitecture(
+start='learned')``, the default), which runs it on 4 x 4 cells of its stages' grid: 8 x 8 pixels where the stages run
+2 x 2-binned, else a rig of twice the sensor's resolution (:meth:`~prismstereo.geometry.rig.BiPrismRig.unbinned`)
+whose 2 x 2-binned capture is the capture itself. Training: :mod:`prismstereo.learned.start_train`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -49,10 +55,11 @@ START_WEIGHTS = Path(__file__).resolve().parent / "weights" / "start.pt"
 START_FORMAT = "prismstereo.start/1"
 SCALE = 8
 """The first stage's resolution: features and hypotheses on the sensor binned 8 x 8."""
-LEARNED = ("features", "context", "first", "dilated", "head")
+LEARNED = ("features", "context", "first", "down", "up", "dilated", "head", "fine")
 """The learned layers (what a weights file holds; the volume and masks are built from the rig and range)."""
 MASKED = 1e4  # subtracted from the score of a hypothesis that does not sample the other half
 SAMPLINGS = ("sweep", "rectified")
+AGGREGATIONS = ("fine", "pooled")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,6 +71,14 @@ class StartArchitecture:
         groups: G correlation groups (C must be a multiple of G).
         channels: A, channels of the aggregation's 2-D convolutions.
         window: hypotheses on each side of the best one that the expected s is taken over.
+        levels: coarser grids of the aggregation (0: none): each hypothesis' map is pooled 2 x 2 and convolved
+            (3 x 3) ``levels`` times, then carried back up level by level (bilinear, added to the finer map; a 3 x 3
+            convolution on each coarse level, none on the finest, where the convolutions cost most), so a score sees
+            up to 2 ** levels times farther: a weakly textured region takes the hypothesis of its textured
+            surroundings.
+        aggregation: the grid the aggregation's convolutions work on: ``'fine'`` (the 1/8 grid of the correlation)
+            or ``'pooled'`` (the correlation pooled 2 x 2, so the convolutions cost a quarter; its scores carried
+            back to 1/8 bilinearly, plus the 1/8 grid's own evidence: the groups' correlations weighted and summed).
         sampling: ``'sweep'`` (hypotheses uniform in s, each sampled bilinearly on its exact sweep:
             :class:`~prismstereo.nn.PrismCostVolume`) or ``'rectified'`` (whole-pixel column shifts on row-rectified
             features, turned into s exactly: :class:`~prismstereo.nn.rectified_volume.RectifiedCostVolume`, several
@@ -79,13 +94,36 @@ class StartArchitecture:
 
     features: int = 16
     groups: int = 4
-    channels: int = 4
+    channels: int = 8
     window: int = 2
     sampling: str = "rectified"
+    levels: int = 2
+    aggregation: str = "pooled"
+
+    @classmethod
+    def recorded(cls, fields: Any) -> StartArchitecture:
+        """The architecture whose fields a weights file records (a hybrid's ``start_architecture``).
+
+        Raises:
+            WeightsError: fields that are not a valid architecture.
+
+        Example:
+            >>> StartArchitecture.recorded({"channels": 8}).channels
+            8
+        """
+        from prismstereo.learned.weights import WeightsError
+
+        try:
+            return cls(**fields)
+        except (TypeError, OptionError) as exc:
+            raise WeightsError(f"the weights record an invalid first stage architecture {fields!r}: {exc}") from exc
 
     def __post_init__(self) -> None:
-        for name, low, high in (("features", 1, 128), ("groups", 1, 128), ("channels", 1, 64), ("window", 1, 8)):
+        for name, low, high in (("features", 1, 128), ("groups", 1, 128), ("channels", 1, 64), ("window", 1, 8),
+                                ("levels", 0, 4)):
             check_int(getattr(self, name), name, low, most=high)
+        if self.aggregation not in AGGREGATIONS:
+            raise OptionError(f"Unknown aggregation {self.aggregation!r}. Choose from: {', '.join(AGGREGATIONS)}")
         if self.sampling not in SAMPLINGS:
             raise OptionError(f"Unknown sampling {self.sampling!r}. Choose from: {', '.join(SAMPLINGS)}")
         if self.features % self.groups:
@@ -173,7 +211,11 @@ class SweepStart(nn.Module):
         a = arch.channels
         self.context = nn.Conv2d(arch.features, a, 1)
         self.first = nn.Conv2d(arch.groups, a, 3, padding=1)
+        self.down = nn.ModuleList([nn.Conv2d(a, a, 3, padding=1) for _ in range(arch.levels)])
+        self.up = nn.ModuleList([nn.Conv2d(a, a, 3, padding=1) for _ in range(max(0, arch.levels - 1))])
         self.dilated = nn.Conv2d(a, a, 3, padding=2, dilation=2)
+        pooled = arch.aggregation == "pooled"
+        self.fine = nn.ModuleList([nn.Conv2d(arch.groups, 1, 1)] if pooled else [])
         self.head = nn.Conv2d(a, 1, 3, padding=1)
         dtype = torch.get_default_dtype()
         # the hypotheses' values: sweep coordinates ('sweep') or shifts ('rectified')
@@ -240,15 +282,36 @@ class SweepStart(nn.Module):
         b, g, d, h, w = cost.shape
         a = self.architecture.channels
         # 2-D convolutions on every hypothesis at once: (B D, channels, h', w')
-        x = self.first(cost.transpose(1, 2).reshape(b * d, g, h, w)).view(b, d, a, h, w)
+        c = cost.transpose(1, 2).reshape(b * d, g, h, w)
         if isinstance(self.volume, RectifiedCostVolume):
             reference = self.volume.rectified_reference(features)
         else:
             reference = features[..., :self.volume.reference_width]
-        context = self.context(reference).unsqueeze(1)
-        x = F.relu(x + context).view(b * d, a, h, w)
-        x = F.relu(self.dilated(x))
-        return self.head(x).view(b, d, h, w) - (1.0 - self.volume.valid.to(x.dtype)) * MASKED
+        pooled = self.architecture.aggregation == "pooled"
+        if pooled:
+            c, reference = (F.avg_pool2d(t, 2, ceil_mode=True) for t in (c, reference))
+        x = self.first(c)
+        hh, ww = x.shape[-2:]
+        x = F.relu(x.view(b, d, a, hh, ww) + self.context(reference).unsqueeze(1)).view(b * d, a, hh, ww)
+        x = self._coarse(x)
+        x = self.head(F.relu(self.dilated(x)))
+        if pooled:  # the fine grid's own evidence: the groups' weighted sum (a 1 x 1 convolution)
+            fine = self.fine[0]
+            own = (cost * fine.weight.view(1, g, 1, 1, 1)).sum(1) + fine.bias
+            x = F.interpolate(x, size=(h, w), mode="bilinear", align_corners=False).view(b, d, h, w) + own
+        return x.view(b, d, h, w) - (1.0 - self.volume.valid.to(x.dtype)) * MASKED
+
+    def _coarse(self, x: torch.Tensor) -> torch.Tensor:
+        """The coarser levels of the aggregation (:attr:`StartArchitecture.levels`) on (B D, A, h, w) maps."""
+        finer = []
+        for conv in self.down:
+            finer.append(x)
+            x = F.relu(conv(F.avg_pool2d(x, 2, ceil_mode=True)))
+        for i, skip in enumerate(reversed(finer)):
+            x = skip + F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            if i < len(self.up):
+                x = F.relu(self.up[i](x))
+        return x
 
     def forward(self, image: torch.Tensor) -> StartEstimate:
         """The estimate of the normalised 2 x 2-binned capture ``image`` (B, 2, H/2, W/2) (step 4).

@@ -28,7 +28,7 @@ from prismstereo.errors import OptionError, ShapeError, check_int, check_shape
 from prismstereo.geometry.optics import check_rig_images, trace_pixels
 from prismstereo.geometry.rig import BiPrismRig
 from prismstereo.matching.aggregate import box_filter
-from prismstereo.runtime import sample_grid
+from prismstereo.runtime import sample_bilinear, sample_grid
 
 __all__ = ["RectifiedCostVolume"]
 
@@ -105,8 +105,7 @@ class RectifiedCostVolume(nn.Module):
 
     def rectified_reference(self, features: torch.Tensor) -> torch.Tensor:
         """(B, C, W_l, H_r) the reference half of ``features`` (B, C, h, W_b) rectified, transposed."""
-        grid = self.reference_grid.to(features).unsqueeze(0).expand(features.shape[0], -1, -1, -1)
-        return sample_grid(features[..., :self.reference_width], grid).transpose(-1, -2)
+        return _warp(features[..., :self.reference_width], self.reference_grid.to(features)).transpose(-1, -2)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         """The cost volume of ``features`` (B, C, h, W_b) of the whole capture at 1/scale.
@@ -123,8 +122,7 @@ class RectifiedCostVolume(nn.Module):
             raise ShapeError(f"features must be (B, C, {self.height}, {self.width}) with C a multiple of "
                              f"{self.groups}, got {tuple(features.shape)}")
         reference = self.rectified_reference(features)  # (B, C, W_l, H_r)
-        grid = self.other_grid.to(features).unsqueeze(0).expand(b, -1, -1, -1)
-        other = sample_grid(features, grid).transpose(-1, -2)  # (B, C, W_ol, H_r)
+        other = _warp(features, self.other_grid.to(features)).transpose(-1, -2)  # (B, C, W_ol, H_r)
         d, (w_l, h_r) = self.num_hypotheses, reference.shape[-2:]
         shifted = other.index_select(2, self.index).view(b, c, d, w_l, h_r)  # whole rows: a copy each
         product = (shifted * reference.unsqueeze(2)).view(b, self.groups, c // self.groups, d, w_l, h_r)
@@ -144,14 +142,14 @@ class RectifiedCostVolume(nn.Module):
         first extended over the rectified pixels without one from their 3 x 3 neighbours that have one, so that the
         reference rows between them and the image take only real values.
         """
-        grid = self.back_grid.to(maps).unsqueeze(0).expand(maps.shape[0], -1, -1, -1)
         if mode == "nearest":
+            grid = self.back_grid.to(maps).unsqueeze(0).expand(maps.shape[0], -1, -1, -1)
             return F.grid_sample(maps, grid, mode="nearest", padding_mode="border", align_corners=False)
         covered = self.rectified_covered.to(maps)
         weight = box_filter(covered, 3)
         filled = box_filter(maps * covered, 3) / weight.clamp_min(1e-6)
         maps = maps * covered + filled * (1.0 - covered)
-        return sample_grid(maps, grid)
+        return _warp(maps, self.back_grid.to(maps))
 
     def covered(self) -> torch.Tensor:
         """(1, 1, h, w_l) 1 where a reference level pixel's rectified neighbours have a valid hypothesis, else 0."""
@@ -174,3 +172,14 @@ class RectifiedCostVolume(nn.Module):
         column = cubic_at(cubic, cubic.u)[..., 0]  # (B, 1, H_r, W_l) full-sensor column
         shift = (column - self.columns.to(s)) / self.scale - self.shifts[0].to(s)
         return shift.transpose(-1, -2), known_r.transpose(-1, -2)
+
+
+def _warp(features: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
+    """``features`` (B, C, h, w) sampled bilinearly at the fixed ``grid`` (H', W', 2) (``grid_sample``'s normalised
+    positions, border padding): (B, C, H', W'). Exported, the taps are gathered
+    (:func:`~prismstereo.runtime.sample_bilinear`): onnxruntime's GridSample runs on one thread."""
+    h, w = features.shape[-2:]
+    x = ((grid[..., 0] + 1.0) * w - 1.0) / 2.0
+    y = ((grid[..., 1] + 1.0) * h - 1.0) / 2.0
+    b = features.shape[0]
+    return sample_bilinear(features, x.expand(b, 1, -1, -1), y.expand(b, 1, -1, -1))[:, :, 0]

@@ -107,7 +107,7 @@ def test_demo(tmp_path, capsys):
     for line in lines:  # the exact round trip is far below a micro-pixel
         assert float(line.split("max error")[1].split("px")[0]) < 1e-6
     errors = [ln for ln in out.splitlines() if "relative depth error mean" in ln]  # the hybrid, then the classical
-    assert len(errors) == 2 and "  hybrid: classical block level" in out
+    assert len(errors) == 2 and "  hybrid: learned first stage" in out
     assert out.split("  classical: ")[1].splitlines()[0].endswith("(the default on this sensor)")  # 256 x 192
     for line in errors:
         assert float(line.split("mean ")[1].split("%")[0]) < 1.0

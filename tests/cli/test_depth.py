@@ -357,7 +357,7 @@ def test_hybrid_model_from_the_cli(scene, tmp_path, capsys, backend):
     out = tmp_path / "far.npy"
     assert _run(scene, scene / "far.png", "--out", out, "--z-range", 400, 900, "--backend", backend, "--dense",
                 "--model", "hybrid") == 0
-    assert "hybrid: classical block level" in capsys.readouterr().out
+    assert "hybrid: learned first stage" in capsys.readouterr().out
     depth = np.load(out)
     assert depth.shape == (96, 64) and abs(np.nanmedian(depth) / FAR - 1) < 0.02
     assert np.isfinite(depth[:, 40:]).all()  # --dense: every pixel that sees through the prism

@@ -290,3 +290,17 @@ def test_binned_maps_pixels_exactly():
         torch.testing.assert_close(coarse.origins, full.origins)
     with pytest.raises(RigError, match="positive int"):
         rig.binned(0)
+
+
+def test_unbinned_is_the_finer_sensor_binning_undoes():
+    rig = thesis_setup1().downscaled(2).replace(principal_point=(250.0, 190.0))
+    for k in (2, 3):
+        fine = rig.unbinned(k)
+        assert (fine.image_width, fine.image_height) == (rig.image_width * k, rig.image_height * k)
+        assert fine.binned(k).principal_point == pytest.approx(rig.principal_point)
+        assert fine.binned(k).pixel_size_mm == pytest.approx(rig.pixel_size_mm)
+        ij = torch.tensor([[3.0, 5.0], [100.0, 40.0]], dtype=torch.float64)  # a pixel is the finer sensor's block
+        coarse, full = trace_pixels(rig, ij), trace_pixels(fine, ij * k + (k - 1) / 2)
+        torch.testing.assert_close(coarse.directions, full.directions)
+    with pytest.raises(RigError, match="positive int"):
+        rig.unbinned(1.5)

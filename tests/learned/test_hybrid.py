@@ -1,4 +1,4 @@
-"""HybridStereo: the classical block level refined by a learned 2-D stage; its data and trainer."""
+"""HybridStereo: a first stage (learned or classical) refined by learned 2-D stages; its data and trainer."""
 
 import math
 
@@ -15,6 +15,7 @@ from prismstereo.errors import OptionError, ShapeError
 from prismstereo.learned import HYBRID_WEIGHTS, HybridArchitecture, HybridStereo, WeightsError
 from prismstereo.learned.hybrid import (
     FILL_RADIUS,
+    HYBRID_BLOCK_WEIGHTS,
     VALID_CONFIDENCE,
     RefinementInputs,
     load_hybrid_weights,
@@ -96,8 +97,10 @@ def test_untrained_stage_keeps_the_classical_estimate(untrained, plane):
 
 
 @torch.no_grad()
-def test_uncovered_blocks_start_from_their_covered_neighbours(untrained, plane):
+def test_uncovered_blocks_start_from_their_covered_neighbours(rig, plane):
     # the classical level leaves a margin at the sensor's edges; those blocks start near the truth, not at s = 0
+    torch.manual_seed(0)
+    untrained = HybridStereo(rig, Z, weights=None, architecture=HybridArchitecture(start="classical")).eval()
     inputs = untrained.initial(plane.image)
     w, k = untrained.rig.reference_width, 2 * untrained.binning  # the classical grid's bins
     truth = truth_sweep(torch.nn.functional.avg_pool2d(plane.depth[..., :w].double(), k), untrained.z_range)
@@ -121,11 +124,17 @@ def test_architecture_and_option_errors(rig):
     with pytest.raises(OptionError, match="a hybrid needs a refinement stage"):
         HybridArchitecture(iterations=0, quarter=0)
     with pytest.raises(OptionError, match="quarter stages need block 4"):
-        HybridArchitecture(block=2, quarter=1)
+        HybridArchitecture(block=2, quarter=1, start="classical")
     with pytest.raises(OptionError, match="rig must be a BiPrismRig"):
         HybridStereo("setup1", Z, weights=None)
     with pytest.raises(OptionError, match="not divisible by block 4"):
+        HybridStereo(rig.replace(image_width=510, principal_point=(254.5, 191.5)), Z, weights=None,
+                     architecture=HybridArchitecture(start="classical"))
+    with pytest.raises(OptionError, match="not divisible by the first stage's cells 4"):
         HybridStereo(rig.replace(image_width=510, principal_point=(254.5, 191.5)), Z, weights=None)
+    big = thesis_setup1().replace(image_width=1028, principal_point=(513.5, 383.5))  # 4 divides, 8 does not
+    with pytest.raises(OptionError, match="not divisible by the first stage's cells 8"):
+        HybridStereo(big, Z, weights=None)
 
 
 def test_shape_errors(untrained, rig):
@@ -163,11 +172,15 @@ def test_weights_round_trip_and_errors(tmp_path, rig, untrained):
         load_hybrid_weights(tmp_path / "other.pt")
 
 
-def test_shipped_weights_load_and_keep_a_textured_plane(rig, plane):
-    arch, state, meta = load_hybrid_weights(HYBRID_WEIGHTS)
-    assert HYBRID_WEIGHTS.stat().st_size < 200_000 and meta["steps"] >= 1 and "variants" in meta
+@pytest.mark.parametrize("path, start", [(HYBRID_WEIGHTS, "learned"), (HYBRID_BLOCK_WEIGHTS, "classical")],
+                         ids=["default", "block"])
+def test_shipped_weights_load_and_keep_a_textured_plane(rig, plane, path, start):
+    arch, state, meta = load_hybrid_weights(path)
+    assert path.stat().st_size < 200_000 and meta["steps"] >= 1 and "variants" in meta
     assert 0.5 <= meta["valid_confidence"] < 1.0  # calibrated on the training captures
-    model = HybridStereo(rig, Z).eval()
+    assert arch.start == start and ("start_architecture" in meta) == (start == "learned")
+    model = HybridStereo(rig, Z, weights=path).eval()
+    assert model.rescored and (model.start is None) == (start == "classical")
     with torch.inference_mode():
         out, classical = model(plane.image), model.classical(plane.image)
     w = rig.reference_width

@@ -1,6 +1,7 @@
 """SweepStart: learned features correlated along the exact sweep at 1/8, aggregated by 2-D convolutions; its trainer."""
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
@@ -33,10 +34,13 @@ def rig():
     return thesis_setup1().downscaled(4)  # 256 x 192
 
 
-@pytest.fixture(scope="module", params=["rectified", "sweep"])
+@pytest.fixture(scope="module", params=[("rectified", 0, "fine"), ("sweep", 0, "fine"), ("rectified", 2, "pooled")],
+                ids=["rectified", "sweep", "rectified-pooled-levels"])
 def start(rig, request):
     torch.manual_seed(0)
-    return SweepStart(rig, Z, architecture=StartArchitecture(sampling=request.param)).eval()
+    sampling, levels, aggregation = request.param
+    return SweepStart(rig, Z, architecture=StartArchitecture(sampling=sampling, levels=levels,
+                                                             aggregation=aggregation)).eval()
 
 
 def _binned(rig, image):
@@ -77,6 +81,10 @@ def test_bad_options(rig, start):
         StartArchitecture(features=10, groups=4)
     with pytest.raises(OptionError, match=r"window must be an int in \[1, 8\]"):
         StartArchitecture(window=0)
+    with pytest.raises(OptionError, match=r"levels must be an int in \[0, 4\]"):
+        StartArchitecture(levels=5)
+    with pytest.raises(OptionError, match="Unknown aggregation 'coarse'. Choose from: fine, pooled"):
+        StartArchitecture(aggregation="coarse")
     with pytest.raises(OptionError, match="Unknown sampling 'grid'. Choose from: sweep, rectified"):
         StartArchitecture(sampling="grid")
     with pytest.raises(OptionError, match="not divisible by 8"):
@@ -113,6 +121,30 @@ def test_weights_round_trip_and_run_on_other_sensors(rig, start, tmp_path):
             assert out.s.shape[-2:] == (r.image_height // 8, r.binned(8).reference_width)
     with pytest.raises(WeightsError, match="do not fit"):
         SweepStart(rig, Z, architecture=StartArchitecture(channels=2)).load_weights(start.weights())
+    levels = 1 if start.architecture.levels != 1 else 2  # coarse layers the weights lack, or hold and may not
+    with pytest.raises(WeightsError, match="do not fit"):
+        SweepStart(rig, Z, architecture=dataclasses.replace(start.architecture, levels=levels)).load_weights(
+            start.weights())
+
+
+def test_coarse_levels_see_farther():
+    """A score on the finest grid depends on the capture farther away with the coarse levels, and farther still when
+    the aggregation works on the pooled grid (rows of the 512 x 384 sensor's centre cell; its columns see it all)."""
+    rig = thesis_setup1().downscaled(2)
+    reach = {}
+    for levels, aggregation in ((0, "fine"), (2, "fine"), (2, "pooled")):
+        torch.manual_seed(0)
+        model = SweepStart(rig, Z, architecture=StartArchitecture(levels=levels, aggregation=aggregation))
+        image = torch.randn(1, 2, 192, 256, requires_grad=True)
+        with torch.no_grad():
+            for p in model.parameters():  # positive weights: no dead units, every path carries a gradient
+                p.copy_(p.abs() + 0.01)
+        scores = model.scores(image)
+        scores[0, :, scores.shape[2] // 2, scores.shape[3] // 2].sum().backward()
+        rows = (image.grad.abs().sum((0, 1)) > 0).any(1).nonzero().flatten()
+        reach[levels, aggregation] = int(rows.max() - rows.min())
+    assert reach[2, "fine"] > 1.5 * reach[0, "fine"]
+    assert reach[2, "pooled"] > reach[2, "fine"]
 
 
 def test_onnxruntime_matches_torch(start, tmp_path):
@@ -145,9 +177,10 @@ def test_onnxruntime_matches_torch(start, tmp_path):
     if start.architecture.sampling == "rectified":
         clear = start.volume.back(clear.transpose(-1, -2), "nearest") > 0.5  # rectified grid -> reference grid
     clear = clear.bool() & (out.covered > 0)
-    assert clear.double().mean() > 0.7
+    assert clear.double().mean() > 0.5  # the pooled scores carried back to 1/8 tie more often
     np.testing.assert_allclose(s[clear.numpy()], out.s[clear].numpy(), atol=1e-3)  # a hundredth of a step
-    np.testing.assert_allclose(confidence[clear.numpy()], out.confidence[clear].numpy(), atol=1e-4)
+    # the coarse levels' convolutions add float32 rounding to the scores: 1e-4 of the probability mass on a pixel
+    np.testing.assert_allclose(confidence[clear.numpy()], out.confidence[clear].numpy(), atol=5e-4)
 
 
 @pytest.fixture(scope="module")
@@ -236,9 +269,12 @@ def test_hybrid_refines_the_learned_start(rig, tmp_path):
     image = torch.rand(1, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(2))
     with torch.no_grad():
         inputs = model.initial(image)
-        out = model.start(normalise_image(torch.nn.functional.avg_pool2d(image, 2)))
-        carried = upsample(out.s, 4 // model.binning, tuple(inputs.s.shape[-2:]), mode="bilinear")
-    assert torch.allclose(inputs.s, carried)  # from 8 x 8 bins to the classical grid's 2 b x 2 b
+        # a small sensor: the stages at full resolution, the first stage on the capture as the 2 x 2-binned capture
+        # of a sensor twice as fine, so on 4 x 4 cells; carried to the classical grid's 2 x 2 bins
+        assert model.binning == 1 and model.start.rig == rig.unbinned(2)
+        out = model.start(normalise_image(image))
+        carried = upsample(out.s, 2, tuple(inputs.s.shape[-2:]), mode="bilinear")
+    assert torch.allclose(inputs.s, carried)
     k = 2 * model.binning
     assert inputs.s.shape[-2:] == (rig.image_height // k, rig.binned(k).reference_width)
     # the exported graph runs the first stage too (a textured capture: the shipped start's picks are clear)
@@ -260,3 +296,28 @@ def test_hybrid_refines_the_learned_start(rig, tmp_path):
         assert again.architecture.start == "learned"
         assert not torch.equal(again.start.head.bias, model.start.head.bias)
         assert torch.allclose(again.initial(image).s, inputs.s)
+
+
+def test_hybrid_weights_carry_their_first_stage_architecture(rig, tmp_path):
+    """A hybrid trained on a first stage of another architecture than the shipped one loads that one."""
+    from prismstereo.learned import HybridArchitecture, HybridStereo
+    from prismstereo.learned.hybrid import HYBRID_FORMAT
+    from prismstereo.learned.weights import read_weights, write_weights
+
+    torch.manual_seed(0)
+    model = HybridStereo(rig, Z, weights=None, architecture=HybridArchitecture(start="learned")).eval()
+    other = StartArchitecture(levels=1, channels=8)
+    assert other != model.start.architecture
+    model.start = SweepStart(model.start.rig, Z, architecture=other).eval()
+    path = model.save(tmp_path / "hybrid.pt")
+    arch, state, metadata = read_weights(path, HYBRID_FORMAT, HybridArchitecture, "HybridStereo")
+    assert metadata["start_architecture"] == dataclasses.asdict(other)
+    again = HybridStereo(rig, Z, weights=path).eval()
+    assert again.start.architecture == other
+    image = torch.rand(1, 1, rig.image_height, rig.image_width, generator=torch.Generator().manual_seed(2))
+    with torch.no_grad():
+        assert torch.equal(again.initial(image).s, model.initial(image).s)
+    metadata["start_architecture"] = {"levels": 9}
+    write_weights(tmp_path / "bad.pt", HYBRID_FORMAT, arch, state, metadata)
+    with pytest.raises(WeightsError, match="invalid first stage architecture"):
+        HybridStereo(rig, Z, weights=tmp_path / "bad.pt")
