@@ -40,6 +40,7 @@ from prismstereo import thesis_setup1  # noqa: E402
 from prismstereo.conventions import to_grey  # noqa: E402
 from prismstereo.depth.resample import upsample  # noqa: E402
 from prismstereo.learned import HybridStereo  # noqa: E402
+from prismstereo.learned.hybrid import HYBRID_BLOCK_WEIGHTS  # noqa: E402
 from prismstereo.learned.hybrid_data import truth_sweep  # noqa: E402
 from prismstereo.learned.network import normalise_image  # noqa: E402
 from prismstereo.learned.start_train import block_truth  # noqa: E402
@@ -81,7 +82,7 @@ def main() -> None:
     rig = thesis_setup1()
     caps = captures(rig, CACHE)
     caps["Motorcycle 450-900 mm"] = more_captures(rig, CACHE)["Motorcycle 450-900 mm"][1]
-    hybrid = HybridStereo(rig, Z_RANGE).eval()
+    hybrid = HybridStereo(rig, Z_RANGE, weights=HYBRID_BLOCK_WEIGHTS).eval()  # starts from the block level
     start = load_start(rig, Z_RANGE, args.weights).eval()
     graph = StartGraph(start).eval()
     step = hybrid.quarter_step
