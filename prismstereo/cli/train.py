@@ -12,22 +12,22 @@ Contract::
     prismstereo train --model head --out WEIGHTS.pt [--weights HYBRID.pt] [--steps N] [--seed S] [--cache DIR]
         [--batch-size B] [--captures N] [--quiet]
 
-``--model learned`` (the default) renders ``--captures`` random scenes through the rig binned by ``--downscale``
-(kept in ``--cache``), trains :class:`~prismstereo.learned.LearnedStereo` (:func:`~prismstereo.learned.train.train`)
-and writes ``--out``. ``--model hybrid`` renders ``--captures`` scenes through each of the training rig variants
+``--model learned`` (the default) renders ``--captures`` random scenes through the rig binned by ``--downscale`` (kept
+in ``--cache``), trains :class:`~prismstereo.learned.LearnedStereo` (:func:`~prismstereo.learned.train.train`) and
+writes ``--out``. ``--model hybrid`` renders ``--captures`` scenes through each of the training rig variants
 (:func:`~prismstereo.learned.hybrid_data.training_rigs`), trains the refinement of
 :class:`~prismstereo.learned.hybrid.HybridStereo` (:func:`~prismstereo.learned.hybrid_train.train_hybrid`), then its
 exact chain's confidence head (:func:`~prismstereo.learned.confidence_train.train_exact_confidence`, on those renders
 and two 512 x 384 sensors') and writes ``--out``; the refinement keeps a checkpoint beside ``--out`` and the same
-command resumes from it; ``--start learned`` refines the learned first stage's estimate instead of the classical block
-level's. ``--model head`` trains only that confidence head, of the hybrid weights ``--weights`` (default: the
-shipped ones), and writes them with it to ``--out``. ``--model start`` trains that first stage
-(:func:`~prismstereo.learned.start_train.train_start`) on the same renders, resumable too. The shipped default weights
-are only replaced when ``--out`` names them. Prints the loss at the start and end and the time. Errors exit with
-status 2 and a message: an unknown preset or bad rig file, an output that is not a ``.pt`` file, a bad range or
-count, a missing ``--rig`` for the learned model, ``--rig`` / ``--z-range`` / ``--downscale`` / ``--hypotheses``
-with the hybrid, the head or the start, ``--start`` with another model than the hybrid, ``--weights`` with another
-model than the head.
+command resumes from it; the refinement starts from the shipped learned first stage's estimates (``--start learned``,
+the default) or from the classical block level's (``--start classical``). ``--model head`` trains only that confidence
+head, of the hybrid weights ``--weights`` (default: the shipped ones), and writes them with it to ``--out``. ``--model
+start`` trains that first stage (:func:`~prismstereo.learned.start_train.train_start`) on the same renders, resumable
+too. The shipped default weights are only replaced when ``--out`` names them. Prints the loss at the start and end and
+the time. Errors exit with status 2 and a message: an unknown preset or bad rig file, an output that is not a ``.pt``
+file, a bad range or count, a missing ``--rig`` for the learned model, ``--rig`` / ``--z-range`` / ``--downscale`` /
+``--hypotheses`` with the hybrid, the head or the start, ``--start`` with another model than the hybrid, ``--weights``
+with another model than the head.
 """
 
 from __future__ import annotations

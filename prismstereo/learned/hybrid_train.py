@@ -38,10 +38,12 @@ __all__ = ["VALID_BAD", "correct_depth", "hybrid_loss", "train_hybrid", "validit
 
 VALID_BAD = 0.03  # the share of wrong depths the calibrated validity threshold allows on the training captures
 
-# The shipped weights/hybrid.pt (7 rig variants x 24 captures, 6000 steps, one torch thread; its time: metadata; the
+# The shipped weights/hybrid.pt (7 rig variants x 24 captures, 6000 steps, two torch threads, on the estimates of the
+# shipped weights/start.pt, trained first by the command in prismstereo.learned.start_train; its time: metadata; the
 # command then trains the confidence head, prismstereo.learned.confidence_train):
-#   OMP_NUM_THREADS=1 .venv/bin/prismstereo train --model hybrid --cache .cache/hybrid \
-#       --out prismstereo/learned/weights/hybrid.pt
+#   .venv/bin/prismstereo train --model hybrid --cache .cache/hybrid --out prismstereo/learned/weights/hybrid.pt
+# weights/hybrid_block.pt (the stages for the classical block start) came from the same command with one torch thread
+# (OMP_NUM_THREADS=1) and --start classical, before the learned start was the default.
 
 
 def hybrid_loss(model: HybridStereo, inputs: RefinementInputs, truth: torch.Tensor, known: torch.Tensor,
