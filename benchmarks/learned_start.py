@@ -7,9 +7,10 @@ and Venus and scikit-image's Motorcycle as height fields 450-900 mm away, and a 
 On the 4 x 4-binned grid where :class:`~prismstereo.learned.HybridStereo`'s first refinement stage works, per capture:
 the share of the co-visible blocks with a reliable truth (all 16 pixels co-visible, their true sweep coordinates
 within half a step of that grid) whose start is within 1, 2 (the refinement's cost curve: offsets +- 2) and 4 steps of
-the truth, for ``block`` (the classical level the hybrid starts from: block mode on 4 x 4 bins, its estimate extended
-over uncovered blocks as the hybrid does) and ``learned`` (:class:`~prismstereo.learned.sweep_start.SweepStart` on 8 x
-8 bins, carried to the 4 x 4 grid bilinearly, block centres kept). Then each one's exported graph in onnxruntime
+the truth, for ``block`` (the classical level a hybrid with ``start='classical'`` starts from, the shipped
+``HYBRID_BLOCK_WEIGHTS``: block mode on 4 x 4 bins, its estimate extended over uncovered blocks as the hybrid does) and
+``learned`` (:class:`~prismstereo.learned.sweep_start.SweepStart`, the default start: on 8 x 8 bins, carried to the
+4 x 4 grid bilinearly, block centres kept). Then each one's exported graph in onnxruntime
 (2 intra-op threads) against StereoSGBM in interleaved rounds (``benchmarks/_timing.py``).
 
 Run: .venv/bin/python benchmarks/learned_start.py [--weights FILE] [--rounds 9]
