@@ -118,9 +118,9 @@ def load_head(state: dict[str, torch.Tensor]) -> ConfidenceHead | None:
         >>> load_head({f"head.{k}": v for k, v in ConfidenceHead(channels=4).state_dict().items()}).out.in_channels
         4
     """
-    from prismstereo.learned.weights import WeightsError
+    from prismstereo.learned.weights import WeightsError, state_part
 
-    part = {k[len("head."):]: v for k, v in state.items() if k.startswith("head.")}
+    part = state_part(state, "head")
     if not part:
         return None
     try:

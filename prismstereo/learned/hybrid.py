@@ -63,7 +63,7 @@ from prismstereo.learned.exact_stage import EXACT_BAND, ExactStage
 from prismstereo.learned.network import normalise_image
 from prismstereo.learned.refinement import HybridArchitecture, RefinementCNN, RefinementInputs, classical_config
 from prismstereo.learned.sweep_start import StartArchitecture, SweepStart, load_start
-from prismstereo.learned.weights import WeightsError, read_weights, write_weights
+from prismstereo.learned.weights import WeightsError, read_weights, state_part, write_weights
 from prismstereo.matching.aggregate import box_filter
 from prismstereo.matching.band import extend_estimate
 from prismstereo.matching.sweep_sampler import block_centres
@@ -172,12 +172,12 @@ class HybridStereo(nn.Module):
                           else SweepStart(start_rig, z, architecture=StartArchitecture.recorded(held)))
         if state is not None:
             try:
-                self.stages.load_state_dict({k[5:]: v for k, v in state.items() if k.startswith("half.")})
-                self.quarter_stages.load_state_dict({k[8:]: v for k, v in state.items() if k.startswith("quarter.")})
+                self.stages.load_state_dict(state_part(state, "half"))
+                self.quarter_stages.load_state_dict(state_part(state, "quarter"))
             except RuntimeError as exc:
                 raise WeightsError(f"weights do not fit the architecture {arch}: {exc}") from exc
-            if self.start is not None and any(k.startswith("start.") for k in state):
-                self.start.load_weights({k[6:]: v for k, v in state.items() if k.startswith("start.")})
+            if self.start is not None and (start := state_part(state, "start")):
+                self.start.load_weights(start)
         self.head: ConfidenceHead | None = None if state is None else load_head(state)
         self.rig = rig
         self.half = half = rig.binned(b)

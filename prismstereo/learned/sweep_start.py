@@ -236,12 +236,11 @@ class SweepStart(nn.Module):
         Raises:
             WeightsError: tensors that do not fit the architecture.
         """
-        from prismstereo.learned.weights import WeightsError
+        from prismstereo.learned.weights import WeightsError, state_part
 
         for name in LEARNED:
-            part = {k[len(name) + 1:]: v for k, v in state.items() if k.startswith(f"{name}.")}
             try:
-                getattr(self, name).load_state_dict(part)
+                getattr(self, name).load_state_dict(state_part(state, name))
             except RuntimeError as exc:
                 raise WeightsError(f"weights do not fit the architecture {self.architecture}: {exc}") from exc
 

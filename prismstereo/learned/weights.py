@@ -13,7 +13,7 @@ import torch
 
 from prismstereo.errors import PrismStereoError
 
-__all__ = ["WeightsError", "read_weights", "write_weights"]
+__all__ = ["WeightsError", "read_weights", "state_part", "write_weights"]
 
 
 class WeightsError(PrismStereoError, ValueError):
@@ -69,3 +69,15 @@ def read_weights(path: str | Path, fmt: str, architecture: type, model: str) -> 
     except (TypeError, PrismStereoError) as exc:
         raise WeightsError(f"{path} holds an invalid architecture {blob.get('architecture')!r}: {exc}") from exc
     return arch, blob["state_dict"], dict(blob.get("metadata", {}))
+
+
+def state_part(state: dict[str, torch.Tensor], name: str) -> dict[str, torch.Tensor]:
+    """The entries of a weights file's ``state`` that belong to its module ``name`` (keys ``name.*``), with that
+    prefix removed: what the module's ``load_state_dict`` takes (a file holds several modules' tensors).
+
+    Example:
+        >>> state_part({"head.out.bias": torch.zeros(1), "half.0.head.bias": torch.ones(2)}, "head")
+        {'out.bias': tensor([0.])}
+    """
+    prefix = f"{name}."
+    return {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
