@@ -96,10 +96,11 @@ def default_kind(rig: BiPrismRig) -> Literal["hybrid", "classical"]:
         >>> [default_kind(thesis_setup1().downscaled(k)) for k in (1, 2, 4)]
         ['hybrid', 'hybrid', 'classical']
     """
-    side = min(rig.image_height, rig.reference_width)
-    cell = 8 if side >= 384 else 4  # the stages' binning is classical.defaults.default_downsample's
+    from prismstereo.classical.defaults import default_downsample  # the hybrid's stages' binning b
+
+    cell = 4 * default_downsample(rig)
     cells = rig.image_width % cell == 0 and rig.image_height % cell == 0
-    return "hybrid" if cells and side >= HYBRID_MIN_SIDE else "classical"
+    return "hybrid" if cells and min(rig.image_height, rig.reference_width) >= HYBRID_MIN_SIDE else "classical"
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
